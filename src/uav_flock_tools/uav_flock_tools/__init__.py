@@ -1,0 +1,1 @@
+"""Command-line tools of uav-flock: simulation runs, paper figures, plots."""

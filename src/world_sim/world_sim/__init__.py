@@ -1,0 +1,1 @@
+"""The physical world of uav-flock: MAP dynamics, ground users, association, metrics, and the batch simulator."""

@@ -1,0 +1,16 @@
+"""Shared fixtures: every test that touches DDS gets its own ROS_DOMAIN_ID, so runs never cross-talk."""
+from __future__ import annotations
+
+import os
+import random
+
+import pytest
+
+
+@pytest.fixture
+def ros_env(monkeypatch: pytest.MonkeyPatch) -> dict[str, str]:
+    """Environment for ROS processes of one test: a fresh domain, discovery kept on this host."""
+    domain = str(random.Random(os.getpid() ^ random.getrandbits(32)).randint(1, 101))
+    monkeypatch.setenv('ROS_DOMAIN_ID', domain)
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    return dict(os.environ)
