@@ -1,0 +1,1 @@
+"""Per-MAP mathematics of the paper, free of ROS: the node and the batch simulator both call these."""

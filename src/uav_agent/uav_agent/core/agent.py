@@ -1,0 +1,36 @@
+"""One MAP's whole step, as its node runs it: neighbours' messages and own sensing in, u_i and memory out."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .control import control_input
+from .modes import ClusterMap, Memory, decide, reference
+from .params import FlockParams
+
+
+@dataclass
+class Neighbourhood:
+    """Neighbours' latest states, rows in ascending MAP id (the order the batch simulator sums in)."""
+
+    q: np.ndarray          # (n, 3) positions (m)
+    p: np.ndarray          # (n, 3) velocities (m/s)
+    n_users: np.ndarray    # (n,) N_u^j
+    achieved: list[int]    # achieved-goal masks
+
+    @classmethod
+    def empty(cls) -> 'Neighbourhood':
+        return cls(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), [])
+
+
+def agent_step(mem: Memory, q: np.ndarray, p_vel: np.ndarray, n_users: int, cluster_coverage: np.ndarray,
+               nbrs: Neighbourhood, clusters: ClusterMap, params: FlockParams) -> tuple[np.ndarray, Memory]:
+    """Algorithm 1 lines 3-6 for one MAP: gossip, mode switch (Alg. 2), control input (eq. 9)."""
+    mem = decide(mem, n_users, cluster_coverage, q, nbrs.achieved, clusters, params)
+    target, q1, q2, mode = reference(mem, clusters)
+    owner = np.zeros(len(nbrs.q), dtype=np.intp)
+    u = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([mode]),
+                      target[None, :], q1[None, :], q2[None, :], owner, nbrs.q, nbrs.p,
+                      np.asarray(nbrs.n_users, dtype=float), params)
+    return u[0], mem

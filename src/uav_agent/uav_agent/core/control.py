@@ -1,0 +1,86 @@
+"""The control input u_i = f_i + g_i + h_i of eq. 9, for a batch of MAPs at once.
+
+Every function takes the MAPs it computes for ("own", m rows) and their neighbour links ("edges", one row
+per ordered pair i -> j, grouped by owner in ascending neighbour id). A MAP's node calls them with m = 1,
+the batch simulator with all MAPs; both sum the edges with the same sequential reduction, so the two give
+bit-identical results for the same inputs.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .params import FlockParams
+from .potentials import F64, action, bump, sigma_abs, sigma_grad, sigma_norm
+
+M0, M1, M2 = 0, 1, 2  # dynamic, connectivity, static (Section IV-A)
+
+
+def sum_edges(values: F64, owner: NDArray[np.intp], m: int) -> F64:
+    """Sum per-edge 3-vectors into their owners, sequentially in edge order (deterministic)."""
+    out = np.zeros((m, values.shape[1]))
+    for axis in range(values.shape[1]):
+        out[:, axis] = np.bincount(owner, weights=values[:, axis], minlength=m)
+    return out
+
+
+def overload_weight(n_users: F64, p: FlockParams) -> F64:
+    """1 - alpha_{0,1}(||(N_u - N_max)^+||_sigma / ||N_max||_sigma): grows as a MAP exceeds N_max (eq. 10)."""
+    excess = np.maximum(np.asarray(n_users, dtype=float) - p.n_max, 0.0)
+    return 1.0 - bump(sigma_abs(excess, p.epsilon) / sigma_abs(p.n_max, p.epsilon), 0.0, 1.0)
+
+
+def spare_weight(n_users: F64, p: FlockParams) -> F64:
+    """1 - alpha_{0,1}(||(N_max - N_u)^+||_sigma / ||N_max||_sigma): velocity-consensus weight of g_i.
+
+    A MAP with no users matches its neighbours fully; one at capacity stops matching and holds its users.
+    """
+    spare = np.maximum(p.n_max - np.asarray(n_users, dtype=float), 0.0)
+    return 1.0 - bump(sigma_abs(spare, p.epsilon) / sigma_abs(p.n_max, p.epsilon), 0.0, 1.0)
+
+
+def flocking_terms(own_q: F64, own_p: F64, own_nu: F64, owner: NDArray[np.intp],
+                   nbr_q: F64, nbr_p: F64, nbr_nu: F64, p: FlockParams) -> F64:
+    """f_i + g_i (eq. 10 and the consensus term) for every own MAP from its neighbours' q, p, N_u."""
+    m = own_q.shape[0]
+    if owner.size == 0:
+        return np.zeros((m, 3))
+    dq = nbr_q - own_q[owner]
+    z = sigma_norm(dq, p.epsilon)
+    gain = action(z, p.d, p.r, p.epsilon, p.a, p.b, p.gamma) + p.a * overload_weight(nbr_nu, p)
+    f_edges = gain[:, None] * sigma_grad(dq, p.epsilon)
+    g_edges = spare_weight(own_nu[owner], p)[:, None] * (nbr_p - own_p[owner])
+    return sum_edges(f_edges + g_edges, owner, m)
+
+
+def goal_term(q: F64, p_vel: F64, q_ref: F64, p: FlockParams) -> F64:
+    """h_i for M0 and M2, eq. 12: a spring to the goal q^r with damping to its (zero) velocity."""
+    return p.c1 * (q_ref - q) + p.c2 * (0.0 - p_vel)
+
+
+def bridge_term(q: F64, p_vel: F64, q1: F64, q2: F64, p: FlockParams) -> F64:
+    """h_i for M1, eq. 13: descend E_c toward the segment q1-q2, damped toward the clusters' zero velocity."""
+    d1, d2 = q1 - q, q2 - q
+    pull = (p.k * d1 / (1.0 + p.epsilon * sigma_norm(d1, p.epsilon))[..., None]
+            + p.k * d2 / (1.0 + p.epsilon * sigma_norm(d2, p.epsilon))[..., None])
+    return pull + 0.5 * p.c2 * (0.0 - p_vel) + 0.5 * p.c2 * (0.0 - p_vel)
+
+
+def connectivity_potential(q: F64, q1: F64, q2: F64, p: FlockParams) -> F64:
+    """E_c of eq. 6: zero at the segment's ends, nearly flat along it and rising away from it."""
+    return p.k * (sigma_norm(q1 - q, p.epsilon) + sigma_norm(q2 - q, p.epsilon) - sigma_norm(q1 - q2, p.epsilon))
+
+
+def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer], target: F64,
+                  bridge_a: F64, bridge_b: F64, owner: NDArray[np.intp], nbr_q: F64, nbr_p: F64,
+                  nbr_nu: F64, p: FlockParams) -> F64:
+    """u_i of eq. 9 for every own MAP: flocking terms plus the goal term its mode selects.
+
+    target is q^r for M0/M2 rows; bridge_a/bridge_b are q_1^r/q_2^r for M1 rows (ignored elsewhere).
+    """
+    u = flocking_terms(own_q, own_p, own_nu, owner, nbr_q, nbr_p, nbr_nu, p)
+    bridging = np.asarray(mode) == M1
+    h = goal_term(own_q, own_p, target, p)
+    if np.any(bridging):
+        h[bridging] = bridge_term(own_q[bridging], own_p[bridging], bridge_a[bridging], bridge_b[bridging], p)
+    return u + h

@@ -1,0 +1,49 @@
+"""Parameters of the control law and mode switch (paper Section V), plus the choices the paper leaves open."""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Any
+
+# Names of the choices where the paper is ambiguous, with their allowed values; docs/choices.md explains them.
+POLICY_VALUES: dict[str, tuple[str, ...]] = {
+    'zero_users': ('move_on', 'static'),
+    'm1_pending': ('hold', 'lead'),
+    'm0_exhausted': ('bridge', 'serve'),
+    'edge_choice': ('nearest', 'keep_nearest'),
+}
+
+
+@dataclass(frozen=True)
+class FlockParams:
+    """Everything one MAP needs to compute u_i and its mode. Units: m, s, users."""
+
+    d: float = 20.0            # desired inter-MAP distance (m), eq. 11
+    r: float = 24.0            # communication range (m), eq. 1 neighbours
+    epsilon: float = 0.1       # sigma-norm parameter, eq. 7
+    a: float = 5.0             # phi gain / overload gain, eq. 10-11
+    b: float = 5.0             # phi gain, eq. 11
+    gamma: float = 0.2         # bump cut-off of Phi, alpha_{gamma,1} in eq. 11 (paper silent)
+    n_max: float = 80.0        # serving capacity N_max, eq. 10 and g
+    c1: float = 0.3            # goal position gain, eq. 12
+    c2: float = 0.6            # goal velocity gain, eq. 12-13
+    k: float = 10.0            # connectivity potential gain, eq. 6 and 13
+    r0: float = 0.95           # goal coverage threshold, Algorithm 2
+    n0: int = 3                # serving threshold to M1, Algorithm 2
+    n1: int = 10               # serving threshold to M2, Algorithm 2
+    height: float = 20.0       # flight altitude H (m)
+    zero_users: str = 'move_on'
+    m1_pending: str = 'hold'
+    m0_exhausted: str = 'bridge'
+    edge_choice: str = 'keep_nearest'
+
+    @classmethod
+    def from_mapping(cls, values: dict[str, Any]) -> 'FlockParams':
+        """Build from a dict, ignoring nothing: unknown names are an error the caller reports."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise KeyError(unknown[0])
+        return cls(**values)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}

@@ -1,0 +1,200 @@
+"""Scenarios: every parameter of a run in one YAML file, checked before anything starts."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from uav_agent.core.params import POLICY_VALUES, FlockParams
+
+
+class ScenarioError(ValueError):
+    """A scenario that cannot run; the message names the offending key."""
+
+
+@dataclass(frozen=True)
+class Cluster:
+    center: tuple[float, float]   # centroid of the Gaussian (m)
+    spread: float                 # standard deviation per axis (m)
+    size: int                     # number of MSDs
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    seed: int
+    maps: int
+    duration: float                     # simulated time (s)
+    dt: float                           # step (s)
+    flock: FlockParams
+    clusters: tuple[Cluster, ...]
+    release_center: tuple[float, float]  # centre of the uniform release square (m)
+    release_half_width: float            # half side of that square (m)
+    initial_speed: float                 # initial velocity uniform in [-s, s]^2 (m/s)
+    rho: float = 1.0                     # transmit power (W), eq. 2
+    eta: float = 3.5                     # path-loss exponent, eq. 2
+    association: str = '3d'              # MSD-MAP range: '3d' (||y - q|| <= r) or 'horizontal'
+    fail_at: float | None = None         # time of the random failure (s)
+    fail_fraction: float = 0.0           # fraction of MAPs that fail then
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def steps(self) -> int:
+        return int(round(self.duration / self.dt))
+
+    def with_overrides(self, **kw: Any) -> 'Scenario':
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        values.update({k: v for k, v in kw.items() if v is not None})
+        out = Scenario(**values)
+        _check(out)
+        return out
+
+
+_TOP = {'name', 'seed', 'maps', 'duration', 'dt', 'flock', 'policies', 'radio', 'release', 'users', 'failure'}
+_RADIO = {'rho', 'eta', 'association'}
+_RELEASE = {'center', 'half_width', 'initial_speed'}
+_CLUSTER = {'center', 'spread', 'size'}
+_FAILURE = {'at', 'fraction'}
+
+
+def _num(where: str, value: Any, *, positive: bool = True, allow_zero: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ScenarioError(f'{where}: expected a number, got {value!r}')
+    v = float(value)
+    if math.isnan(v) or math.isinf(v):
+        raise ScenarioError(f'{where}: must be finite, got {value!r}')
+    if positive and (v < 0 or (v == 0 and not allow_zero)):
+        raise ScenarioError(f'{where}: must be {"non-negative" if allow_zero else "positive"}, got {value!r}')
+    return v
+
+
+def _int(where: str, value: Any, *, minimum: int = 1) -> int:
+    v = _num(where, value, positive=False)
+    if v != int(v) or v < minimum:
+        raise ScenarioError(f'{where}: must be an integer >= {minimum}, got {value!r}')
+    return int(v)
+
+
+def _section(doc: dict[str, Any], key: str, allowed: set[str], required: bool = True) -> dict[str, Any]:
+    if key not in doc:
+        if required:
+            raise ScenarioError(f'{key}: missing')
+        return {}
+    sec = doc[key]
+    if not isinstance(sec, dict):
+        raise ScenarioError(f'{key}: expected a mapping')
+    unknown = sorted(set(sec) - allowed)
+    if unknown:
+        raise ScenarioError(f'{key}.{unknown[0]}: unknown key')
+    return sec
+
+
+def _need(sec: dict[str, Any], where: str, key: str) -> Any:
+    if key not in sec or sec[key] is None:
+        raise ScenarioError(f'{where}.{key}: missing' if where else f'{key}: missing')
+    return sec[key]
+
+
+def _pair(where: str, value: Any) -> tuple[float, float]:
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise ScenarioError(f'{where}: expected [x, y], got {value!r}')
+    return (_num(f'{where}[0]', value[0], positive=False), _num(f'{where}[1]', value[1], positive=False))
+
+
+def parse(doc: Any) -> Scenario:
+    """Check a scenario document and build the Scenario; raise ScenarioError naming the bad key."""
+    if not isinstance(doc, dict):
+        raise ScenarioError('scenario: expected a mapping at the top level')
+    unknown = sorted(set(doc) - _TOP)
+    if unknown:
+        raise ScenarioError(f'{unknown[0]}: unknown key')
+    flock_doc = _section(doc, 'flock', {f.name for f in fields(FlockParams)} - set(POLICY_VALUES))
+    flock_vals: dict[str, Any] = {}
+    for f in fields(FlockParams):
+        if f.name in POLICY_VALUES:
+            continue
+        raw = _need(flock_doc, 'flock', f.name)
+        flock_vals[f.name] = (_int(f'flock.{f.name}', raw, minimum=0) if f.type in ('int', int)
+                              else _num(f'flock.{f.name}', raw))
+    policies = _section(doc, 'policies', set(POLICY_VALUES), required=False)
+    for key, value in policies.items():
+        if value not in POLICY_VALUES[key]:
+            raise ScenarioError(f'policies.{key}: must be one of {", ".join(POLICY_VALUES[key])}, got {value!r}')
+        flock_vals[key] = value
+    flock = FlockParams(**flock_vals)
+
+    radio = _section(doc, 'radio', _RADIO)
+    release = _section(doc, 'release', _RELEASE)
+    users = _section(doc, 'users', {'clusters'})
+    clusters_doc = _need(users, 'users', 'clusters')
+    if not isinstance(clusters_doc, list) or not clusters_doc:
+        raise ScenarioError('users.clusters: at least one cluster is needed')
+    if len(clusters_doc) > 63:
+        raise ScenarioError('users.clusters: at most 63 clusters are supported')
+    clusters = []
+    for i, c in enumerate(clusters_doc):
+        where = f'users.clusters[{i}]'
+        if not isinstance(c, dict):
+            raise ScenarioError(f'{where}: expected a mapping')
+        bad = sorted(set(c) - _CLUSTER)
+        if bad:
+            raise ScenarioError(f'{where}.{bad[0]}: unknown key')
+        clusters.append(Cluster(_pair(f'{where}.center', _need(c, where, 'center')),
+                                _num(f'{where}.spread', _need(c, where, 'spread')),
+                                _int(f'{where}.size', _need(c, where, 'size'))))
+    failure = _section(doc, 'failure', _FAILURE, required=False)
+    association = _need(radio, 'radio', 'association')
+    if association not in ('3d', 'horizontal'):
+        raise ScenarioError(f"radio.association: must be '3d' or 'horizontal', got {association!r}")
+    scenario = Scenario(
+        name=str(doc.get('name', 'unnamed')),
+        seed=_int('seed', _need(doc, '', 'seed'), minimum=0),
+        maps=_int('maps', _need(doc, '', 'maps')),
+        duration=_num('duration', _need(doc, '', 'duration')),
+        dt=_num('dt', _need(doc, '', 'dt')),
+        flock=flock,
+        clusters=tuple(clusters),
+        release_center=_pair('release.center', _need(release, 'release', 'center')),
+        release_half_width=_num('release.half_width', _need(release, 'release', 'half_width')),
+        initial_speed=_num('release.initial_speed', _need(release, 'release', 'initial_speed'), allow_zero=True),
+        rho=_num('radio.rho', _need(radio, 'radio', 'rho')),
+        eta=_num('radio.eta', _need(radio, 'radio', 'eta')),
+        association=association,
+        fail_at=_num('failure.at', failure['at'], allow_zero=True) if failure.get('at') is not None else None,
+        fail_fraction=_num('failure.fraction', failure.get('fraction', 0.0), allow_zero=True),
+    )
+    _check(scenario)
+    return scenario
+
+
+def _check(s: Scenario) -> None:
+    """Relations between keys that each looked fine alone."""
+    if s.flock.d >= s.flock.r:
+        raise ScenarioError(f'flock.d: must be below flock.r ({s.flock.r}), got {s.flock.d}')
+    if s.flock.gamma >= 1.0:
+        raise ScenarioError(f'flock.gamma: must be below 1, got {s.flock.gamma}')
+    if not s.flock.n0 <= s.flock.n1:
+        raise ScenarioError(f'flock.n0: must not exceed flock.n1 ({s.flock.n1}), got {s.flock.n0}')
+    if s.flock.r0 > 1.0:
+        raise ScenarioError(f'flock.r0: a coverage ratio, must be at most 1, got {s.flock.r0}')
+    if s.fail_fraction > 1.0:
+        raise ScenarioError(f'failure.fraction: must be at most 1, got {s.fail_fraction}')
+    if s.maps < 1:
+        raise ScenarioError(f'maps: must be at least 1, got {s.maps}')
+    if s.dt > s.duration:
+        raise ScenarioError(f'dt: must not exceed duration ({s.duration}), got {s.dt}')
+
+
+def load(path: str | Path) -> Scenario:
+    """Read and check a scenario file."""
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ScenarioError(f'{path}: no such scenario file') from None
+    except yaml.YAMLError as exc:
+        raise ScenarioError(f'{path}: not valid YAML ({str(exc).splitlines()[0]})') from None
+    return parse(doc)

@@ -1,0 +1,137 @@
+"""Ground users, association (eq. 2), coverage (eq. 5), the MAP graph (eq. 4) and the dynamics (eq. 3)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.linalg import eigh
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from .scenario import Scenario
+
+F64 = NDArray[np.float64]
+UNSERVED = -1
+
+
+@dataclass(frozen=True)
+class Users:
+    """The MSDs of a run: positions on the ground (z = 0) and the cluster each was drawn from."""
+
+    xyz: F64                # (M, 3)
+    cluster: NDArray[np.intp]  # (M,)
+    centroids: F64          # (K, 2): the empirical centroid C_k of each cluster
+
+    @property
+    def cluster_sizes(self) -> NDArray[np.intp]:
+        return np.bincount(self.cluster, minlength=len(self.centroids))
+
+
+def streams(seed: int) -> dict[str, np.random.Generator]:
+    """Independent random streams per purpose, so e.g. a failure fraction never moves the users."""
+    users, release, failure = np.random.SeedSequence(seed).spawn(3)
+    return {'users': np.random.default_rng(users), 'release': np.random.default_rng(release),
+            'failure': np.random.default_rng(failure)}
+
+
+def make_users(s: Scenario, rng: np.random.Generator) -> Users:
+    """Gaussian clusters of MSDs (Section V)."""
+    xy, label = [], []
+    for k, c in enumerate(s.clusters):
+        xy.append(rng.normal(c.center, c.spread, size=(c.size, 2)))
+        label.append(np.full(c.size, k, dtype=np.intp))
+    xy_all = np.concatenate(xy)
+    labels = np.concatenate(label)
+    centroids = np.array([xy_all[labels == k].mean(axis=0) for k in range(len(s.clusters))])
+    return Users(np.column_stack([xy_all, np.zeros(len(xy_all))]), labels, centroids)
+
+
+def release(s: Scenario, rng: np.random.Generator) -> tuple[F64, F64]:
+    """Initial q and p: uniform in a square around the release centre at height H, p uniform in [-v, v]^2."""
+    n = s.maps
+    xy = np.asarray(s.release_center) + rng.uniform(-s.release_half_width, s.release_half_width, size=(n, 2))
+    q = np.column_stack([xy, np.full(n, s.flock.height)])
+    v = rng.uniform(-s.initial_speed, s.initial_speed, size=(n, 2))
+    p = np.column_stack([v, np.zeros(n)])
+    return q, p
+
+
+def failure_ids(s: Scenario, alive_ids: NDArray[np.intp], rng: np.random.Generator) -> NDArray[np.intp]:
+    """The MAP ids that fail at s.fail_at: round(fraction * alive) of them, drawn from the failure stream."""
+    count = int(round(s.fail_fraction * len(alive_ids)))
+    return np.sort(rng.choice(np.asarray(alive_ids), size=count, replace=False)) if count else np.zeros(0, np.intp)
+
+
+def associate(users: Users, q: F64, r: float, mode: str = '3d') -> NDArray[np.intp]:
+    """Eq. 2: each MSD joins the MAP with the strongest signal rho*||y - q||^-eta among those within r.
+
+    The signal falls with distance, so that is the nearest MAP in range; returns its row in q, or UNSERVED.
+    """
+    if len(q) == 0:
+        return np.full(len(users.xyz), UNSERVED, dtype=np.intp)
+    if mode == 'horizontal':
+        tree, pts = cKDTree(q[:, :2]), users.xyz[:, :2]
+    else:
+        tree, pts = cKDTree(q), users.xyz
+    dist, idx = tree.query(pts, k=1, distance_upper_bound=np.nextafter(r, np.inf))
+    return np.where(np.isfinite(dist), idx, UNSERVED).astype(np.intp)
+
+
+def user_counts(assoc: NDArray[np.intp], n_maps: int) -> NDArray[np.intp]:
+    """N_u for each MAP row."""
+    served = assoc[assoc != UNSERVED]
+    return np.bincount(served, minlength=n_maps)
+
+
+def cluster_coverage(users: Users, assoc: NDArray[np.intp]) -> F64:
+    """Fraction of each cluster's MSDs that are served: r_g when the cluster is a MAP's goal."""
+    served = np.bincount(users.cluster[assoc != UNSERVED], minlength=len(users.centroids))
+    return served / np.maximum(users.cluster_sizes, 1)
+
+
+def coverage_ratio(assoc: NDArray[np.intp]) -> float:
+    """R_c of eq. 5."""
+    return float(np.count_nonzero(assoc != UNSERVED)) / max(len(assoc), 1)
+
+
+def neighbour_pairs(q: F64, r: float) -> NDArray[np.intp]:
+    """Ordered pairs (i, j), i != j, with ||q_i - q_j|| <= r (eq. 4), sorted by i then j."""
+    if len(q) < 2:
+        return np.zeros((0, 2), dtype=np.intp)
+    pairs = cKDTree(q).query_pairs(np.nextafter(r, np.inf), output_type='ndarray')
+    both = np.concatenate([pairs, pairs[:, ::-1]]).astype(np.intp)
+    order = np.lexsort((both[:, 1], both[:, 0]))
+    return both[order]
+
+
+def laplacian(pairs: NDArray[np.intp], n: int) -> F64:
+    """L = D - A of the MAP graph from its ordered pairs."""
+    a = np.zeros((n, n))
+    a[pairs[:, 0], pairs[:, 1]] = 1.0
+    return np.diag(a.sum(axis=1)) - a
+
+
+def components(pairs: NDArray[np.intp], n: int) -> int:
+    if n == 0:
+        return 0
+    a = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return int(connected_components(a, directed=False)[0])
+
+
+def fiedler(pairs: NDArray[np.intp], n: int, n_components: int | None = None) -> float:
+    """Second-smallest Laplacian eigenvalue; exactly 0 when the graph is disconnected (or n < 2)."""
+    if n < 2:
+        return 0.0
+    if n_components is None:
+        n_components = components(pairs, n)
+    if n_components > 1:
+        return 0.0
+    value = eigh(laplacian(pairs, n), eigvals_only=True, subset_by_index=[1, 1])[0]
+    return float(max(value, 0.0))
+
+
+def integrate(q: F64, p: F64, u: F64, dt: float) -> tuple[F64, F64]:
+    """Exact zero-order-hold step of the double integrator q' = p, p' = u (eq. 3) with u held over dt."""
+    return q + p * dt + 0.5 * u * dt * dt, p + u * dt
