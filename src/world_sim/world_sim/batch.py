@@ -63,14 +63,15 @@ class BatchSimulator:
         pairs = world.neighbour_pairs(q, fp.r)
         starts = np.searchsorted(pairs[:, 0], np.arange(len(rows) + 1))
         told = [self.memory[i].achieved for i in rows]  # what each MAP's state message of step k carries
-        target = np.empty((len(rows), 3))
-        qa, qb = np.empty_like(target), np.empty_like(target)
-        mode = np.empty(len(rows), dtype=np.intp)
-        for n, i in enumerate(rows):
-            nbr = pairs[starts[n]:starts[n + 1], 1]
-            mem = decide(self.memory[i], int(n_u[n]), cover, q[n], [told[j] for j in nbr], self.clusters, fp)
+        nbr, bounds, counts = pairs[:, 1].tolist(), starts.tolist(), n_u.tolist()
+        refs = []
+        for n, i in enumerate(rows.tolist()):
+            heard = [told[j] for j in nbr[bounds[n]:bounds[n + 1]]]
+            mem = decide(self.memory[i], i, counts[n], cover, q[n], heard, self.clusters, fp)
             self.memory[i] = mem
-            target[n], qa[n], qb[n], mode[n] = reference(mem, self.clusters)
+            refs.append(reference(mem, self.clusters))
+        target, qa, qb = (np.array([ref[c] for ref in refs]).reshape(-1, 3) for c in range(3))
+        mode = np.array([ref[3] for ref in refs], dtype=np.intp)
         u = control_input(q, p, n_u.astype(float), mode, target, qa, qb, pairs[:, 0],
                           q[pairs[:, 1]], p[pairs[:, 1]], n_u[pairs[:, 1]].astype(float), fp)
         self._record(rows, q, p, n_u, pairs, world.coverage_ratio(assoc))

@@ -24,10 +24,10 @@ class Neighbourhood:
         return cls(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), [])
 
 
-def agent_step(mem: Memory, q: np.ndarray, p_vel: np.ndarray, n_users: int, cluster_coverage: np.ndarray,
+def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_users: int, cluster_coverage: np.ndarray,
                nbrs: Neighbourhood, clusters: ClusterMap, params: FlockParams) -> tuple[np.ndarray, Memory]:
     """Algorithm 1 lines 3-6 for one MAP: gossip, mode switch (Alg. 2), control input (eq. 9)."""
-    mem = decide(mem, n_users, cluster_coverage, q, nbrs.achieved, clusters, params)
+    mem = decide(mem, agent_id, n_users, cluster_coverage, q, nbrs.achieved, clusters, params)
     target, q1, q2, mode = reference(mem, clusters)
     owner = np.zeros(len(nbrs.q), dtype=np.intp)
     u = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([mode]),

@@ -5,9 +5,8 @@ Achieved-goal sets travel as bit masks (bit k = cluster k achieved): gossip is t
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
 from functools import lru_cache
-from typing import Iterable, Optional
+from typing import Iterable, NamedTuple, Optional
 
 import numpy as np
 from scipy.sparse.csgraph import minimum_spanning_tree
@@ -75,12 +74,22 @@ class ClusterMap:
         return float(np.linalg.norm(a + t * ab - np.asarray(q, dtype=float)[:2]))
 
     def nearest_edge(self, q: np.ndarray, edges: Iterable[Edge]) -> Optional[Edge]:
-        best = min(edges, key=lambda e: (self.segment_distance(q, e), e), default=None)
-        return best
+        return min(edges, key=lambda e: (self.segment_distance(q, e), e), default=None)
+
+    def shared_edge(self, agent_id: int, edges: tuple[Edge, ...]) -> Edge:
+        """The edge whose slice of [0, 1), sized by edge length, holds this MAP's key.
+
+        Keys frac(id * golden ratio) spread evenly over [0, 1) for any set of ids, so the M1 MAPs split
+        over the MST edges in proportion to the length each must bridge, with no message exchanged;
+        when the tree grows, only MAPs whose slice moved change edge.
+        """
+        lengths = np.array([np.linalg.norm(self.xy[a] - self.xy[b]) for a, b in edges])
+        bounds = np.cumsum(lengths) / lengths.sum()
+        key = (agent_id * 0.6180339887498949) % 1.0
+        return edges[min(int(np.searchsorted(bounds, key, side='right')), len(edges) - 1)]
 
 
-@dataclass(frozen=True)
-class Memory:
+class Memory(NamedTuple):
     """What a MAP carries from step to step: its mode M_i, goal g_c^i, known achieved goals and bridge."""
 
     mode: int = M0
@@ -97,47 +106,55 @@ def mode_switch(mem: Memory, n_users: int, goal_coverage: float, q: np.ndarray,
     """
     if mem.goal == NO_GOAL:  # first step: the nearest uncovered cluster (any cluster if all are covered)
         nxt = clusters.nearest(q, mem.achieved)
-        return replace(mem, goal=nxt if nxt != NO_GOAL else clusters.nearest(q, 0))
+        return mem._replace(goal=nxt if nxt != NO_GOAL else clusters.nearest(q, 0))
     if not goal_coverage > p.r0:
         return mem
-    mem = replace(mem, achieved=mem.achieved | 1 << mem.goal)
+    if not mem.achieved >> mem.goal & 1:
+        mem = mem._replace(achieved=mem.achieved | 1 << mem.goal)
     if mem.mode != M0:
         return mem
     if 0 < n_users < p.n0 or (n_users == 0 and p.zero_users == 'move_on'):
         nxt = clusters.nearest(q, mem.achieved)
         if nxt != NO_GOAL:
-            return replace(mem, goal=nxt)
+            return mem._replace(goal=nxt)
         if p.m0_exhausted == 'bridge' and len(clusters.mst(mem.achieved)) > 0:
-            return replace(mem, mode=M1)
+            return mem._replace(mode=M1)
         return mem
     if p.n0 <= n_users < p.n1:
-        return replace(mem, mode=M1)
-    return replace(mem, mode=M2)
+        return mem._replace(mode=M1)
+    return mem._replace(mode=M2)
 
 
-def choose_bridge(mem: Memory, q: np.ndarray, clusters: ClusterMap, p: FlockParams) -> Memory:
-    """Which MST edge an M1 MAP bridges: the nearest one, kept while it stays in the tree."""
+def choose_bridge(mem: Memory, agent_id: int, q: np.ndarray, clusters: ClusterMap, p: FlockParams) -> Memory:
+    """Which MST edge an M1 MAP bridges, by p.edge_choice: the nearest (re-chosen each step or kept
+    while in the tree), or its share of the tree by edge length."""
     if mem.mode != M1:
-        return mem if mem.bridge is None else replace(mem, bridge=None)
+        return mem if mem.bridge is None else mem._replace(bridge=None)
     edges = clusters.mst(mem.achieved)
     if not edges:
         if p.m1_pending == 'lead' and mem.goal != NO_GOAL:
             ahead = clusters.nearest(q, mem.achieved)
             if ahead != NO_GOAL:
-                return replace(mem, bridge=(mem.goal, ahead))
-        return replace(mem, bridge=None) if mem.bridge is not None else mem
-    if p.edge_choice == 'keep_nearest' and mem.bridge in edges:
+                return mem._replace(bridge=(mem.goal, ahead))
+        return mem._replace(bridge=None) if mem.bridge is not None else mem
+    if p.edge_choice == 'share':
+        edge = clusters.shared_edge(agent_id, edges)
+    elif p.edge_choice == 'keep_nearest' and mem.bridge in edges:
         return mem
-    return replace(mem, bridge=clusters.nearest_edge(q, edges))
+    else:
+        edge = clusters.nearest_edge(q, edges)
+    return mem if edge == mem.bridge else mem._replace(bridge=edge)
 
 
-def decide(mem: Memory, n_users: int, cluster_coverage: np.ndarray, q: np.ndarray,
+def decide(mem: Memory, agent_id: int, n_users: int, cluster_coverage: np.ndarray, q: np.ndarray,
            neighbour_achieved: Iterable[int], clusters: ClusterMap, p: FlockParams) -> Memory:
     """One MAP's discrete update at step k: gossip, Algorithm 2, then the bridge it flies to."""
-    mem = replace(mem, achieved=merge_achieved(mem.achieved, neighbour_achieved))
+    achieved = merge_achieved(mem.achieved, neighbour_achieved)
+    if achieved != mem.achieved:
+        mem = mem._replace(achieved=achieved)
     r_g = float(cluster_coverage[mem.goal]) if mem.goal != NO_GOAL else 0.0
     mem = mode_switch(mem, n_users, r_g, q, clusters, p)
-    return choose_bridge(mem, q, clusters, p)
+    return choose_bridge(mem, agent_id, q, clusters, p)
 
 
 def reference(mem: Memory, clusters: ClusterMap) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:

@@ -9,7 +9,7 @@ POLICY_VALUES: dict[str, tuple[str, ...]] = {
     'zero_users': ('move_on', 'static'),
     'm1_pending': ('hold', 'lead'),
     'm0_exhausted': ('bridge', 'serve'),
-    'edge_choice': ('nearest', 'keep_nearest'),
+    'edge_choice': ('nearest', 'keep_nearest', 'share'),
 }
 
 

@@ -1,0 +1,95 @@
+"""Figures of a run: coverage and Fiedler over time, mode counts, formation snapshots."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import matplotlib
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+MODE_COLOURS = ('tab:blue', 'tab:orange', 'tab:green')
+MODE_NAMES = ('M0 dynamic', 'M1 connectivity', 'M2 static')
+
+
+def _save(fig: plt.Figure, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def time_series(series: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: str, title: str,
+                path: Path, events: Sequence[float] = ()) -> Path:
+    """One line per (label, t, y); vertical marks at event times (e.g. failures)."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for label, t, y in series:
+        ax.plot(t, y, label=label, lw=1.6)
+    for e in events:
+        ax.axvline(e, color='grey', ls='--', lw=1, label=f'failure at t = {e:g} s')
+    ax.set_xlabel('time t (s)')
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc='best', fontsize=8)
+    return _save(fig, path)
+
+
+def mode_counts(t: np.ndarray, counts: np.ndarray, title: str, path: Path) -> Path:
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for m in range(3):
+        ax.plot(t, counts[:, m], color=MODE_COLOURS[m], label=MODE_NAMES[m], lw=1.6)
+    ax.set_xlabel('time t (s)')
+    ax.set_ylabel('MAPs in mode')
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc='best', fontsize=8)
+    return _save(fig, path)
+
+
+def formation(ax: plt.Axes, users_xy: np.ndarray, users_cluster: np.ndarray, centroids: np.ndarray,
+              q: np.ndarray, mode: np.ndarray, r: float, title: str) -> None:
+    """MSDs (grey, by cluster), MAPs coloured by mode, MAP-MAP links within r, cluster centroids."""
+    ax.scatter(users_xy[:, 0], users_xy[:, 1], s=2, c='0.75', zorder=1, label='MSD')
+    if len(q):
+        d = np.linalg.norm(q[:, None, :2] - q[None, :, :2], axis=-1)
+        i, j = np.nonzero(np.triu(d <= r, 1))
+        for a, b in zip(i, j):
+            ax.plot(q[[a, b], 0], q[[a, b], 1], color='0.35', lw=0.5, zorder=2)
+    for m in range(3):
+        sel = mode == m
+        if np.any(sel):
+            ax.scatter(q[sel, 0], q[sel, 1], s=14, c=MODE_COLOURS[m], zorder=3, label=MODE_NAMES[m])
+    ax.scatter(centroids[:, 0], centroids[:, 1], marker='x', s=50, c='k', zorder=4, label='cluster centroid')
+    ax.set_aspect('equal')
+    ax.set_xlabel('x (m)')
+    ax.set_ylabel('y (m)')
+    ax.set_title(title, fontsize=9)
+
+
+def formation_snapshots(traj: dict[str, np.ndarray], users_xy: np.ndarray, users_cluster: np.ndarray,
+                        centroids: np.ndarray, r: float, times: Sequence[float], title: str, path: Path) -> Path:
+    """Formation at several times, side by side, sharing one legend."""
+    fig, axes = plt.subplots(1, len(times), figsize=(4.2 * len(times), 4.4), squeeze=False)
+    steps = np.unique(traj['step'])
+    all_t = np.unique(traj['t'])
+    for ax, want in zip(axes[0], times):
+        t = all_t[np.argmin(np.abs(all_t - want))]
+        sel = traj['t'] == t
+        q = np.column_stack([traj['x'][sel], traj['y'][sel]])
+        formation(ax, users_xy, users_cluster, centroids, q, traj['mode'][sel].astype(int), r, f't = {t:.1f} s')
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    for ax in axes[0][1:]:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            if lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    fig.legend(handles, labels, loc='lower center', ncol=len(labels), fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout(rect=(0, 0.07, 1, 0.95))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    del steps
+    return path
