@@ -14,3 +14,10 @@ def ros_env(monkeypatch: pytest.MonkeyPatch) -> dict[str, str]:
     monkeypatch.setenv('ROS_DOMAIN_ID', domain)
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     return dict(os.environ)
+
+
+@pytest.fixture
+def paper_scenario_path() -> str:
+    """The shipped paper scenario, as installed in the workspace."""
+    from ament_index_python.packages import get_package_share_directory
+    return os.path.join(get_package_share_directory('world_sim'), 'config', 'paper.yaml')

@@ -37,7 +37,7 @@ def bump(z: ArrayLike, z1: float, z0: float) -> F64:
 
 
 def phi(z: ArrayLike, a: float, b: float) -> F64:
-    """Uneven sigmoid of eq. 11, phi(0) = 0; negative (repulsive) below 0, positive above."""
+    """Uneven sigmoid of eq. 11; phi(0) = 0 holds for 0 < a <= b, the scenario check enforces it."""
     c = abs(a - b) / np.sqrt(4.0 * a * b)
     s = np.asarray(z, dtype=float) + c
     return 0.5 * ((a + b) * s / np.sqrt(1.0 + s * s) + (a - b))

@@ -174,6 +174,8 @@ def _check(s: Scenario) -> None:
     """Relations between keys that each looked fine alone."""
     if s.flock.d >= s.flock.r:
         raise ScenarioError(f'flock.d: must be below flock.r ({s.flock.r}), got {s.flock.d}')
+    if s.flock.a > s.flock.b:
+        raise ScenarioError(f'flock.a: must not exceed flock.b ({s.flock.b}) or phi(0) != 0, got {s.flock.a}')
     if s.flock.gamma >= 1.0:
         raise ScenarioError(f'flock.gamma: must be below 1, got {s.flock.gamma}')
     if not s.flock.n0 <= s.flock.n1:

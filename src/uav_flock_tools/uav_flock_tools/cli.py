@@ -1,0 +1,159 @@
+"""uav-flock command line (behind ./uav-flock): batch simulation runs and the paper's figures."""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Callable, NoReturn, Optional, Sequence
+
+from tqdm import tqdm
+
+from world_sim.core.scenario import ScenarioError
+
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+
+class UsageError(Exception):
+    """A user mistake: reported in one line, exit code 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        raise UsageError(f'{self.prog}: {message} (see --help)')
+
+
+def int_list(text: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(',') if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected integers separated by commas, got {text!r}') from None
+    if not values or any(v < 0 for v in values):
+        raise argparse.ArgumentTypeError(f'expected non-negative integers separated by commas, got {text!r}')
+    return values
+
+
+def positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected a number, got {text!r}') from None
+    if not v > 0 or v != v or v == float('inf'):
+        raise argparse.ArgumentTypeError(f'expected a positive finite number, got {text!r}')
+    return v
+
+
+def fraction(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected a number in [0, 1], got {text!r}') from None
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f'expected a number in [0, 1], got {text!r}')
+    return v
+
+
+def default_out(kind: str) -> Path:
+    return Path('runs') / f'{kind}-{time.strftime("%Y%m%d-%H%M%S")}'
+
+
+def add_scenario_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument('--scenario', default='paper', help="scenario YAML file, or a shipped name (default: paper)")
+    p.add_argument('--maps', type=int_list, help='MAP count(s), e.g. 90 or 40,60,80,100 (default: scenario)')
+    p.add_argument('--seed', type=int_list, help='seed(s), e.g. 0 or 0,1,2 (default: scenario)')
+    p.add_argument('--duration', type=positive_float, help='simulated time in s (default: scenario)')
+    p.add_argument('--fail-at', type=positive_float, help='time of the random failure in s')
+    p.add_argument('--fail-fraction', type=fraction, help='fraction of MAPs failing at --fail-at')
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    from . import plots, simrun
+    base = simrun.load_scenario(args.scenario)
+    if args.fail_fraction and args.fail_at is None and base.fail_at is None:
+        raise UsageError('sim: --fail-fraction needs --fail-at (or failure.at in the scenario)')
+    maps = args.maps or [base.maps]
+    seeds = args.seed or [base.seed]
+    if 0 in maps:
+        raise UsageError('sim: --maps must be at least 1')
+    out = Path(args.out) if args.out else default_out('sim')
+    runs = simrun.grid(base, maps, seeds, duration=args.duration, fail_at=args.fail_at,
+                       fail_fraction=args.fail_fraction)
+    several = len(runs) > 1
+    total = sum(s.steps for s in runs)
+    done: list[tuple[str, object]] = []
+    with tqdm(total=total, unit='step', desc='simulating', mininterval=0.5, dynamic_ncols=True) as bar:
+        for s in runs:
+            label = f'{s.maps} MAPs, seed {s.seed}'
+            folder = out / f'maps{s.maps}_seed{s.seed}' if several else out
+            bar.set_postfix_str(label)
+            result, complete = simrun.simulate(s, bar.update)
+            simrun.write_run(result, folder, label)
+            done.append((label, result))
+            if not complete:
+                bar.close()
+                m = result.metrics
+                print(f'uav-flock: interrupted at t = {m[-1, 1]:.1f} s; what was simulated is in {folder}',
+                      file=sys.stderr)
+                return EXIT_INTERRUPTED
+    if several:
+        series = [(label, r.metrics[:, 1], 100 * r.metrics[:, 2]) for label, r in done]
+        plots.time_series(series, 'coverage ratio R_c (%)', 'Coverage', out / 'coverage.png')
+        plots.time_series([(label, r.metrics[:, 1], r.metrics[:, 3]) for label, r in done],
+                          'Fiedler value λ2 (-)', 'Connectivity', out / 'fiedler.png')
+    for label, r in done:
+        m = r.metrics
+        print(f'{label}: t = {m[-1, 1]:.1f} s, R_c = {100 * m[-1, 2]:.1f} %, Fiedler = {m[-1, 3]:.4f}, '
+              f'components = {int(m[-1, 5])}, alive = {int(m[-1, 4])}')
+    print(f'results in {out}')
+    return 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    """The main job: the paper scenario with 90 MAPs."""
+    ns = argparse.Namespace(scenario='paper', maps=[90], seed=None, duration=None, fail_at=None,
+                            fail_fraction=None, out=args.out)
+    return cmd_sim(ns)
+
+
+def cmd_paper(args: argparse.Namespace) -> int:
+    from . import paper
+    return paper.main(seeds=args.seeds, out=Path(args.out), docs=Path(args.docs), scenario=args.scenario,
+                      ablation=not args.no_ablation)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog='uav-flock', description=__doc__)
+    sub = parser.add_subparsers(dest='command', required=True, parser_class=_Parser)
+    p = sub.add_parser('sim', help='run a scenario in-process for one or more MAP counts and seeds')
+    add_scenario_options(p)
+    p.add_argument('--out', help='output folder (default: runs/sim-<time>)')
+    p.set_defaults(func=cmd_sim)
+    p = sub.add_parser('run', help='the main job: the paper scenario with 90 MAPs, with plots')
+    p.add_argument('--out', help='output folder (default: runs/sim-<time>)')
+    p.set_defaults(func=cmd_run)
+    p = sub.add_parser('paper', help="regenerate the paper's figures over several seeds and docs/results.md")
+    p.add_argument('--scenario', default='paper')
+    p.add_argument('--seeds', type=int, default=5, help='seeds per configuration (default: 5)')
+    p.add_argument('--out', default='docs/figures', help='figure folder (default: docs/figures)')
+    p.add_argument('--docs', default='docs/results.md', help='results page to write (default: docs/results.md)')
+    p.add_argument('--no-ablation', action='store_true', help="skip measuring the effect of each open choice")
+    p.set_defaults(func=cmd_paper)
+    return parser
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    try:
+        args = build_parser().parse_args(argv)
+        func: Callable[[argparse.Namespace], int] = args.func
+        return func(args)
+    except (UsageError, ScenarioError) as exc:
+        print(f'uav-flock: error: {exc}', file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print('uav-flock: interrupted', file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == '__main__':
+    sys.exit(main())

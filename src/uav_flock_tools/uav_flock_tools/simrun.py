@@ -1,0 +1,107 @@
+"""Batch runs for the command line: one scenario per (MAP count, seed), outputs and plots per run."""
+from __future__ import annotations
+
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable, Optional
+
+import numpy as np
+
+from world_sim.batch import BatchSimulator, RunResult
+from world_sim.core import records
+from world_sim.core.scenario import Scenario, ScenarioError, load
+
+from . import plots
+
+
+def resolve_scenario(name_or_path: str) -> Path:
+    """A scenario file path, or the name of one shipped in world_sim's share/config (e.g. 'paper')."""
+    path = Path(name_or_path)
+    if path.suffix in ('.yaml', '.yml') or path.exists():
+        return path
+    from ament_index_python.packages import get_package_share_directory
+    shipped = Path(get_package_share_directory('world_sim')) / 'config' / f'{name_or_path}.yaml'
+    if not shipped.exists():
+        choices = sorted(p.stem for p in shipped.parent.glob('*.yaml'))
+        raise ScenarioError(f'--scenario: no file {name_or_path!r} and no shipped scenario of that name '
+                            f'(shipped: {", ".join(choices)})')
+    return shipped
+
+
+def load_scenario(name_or_path: str) -> Scenario:
+    return load(resolve_scenario(name_or_path))
+
+
+@dataclass
+class Outcome:
+    """A finished (or interrupted) run and where its files went."""
+
+    result: RunResult
+    folder: Path
+    complete: bool
+
+
+def trajectory_columns(result: RunResult) -> dict[str, np.ndarray]:
+    return {c: result.trajectory[:, i] for i, c in enumerate(records.TRAJECTORY_COLUMNS)}
+
+
+def write_run(result: RunResult, folder: Path, label: str) -> list[Path]:
+    """metrics.csv, trajectory.csv and the run's PNGs into folder."""
+    folder.mkdir(parents=True, exist_ok=True)
+    records.write_metrics(folder / 'metrics.csv', result.metrics)
+    records.write_trajectory(folder / 'trajectory.csv', result.trajectory)
+    m = result.metrics
+    t = m[:, 1]
+    events = [result.fail_step * result.scenario.dt] if result.fail_step is not None and len(result.failed) else []
+    out = [
+        plots.time_series([(label, t, 100 * m[:, 2])], 'coverage ratio R_c (%)', f'Coverage, {label}',
+                          folder / 'coverage.png', events),
+        plots.time_series([(label, t, m[:, 3])], 'Fiedler value λ2 (-)', f'Connectivity, {label}',
+                          folder / 'fiedler.png', events),
+        plots.mode_counts(t, m[:, 6:9], f'Modes, {label}', folder / 'modes.png'),
+    ]
+    end = float(t[-1])
+    times = sorted({0.0, round(end / 4, 1), round(end / 2, 1), end})
+    out.append(plots.formation_snapshots(
+        trajectory_columns(result), result.users.xyz[:, :2], result.users.cluster, result.users.centroids,
+        result.scenario.flock.r, times, f'Formation, {label}', folder / 'formation.png'))
+    return out
+
+
+def simulate(scenario: Scenario, progress: Optional[Callable[[int], None]] = None) -> tuple[RunResult, bool]:
+    """Run to the end; on Ctrl-C keep what was simulated and say it is partial."""
+    sim = BatchSimulator(scenario)
+    try:
+        return sim.run(progress), True
+    except KeyboardInterrupt:
+        return sim.result(), False
+
+
+def metrics_only(scenario: Scenario) -> np.ndarray:
+    """Worker for parallel sweeps: the metrics rows of one run."""
+    return BatchSimulator(scenario).run().metrics
+
+
+def sweep(scenarios: list[Scenario], on_done: Callable[[], None], workers: int | None = None
+          ) -> list[np.ndarray]:
+    """Metrics of many runs, in parallel over the machine's cores, in input order."""
+    workers = workers or max(1, min(len(scenarios), os.cpu_count() or 1))
+    if workers == 1:
+        out = []
+        for s in scenarios:
+            out.append(metrics_only(s))
+            on_done()
+        return out
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futures = [pool.submit(metrics_only, s) for s in scenarios]
+        results = []
+        for f in futures:
+            results.append(f.result())
+            on_done()
+        return results
+
+
+def grid(base: Scenario, maps: Iterable[int], seeds: Iterable[int], **overrides: object) -> list[Scenario]:
+    return [base.with_overrides(maps=n, seed=k, **overrides) for n in maps for k in seeds]

@@ -1,0 +1,27 @@
+"""The paper's headline trends hold in the shipped scenario (one seed; docs/results.md has five)."""
+from __future__ import annotations
+
+import numpy as np
+
+from world_sim.batch import BatchSimulator
+from world_sim.core.scenario import load
+
+
+def settled(metrics: np.ndarray, column: int) -> float:
+    t = metrics[:, 1]
+    return float(metrics[t >= t[-1] - 10.0, column].mean())
+
+
+def test_enough_maps_cover_and_connect_too_few_do_not(paper_scenario_path: str) -> None:
+    s = load(paper_scenario_path)
+    few = BatchSimulator(s.with_overrides(maps=40, seed=0)).run().metrics
+    many = BatchSimulator(s.with_overrides(maps=100, seed=0)).run().metrics
+    assert 0.6 <= settled(few, 2) <= 0.8 and settled(few, 3) == 0.0
+    assert settled(many, 2) >= 0.95 and settled(many, 3) > 0.0
+
+
+def test_half_the_fleet_failing_loses_connectivity_but_keeps_coverage(paper_scenario_path: str) -> None:
+    s = load(paper_scenario_path).with_overrides(maps=80, seed=0, fail_at=18.0, fail_fraction=0.5)
+    m = BatchSimulator(s).run().metrics
+    assert m[-1, 4] == 40
+    assert settled(m, 3) == 0.0 and settled(m, 2) >= 0.75

@@ -1,0 +1,44 @@
+"""./uav-flock sim writes the documented files, one folder per run when there are several."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from world_sim.core.records import METRICS_COLUMNS, TRAJECTORY_COLUMNS, read_csv
+
+
+def sim(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'sim', *args],
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_single_run_writes_csvs_and_plots(tmp_path: Path) -> None:
+    proc = sim('--maps', '12', '--seed', '4', '--duration', '3', '--out', str(tmp_path))
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / 'metrics.csv').read_text().splitlines()[0] == ','.join(METRICS_COLUMNS)
+    assert (tmp_path / 'trajectory.csv').read_text().splitlines()[0] == ','.join(TRAJECTORY_COLUMNS)
+    m, t = read_csv(tmp_path / 'metrics.csv'), read_csv(tmp_path / 'trajectory.csv')
+    assert len(m['step']) == 31 and len(t['step']) == 31 * 12
+    assert np.all((m['coverage_ratio'] >= 0) & (m['coverage_ratio'] <= 1))
+    assert np.all(m['mode0'] + m['mode1'] + m['mode2'] == m['alive'])
+    for png in ('coverage.png', 'fiedler.png', 'modes.png', 'formation.png'):
+        assert (tmp_path / png).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+
+
+def test_several_runs_get_a_folder_each_and_failures_drop_maps(tmp_path: Path) -> None:
+    proc = sim('--maps', '10,20', '--seed', '0', '--duration', '2', '--fail-at', '1', '--fail-fraction', '0.5',
+               '--out', str(tmp_path))
+    assert proc.returncode == 0, proc.stderr
+    for n in (10, 20):
+        m = read_csv(tmp_path / f'maps{n}_seed0' / 'metrics.csv')
+        assert m['alive'][0] == n and m['alive'][-1] == n // 2
+    assert (tmp_path / 'coverage.png').exists() and (tmp_path / 'fiedler.png').exists()
+
+
+def test_same_seed_same_run(tmp_path: Path) -> None:
+    for name in ('a', 'b'):
+        assert sim('--maps', '8', '--duration', '2', '--out', str(tmp_path / name)).returncode == 0
+    assert (tmp_path / 'a' / 'trajectory.csv').read_bytes() == (tmp_path / 'b' / 'trajectory.csv').read_bytes()
