@@ -39,13 +39,14 @@ PY="$(pick_python)" || die "no supported Python found: need CPython 3.10, 3.11 o
   || die "$PY is Python $("$PY" -c 'import platform; print(platform.python_version())' 2>/dev/null || echo '?'); ROS 2 Jazzy wheels need CPython 3.10-3.12 (set UAV_FLOCK_PYTHON)"
 "$PY" -c 'import venv, ensurepip' >/dev/null 2>&1 || die "$PY lacks the venv/ensurepip modules: install them (Debian/Ubuntu: apt-get install python3-venv) and run again"
 
-# ---------------------------------------------------------------- build tools
-command -v cc >/dev/null 2>&1 || command -v gcc >/dev/null 2>&1 \
-  || die "no C compiler (cc) found: the message package compiles C type support; install one (Debian/Ubuntu: apt-get install build-essential) and run again"
-command -v c++ >/dev/null 2>&1 || command -v g++ >/dev/null 2>&1 \
-  || die "no C++ compiler (c++) found: install one (Debian/Ubuntu: apt-get install g++) and run again"
-command -v cmake >/dev/null 2>&1 || die "cmake not found: install it (Debian/Ubuntu: apt-get install cmake) and run again"
-command -v make >/dev/null 2>&1 || die "make not found: install it (Debian/Ubuntu: apt-get install make) and run again"
+need_build_tools() {
+  command -v cc >/dev/null 2>&1 || command -v gcc >/dev/null 2>&1 \
+    || die "no C compiler (cc) found: the message package compiles C type support; install one (Debian/Ubuntu: apt-get install build-essential) and run again"
+  command -v c++ >/dev/null 2>&1 || command -v g++ >/dev/null 2>&1 \
+    || die "no C++ compiler (c++) found: install one (Debian/Ubuntu: apt-get install g++) and run again"
+  command -v cmake >/dev/null 2>&1 || die "cmake not found: install it (Debian/Ubuntu: apt-get install cmake) and run again"
+  command -v make >/dev/null 2>&1 || die "make not found: install it (Debian/Ubuntu: apt-get install make) and run again"
+}
 
 # ---------------------------------------------------------------- stage 1: .venv
 venv_inputs() {
@@ -76,6 +77,7 @@ PYEOF
 
 if [ ! -f "$VENV_STAMP" ] || [ "$(cat "$VENV_STAMP")" != "$VENV_KEY" ] || [ ! -x "$VENV/bin/python" ]; then
   rm -f "$VENV_STAMP"
+  need_build_tools
   if [ ! -x "$VENV/bin/python" ] || ! "$VENV/bin/python" -c 'import sys' >/dev/null 2>&1; then
     rm -rf "$VENV"
     say "creating .venv with $PY ($("$PY" -c 'import platform; print(platform.python_version())'))"
@@ -109,6 +111,7 @@ WS_KEY="$(ws_inputs | sha)"
 WS_STAMP="$WS/.uav-flock-stamp"
 if [ ! -f "$WS_STAMP" ] || [ "$(cat "$WS_STAMP")" != "$WS_KEY" ] || [ ! -f "$WS/install/setup.bash" ]; then
   rm -f "$WS_STAMP"
+  need_build_tools
   say "building ros2_ws with colcon (log: ros2_ws/log/latest_build)"
   (
     cd "$WS" || exit 1

@@ -34,24 +34,22 @@ def int_list(text: str) -> list[int]:
     return values
 
 
-def positive_float(text: str) -> float:
+def _float_in(text: str, low: float, high: float, low_open: bool, what: str) -> float:
     try:
         v = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f'expected a number, got {text!r}') from None
-    if not v > 0 or v != v or v == float('inf'):
-        raise argparse.ArgumentTypeError(f'expected a positive finite number, got {text!r}')
+        v = float('nan')
+    if not (low < v if low_open else low <= v) or not v <= high:
+        raise argparse.ArgumentTypeError(f'expected {what}, got {text!r}')
     return v
+
+
+def positive_float(text: str) -> float:
+    return _float_in(text, 0.0, 1e300, True, 'a positive finite number')
 
 
 def fraction(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'expected a number in [0, 1], got {text!r}') from None
-    if not 0.0 <= v <= 1.0:
-        raise argparse.ArgumentTypeError(f'expected a number in [0, 1], got {text!r}')
-    return v
+    return _float_in(text, 0.0, 1.0, False, 'a number in [0, 1]')
 
 
 def default_out(kind: str) -> Path:

@@ -47,17 +47,8 @@ def _figure(path: Path, groups: list[tuple[str, list[np.ndarray]]], column: int,
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for label, runs in groups:
         _band(ax, runs, column, scale, label)
-    for e in events:
-        ax.axvline(e, color='grey', ls='--', lw=1, label=f'failure at t = {e:g} s')
-    ax.set_xlabel('time t (s)')
-    ax.set_ylabel(ylabel)
-    ax.set_title(title + ' (line: mean over seeds, band: min to max)', fontsize=10)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    plots.finish(ax, 'time t (s)', ylabel, title + ' (line: mean over seeds, band: min to max)', events)
+    return plots.save(fig, path)
 
 
 def _fiedler_vs_count(path: Path, counts: tuple[int, ...], values: dict[int, list[float]]) -> Path:
@@ -67,15 +58,9 @@ def _fiedler_vs_count(path: Path, counts: tuple[int, ...], values: dict[int, lis
                 label='mean ± std over seeds')
     for n in counts:
         ax.scatter([n] * len(values[n]), values[n], s=8, c='0.5', zorder=3)
-    ax.set_xlabel('number of MAPs')
-    ax.set_ylabel(f'Fiedler value λ2 after convergence (mean of last {SETTLE:g} s)')
-    ax.set_title('Connectivity after convergence vs MAP count (grey: single seeds)', fontsize=10)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    plots.finish(ax, 'number of MAPs', f'Fiedler value λ2 after convergence (mean of last {SETTLE:g} s)',
+                 'Connectivity after convergence vs MAP count (grey: single seeds)')
+    return plots.save(fig, path)
 
 
 def _fmt(values: list[float], pct: bool = False, digits: int = 3) -> str:

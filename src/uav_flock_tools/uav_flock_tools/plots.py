@@ -14,39 +14,41 @@ MODE_COLOURS = ('tab:blue', 'tab:orange', 'tab:green')
 MODE_NAMES = ('M0 dynamic', 'M1 connectivity', 'M2 static')
 
 
-def _save(fig: plt.Figure, path: Path) -> Path:
+def save(fig: plt.Figure, path: Path) -> Path:
+    """Lay out, write as PNG and free the figure."""
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
 
 
+def finish(ax: plt.Axes, xlabel: str, ylabel: str, title: str, events: Sequence[float] = ()) -> None:
+    """Event marks (e.g. failures), axis labels with units, title, grid and legend."""
+    for e in events:
+        ax.axvline(e, color='grey', ls='--', lw=1, label=f'failure at t = {e:g} s')
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(loc='best', fontsize=8)
+
+
 def time_series(series: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: str, title: str,
                 path: Path, events: Sequence[float] = ()) -> Path:
-    """One line per (label, t, y); vertical marks at event times (e.g. failures)."""
+    """One line per (label, t, y)."""
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for label, t, y in series:
         ax.plot(t, y, label=label, lw=1.6)
-    for e in events:
-        ax.axvline(e, color='grey', ls='--', lw=1, label=f'failure at t = {e:g} s')
-    ax.set_xlabel('time t (s)')
-    ax.set_ylabel(ylabel)
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    ax.legend(loc='best', fontsize=8)
-    return _save(fig, path)
+    finish(ax, 'time t (s)', ylabel, title, events)
+    return save(fig, path)
 
 
 def mode_counts(t: np.ndarray, counts: np.ndarray, title: str, path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for m in range(3):
         ax.plot(t, counts[:, m], color=MODE_COLOURS[m], label=MODE_NAMES[m], lw=1.6)
-    ax.set_xlabel('time t (s)')
-    ax.set_ylabel('MAPs in mode')
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    ax.legend(loc='best', fontsize=8)
-    return _save(fig, path)
+    finish(ax, 'time t (s)', 'MAPs in mode', title)
+    return save(fig, path)
 
 
 def formation(ax: plt.Axes, users_xy: np.ndarray, users_cluster: np.ndarray, centroids: np.ndarray,
@@ -73,7 +75,6 @@ def formation_snapshots(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
                         centroids: np.ndarray, r: float, times: Sequence[float], title: str, path: Path) -> Path:
     """Formation at several times, side by side, sharing one legend."""
     fig, axes = plt.subplots(1, len(times), figsize=(4.2 * len(times), 4.4), squeeze=False)
-    steps = np.unique(traj['step'])
     all_t = np.unique(traj['t'])
     for ax, want in zip(axes[0], times):
         t = all_t[np.argmin(np.abs(all_t - want))]
@@ -91,5 +92,4 @@ def formation_snapshots(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
     fig.tight_layout(rect=(0, 0.07, 1, 0.95))
     fig.savefig(path, dpi=110)
     plt.close(fig)
-    del steps
     return path

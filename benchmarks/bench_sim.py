@@ -1,0 +1,48 @@
+"""Wall time of the batch simulator: the issue's reference sizes and how time grows with the MAP count.
+
+Run: ./uav-flock exec python benchmarks/bench_sim.py
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from uav_flock_tools.simrun import load_scenario
+from world_sim.batch import BatchSimulator
+from world_sim.core.scenario import Cluster, Scenario
+
+
+def with_users(s: Scenario, total: int) -> Scenario:
+    per = total // len(s.clusters)
+    return dataclasses.replace(s, clusters=tuple(Cluster(c.center, c.spread, per) for c in s.clusters))
+
+
+def timed(s: Scenario, steps: int, repeat: int = 3) -> float:
+    """Best of repeat: wall seconds for steps steps (set-up excluded)."""
+    best = np.inf
+    for _ in range(repeat):
+        sim = BatchSimulator(s)
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            sim.step()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def main() -> None:
+    base = load_scenario('paper')
+    ref = timed(with_users(base.with_overrides(maps=100), 2000), 300)
+    print(f'100 MAPs x 2000 MSDs x 300 steps: {ref:.3f} s  (target <= 1 s)')
+    big = timed(with_users(base.with_overrides(maps=500), 10000), 300, repeat=1)
+    print(f'500 MAPs x 10000 MSDs x 300 steps: {big:.3f} s')
+    print('growth with MAP count (2000 MSDs, 300 steps):')
+    print('  MAPs   wall s   ratio to 100 MAPs')
+    for n in (50, 100, 200, 400, 800):
+        t = ref if n == 100 else timed(with_users(base.with_overrides(maps=n), 2000), 300, repeat=1 if n > 200 else 3)
+        print(f'  {n:4d}   {t:6.3f}   {t / ref:5.2f}')
+
+
+if __name__ == '__main__':
+    main()
