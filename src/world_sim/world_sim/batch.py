@@ -2,6 +2,7 @@
 
 It is the oracle the distributed system must match: step k reads the world at q(k), lets every MAP
 decide from its neighbours' states of step k (their achieved goals as of step k-1), then integrates.
+The world half of that step is `World`, which the world node shares.
 """
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from uav_agent.core.control import control_input
-from uav_agent.core.modes import ClusterMap, Memory, decide, reference
+from uav_agent.core.modes import NO_GOAL, ClusterMap, Memory, decide, reference
 
 from .core import world
 from .core.scenario import Scenario
@@ -27,8 +28,27 @@ class RunResult:
     fail_step: Optional[int] = None
 
 
-class BatchSimulator:
-    """A scenario stepped in-process; step() advances one Δt, run() to the end."""
+@dataclass
+class Sensed:
+    """What the world measured at step k for its live MAPs (rows in ascending id)."""
+
+    k: int
+    ids: np.ndarray            # (n,) live MAP ids
+    q: np.ndarray              # (n, 3)
+    p: np.ndarray              # (n, 3)
+    n_users: np.ndarray        # (n,) N_u
+    cluster_coverage: np.ndarray  # (K,)
+    pairs: np.ndarray          # (E, 2) ordered neighbour pairs (row, row), sorted; ids[row] is the MAP id
+    coverage_ratio: float
+
+    def neighbours(self, row: int) -> np.ndarray:
+        """Rows of the neighbours of row, ascending."""
+        lo, hi = np.searchsorted(self.pairs[:, 0], [row, row + 1])
+        return self.pairs[lo:hi, 1]
+
+
+class World:
+    """The physical world of one run: MSDs, MAP dynamics, failures and the run records."""
 
     def __init__(self, scenario: Scenario) -> None:
         self.s = scenario
@@ -39,57 +59,103 @@ class BatchSimulator:
         self.q, self.p = world.release(scenario, rng['release'])
         self.ids = np.arange(scenario.maps, dtype=np.intp)
         self.alive = np.ones(scenario.maps, dtype=bool)
-        self.memory = [Memory() for _ in range(scenario.maps)]
+        self.goal = np.full(scenario.maps, NO_GOAL, dtype=np.intp)  # each MAP's goal after its last step
         self.k = 0
         self.fail_step = None if scenario.fail_at is None else int(round(scenario.fail_at / scenario.dt))
         self.failed = np.zeros(0, np.intp)
         self._metrics: list[np.ndarray] = []
         self._traj: list[np.ndarray] = []
 
-    def _apply_failures(self) -> None:
-        if self.fail_step is not None and self.k == self.fail_step and self.s.fail_fraction > 0:
-            self.failed = world.failure_ids(self.s, self.ids[self.alive], self._fail_rng)
-            self.alive[self.failed] = False
+    def scheduled_failures(self) -> np.ndarray:
+        """Ids that fail at this step by the scenario's schedule (empty on other steps)."""
+        if self.fail_step is None or self.k != self.fail_step or self.s.fail_fraction <= 0:
+            return np.zeros(0, np.intp)
+        return world.failure_ids(self.s, self.ids[self.alive], self._fail_rng)
+
+    def drop(self, ids: np.ndarray) -> None:
+        """MAPs that stopped flying: they leave the graph and serve no one from now on."""
+        ids = np.asarray(ids, dtype=np.intp)
+        self.alive[ids] = False
+        self.failed = np.union1d(self.failed, ids).astype(np.intp)
+
+    def sense(self) -> Sensed:
+        """Associate and measure at q(k)."""
+        fp = self.s.flock
+        rows = self.ids[self.alive]
+        q, p = self.q[rows], self.p[rows]
+        assoc = world.associate(self.users, q, fp.r, self.s.association)
+        return Sensed(self.k, rows, q, p, world.user_counts(assoc, len(rows)),
+                      world.cluster_coverage(self.users, assoc), world.neighbour_pairs(q, fp.r),
+                      world.coverage_ratio(assoc))
+
+    def advance(self, sensed: Sensed, u: np.ndarray, modes: np.ndarray, goals: np.ndarray,
+                integrate: bool = True) -> np.ndarray:
+        """Record step k with the MAPs' decisions and, unless told otherwise, integrate to k + 1.
+
+        Returns the metrics row of step k.
+        """
+        rows = sensed.ids
+        self.goal[rows] = goals
+        n_comp = world.components(sensed.pairs, len(rows))
+        lam2 = world.fiedler(sensed.pairs, len(rows), n_comp)
+        counts = np.bincount(np.asarray(modes, dtype=np.intp), minlength=3)
+        t = self.k * self.s.dt
+        row = np.array([self.k, t, sensed.coverage_ratio, lam2, len(rows), n_comp, *counts[:3]], dtype=float)
+        self._metrics.append(row)
+        self._traj.append(np.column_stack([np.full(len(rows), self.k), np.full(len(rows), t), rows,
+                                           sensed.q, sensed.p, modes, goals, sensed.n_users]))
+        if integrate:
+            self.q[rows], self.p[rows] = world.integrate(sensed.q, sensed.p, u, self.s.dt)
+            self.k += 1
+        return row
+
+    def result(self) -> RunResult:
+        traj = np.concatenate(self._traj) if self._traj else np.zeros((0, 12))
+        return RunResult(self.s, self.users, np.array(self._metrics).reshape(-1, 9), traj, self.failed,
+                         self.fail_step)
+
+
+class BatchSimulator:
+    """A scenario stepped in-process; step() advances one Δt, run() to the end."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        self.s = scenario
+        self.world = World(scenario)
+        self.memory = [Memory() for _ in range(scenario.maps)]
+
+    # Views kept for callers that inspect the run as it goes.
+    users = property(lambda self: self.world.users)
+    clusters = property(lambda self: self.world.clusters)
+    q = property(lambda self: self.world.q)
+    p = property(lambda self: self.world.p)
+    ids = property(lambda self: self.world.ids)
+    alive = property(lambda self: self.world.alive)
 
     def step(self, integrate: bool = True) -> None:
         """Record step k and, unless told otherwise, advance to k + 1."""
-        s, fp = self.s, self.s.flock
-        self._apply_failures()
-        rows = self.ids[self.alive]
-        q, p = self.q[rows], self.p[rows]
-        assoc = world.associate(self.users, q, fp.r, s.association)
-        n_u = world.user_counts(assoc, len(rows))
-        cover = world.cluster_coverage(self.users, assoc)
-        pairs = world.neighbour_pairs(q, fp.r)
-        starts = np.searchsorted(pairs[:, 0], np.arange(len(rows) + 1))
+        w, fp = self.world, self.s.flock
+        failing = w.scheduled_failures()
+        if len(failing):
+            w.drop(failing)
+        sensed = w.sense()
+        rows = sensed.ids
         told = [self.memory[i].achieved for i in rows]  # what each MAP's state message of step k carries
-        nbr, bounds, counts = pairs[:, 1].tolist(), starts.tolist(), n_u.tolist()
+        nbr, counts = sensed.pairs[:, 1].tolist(), sensed.n_users.tolist()
+        bounds = np.searchsorted(sensed.pairs[:, 0], np.arange(len(rows) + 1)).tolist()
         refs = []
         for n, i in enumerate(rows.tolist()):
             heard = [told[j] for j in nbr[bounds[n]:bounds[n + 1]]]
-            mem = decide(self.memory[i], i, counts[n], cover, q[n], heard, self.clusters, fp)
+            mem = decide(self.memory[i], i, counts[n], sensed.cluster_coverage, sensed.q[n], heard, w.clusters, fp)
             self.memory[i] = mem
-            refs.append(reference(mem, self.clusters))
+            refs.append(reference(mem, w.clusters))
         target, qa, qb = (np.array([ref[c] for ref in refs]).reshape(-1, 3) for c in range(3))
         mode = np.array([ref[3] for ref in refs], dtype=np.intp)
-        u = control_input(q, p, n_u.astype(float), mode, target, qa, qb, pairs[:, 0],
-                          q[pairs[:, 1]], p[pairs[:, 1]], n_u[pairs[:, 1]].astype(float), fp)
-        self._record(rows, q, p, n_u, pairs, world.coverage_ratio(assoc))
-        if integrate:
-            self.q[rows], self.p[rows] = world.integrate(q, p, u, s.dt)
-            self.k += 1
-
-    def _record(self, rows: np.ndarray, q: np.ndarray, p: np.ndarray, n_u: np.ndarray,
-                pairs: np.ndarray, r_c: float) -> None:
-        t = self.k * self.s.dt
+        pairs = sensed.pairs
+        u = control_input(sensed.q, sensed.p, sensed.n_users.astype(float), mode, target, qa, qb, pairs[:, 0],
+                          sensed.q[pairs[:, 1]], sensed.p[pairs[:, 1]], sensed.n_users[pairs[:, 1]].astype(float), fp)
         modes = np.array([self.memory[i].mode for i in rows], dtype=np.intp)
         goals = np.array([self.memory[i].goal for i in rows], dtype=np.intp)
-        n_comp = world.components(pairs, len(rows))
-        lam2 = world.fiedler(pairs, len(rows), n_comp)
-        counts = np.bincount(modes, minlength=3)
-        self._metrics.append(np.array([self.k, t, r_c, lam2, len(rows), n_comp, *counts[:3]], dtype=float))
-        block = np.column_stack([np.full(len(rows), self.k), np.full(len(rows), t), rows, q, p, modes, goals, n_u])
-        self._traj.append(block)
+        w.advance(sensed, u, modes, goals, integrate)
 
     def run(self, progress: Optional[Callable[[int], None]] = None) -> RunResult:
         """Steps 0..N (N = duration / dt), inclusive, so the record ends at t = duration."""
@@ -101,5 +167,4 @@ class BatchSimulator:
         return self.result()
 
     def result(self) -> RunResult:
-        return RunResult(self.s, self.users, np.array(self._metrics), np.concatenate(self._traj),
-                         self.failed, self.fail_step)
+        return self.world.result()
