@@ -21,7 +21,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-
+            'world_sim_node = world_sim.world_node:main',
         ],
     },
 )

@@ -114,6 +114,42 @@ def cmd_run(args: argparse.Namespace) -> int:
     return cmd_sim(ns)
 
 
+def cmd_up(args: argparse.Namespace) -> int:
+    """world_sim and one process per MAP (or K per process), in lockstep."""
+    from . import launcher, simrun
+    path = simrun.resolve_scenario(args.scenario)
+    base = simrun.load_scenario(args.scenario)
+    if args.maps and len(args.maps) > 1 or args.seed and len(args.seed) > 1:
+        raise UsageError('up: one MAP count and one seed per run')
+    if args.fail_fraction and args.fail_at is None and base.fail_at is None:
+        raise UsageError('up: --fail-fraction needs --fail-at (or failure.at in the scenario)')
+    s = base.with_overrides(maps=args.maps[0] if args.maps else None, seed=args.seed[0] if args.seed else None,
+                            duration=args.duration, fail_at=args.fail_at, fail_fraction=args.fail_fraction)
+    if args.agents_per_process < 1:
+        raise UsageError('up: --agents-per-process must be at least 1')
+    out = Path(args.out) if args.out else default_out('up')
+    code, result = launcher.up(path.resolve(), s, out.resolve(), args.agents_per_process, args.domain_id)
+    if result is None:
+        return code or 1
+    simrun.write_run(result, out, f'{s.maps} MAPs, seed {s.seed} (distributed)')
+    m = result.metrics
+    print(f'{s.maps} MAPs, seed {s.seed}: t = {m[-1, 1]:.1f} s, R_c = {100 * m[-1, 2]:.1f} %, '
+          f'Fiedler = {m[-1, 3]:.4f}, alive = {int(m[-1, 4])}; results in {out}')
+    return code
+
+
+def cmd_kill(args: argparse.Namespace) -> int:
+    from . import launcher
+    if (args.ids is None) == (args.fraction is None):
+        raise UsageError('kill: give exactly one of --ids or --fraction')
+    try:
+        killed = launcher.kill(Path(args.run), args.ids, args.fraction)
+    except (FileNotFoundError, ValueError) as exc:
+        raise UsageError(f'kill: {exc}') from None
+    print(f'SIGKILLed MAPs {killed}' if killed else 'no live MAP matched')
+    return 0
+
+
 def cmd_paper(args: argparse.Namespace) -> int:
     from . import paper
     return paper.main(seeds=args.seeds, out=Path(args.out), docs=Path(args.docs), scenario=args.scenario,
@@ -130,6 +166,17 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser('run', help='the main job: the paper scenario with 90 MAPs, with plots')
     p.add_argument('--out', help='output folder (default: runs/sim-<time>)')
     p.set_defaults(func=cmd_run)
+    p = sub.add_parser('up', help='run a scenario distributed: world_sim and one process per MAP, lockstep')
+    add_scenario_options(p)
+    p.add_argument('--agents-per-process', type=int, default=1, help='pack K agent nodes into one process')
+    p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID to use (default: a fresh one per run)')
+    p.add_argument('--out', help='run folder (default: runs/up-<time>)')
+    p.set_defaults(func=cmd_up)
+    p = sub.add_parser('kill', help='SIGKILL agent processes of a running `up`')
+    p.add_argument('--run', required=True, help='the run folder of `up`')
+    p.add_argument('--ids', type=int_list, help='MAP ids to kill, e.g. 3,7')
+    p.add_argument('--fraction', type=fraction, help='fraction of the live MAPs to kill, chosen at random')
+    p.set_defaults(func=cmd_kill)
     p = sub.add_parser('paper', help="regenerate the paper's figures over several seeds and docs/results.md")
     p.add_argument('--scenario', default='paper')
     p.add_argument('--seeds', type=int, default=5, help='seeds per configuration (default: 5)')

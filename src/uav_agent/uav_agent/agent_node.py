@@ -1,0 +1,214 @@
+"""One MAP as an rclpy node: hears only its radio neighbours, computes u_i and its mode with the core.
+
+Lockstep protocol for step k: the world sends /map_<id>/sensing (own q, p, N_u, r_g, neighbour ids);
+the MAP publishes its /map_<id>/state for step k, waits for the step-k states of exactly the listed
+neighbours, runs `agent_step` and publishes /map_<id>/cmd for step k.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import fields
+from typing import Optional
+
+import numpy as np
+import rclpy
+from rclpy._rclpy_pybind11 import RCLError
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.subscription import Subscription
+from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
+
+from . import convert
+from .core.agent import Neighbourhood, agent_step
+from .core.modes import NO_GOAL, ClusterMap, Memory
+from .core.params import FlockParams
+from .qos import LATCHED_QOS, STATE_QOS, STEP_QOS
+
+WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long: the world is gone
+
+
+class AgentNode(Node):
+    """MAP <id> in namespace /map_<id>."""
+
+    def __init__(self, map_id: int) -> None:
+        super().__init__('agent', namespace=f'map_{map_id}')
+        self.map_id = map_id
+        defaults = FlockParams()
+        for f in fields(FlockParams):
+            self.declare_parameter(f.name, getattr(defaults, f.name))
+        self.declare_parameter('hysteresis', 2.0)  # m beyond r before a neighbour's topic is dropped
+        self.params = FlockParams(**{f.name: self.get_parameter(f.name).value for f in fields(FlockParams)})
+        self.hysteresis = float(self.get_parameter('hysteresis').value)
+
+        self.memory = Memory()
+        self.clusters: Optional[ClusterMap] = None
+        self.pending: Optional[Sensing] = None
+        self.step = -1  # the last step the world sensed for us
+        self.own_q = np.zeros(3)
+        self.latest: dict[int, AgentState] = {}
+        self.neighbour_subs: dict[int, Subscription] = {}
+        self.dead: set[int] = set()
+        self.rejected: dict[str, int] = {}
+        self.last_sensing = self.get_clock().now()
+        self.stopped = False
+
+        self.state_pub = self.create_publisher(AgentState, 'state', STATE_QOS)
+        self.cmd_pub = self.create_publisher(Command, 'cmd', STEP_QOS)
+        self.create_subscription(Sensing, 'sensing', self.on_sensing, STEP_QOS)
+        self.create_subscription(Clusters, '/clusters', self.on_clusters, LATCHED_QOS)
+        self.create_subscription(FailureEvent, '/events/failure', self.on_failure, STEP_QOS)
+        self.create_timer(1.0, self.watch_world)
+
+    # ------------------------------------------------------------------ inputs
+    def reject(self, source: str, why: str) -> None:
+        """Count a bad message; log the first one per source only."""
+        self.rejected[source] = self.rejected.get(source, 0) + 1
+        if self.rejected[source] == 1:
+            self.get_logger().warning(f'rejected a message from {source}: {why} (further ones only counted)')
+
+    def on_clusters(self, msg: Clusters) -> None:
+        xy = np.array([[c.x, c.y] for c in msg.centroids]).reshape(-1, 2)
+        if not np.all(np.isfinite(xy)) or len(xy) == 0:
+            self.reject('/clusters', 'no or non-finite centroids')
+            return
+        self.clusters = ClusterMap(xy, self.params.height)
+        self.try_step()
+
+    def on_failure(self, msg: FailureEvent) -> None:
+        self.dead.update(int(i) for i in msg.ids)
+        self.try_step()
+
+    def on_sensing(self, msg: Sensing) -> None:
+        if msg.id != self.map_id or not convert.finite(msg.position, msg.velocity, msg.goal_coverage):
+            self.reject('sensing', f'id {msg.id} or non-finite values')
+            return
+        if msg.step <= self.step:
+            self.reject('sensing', f'stale step {msg.step} (now at {self.step})')
+            return
+        self.last_sensing = self.get_clock().now()
+        self.pending = msg
+        self.step = msg.step
+        self.own_q = convert.xyz(msg.position)
+        self.publish_state(msg)
+        self.follow(list(msg.neighbors.ids))
+        self.try_step()
+
+    def on_state(self, sender: int, msg: AgentState) -> None:
+        source = f'/map_{sender}/state'
+        if msg.id != sender:
+            self.reject(source, f'sender id {msg.id} on the topic of MAP {sender}')
+            return
+        if not convert.finite(msg.position, msg.velocity):
+            self.reject(source, 'non-finite position or velocity')
+            return
+        known = self.latest.get(sender)
+        if (known is not None and msg.step < known.step) or msg.step > self.step + 1:
+            # a neighbour is never more than one step ahead of us in lockstep
+            self.reject(source, f'step {msg.step} out of order (now at {self.step})')
+            return
+        self.latest[sender] = msg
+        self.try_step()
+
+    # ------------------------------------------------------------------ neighbours
+    def follow(self, listed: list[int]) -> None:
+        """Subscribe to the listed neighbours; keep others only while within r + hysteresis."""
+        keep = set(listed)
+        for j in self.neighbour_subs:
+            s = self.latest.get(j)
+            if s is not None and j not in self.dead and \
+                    np.linalg.norm(convert.xyz(s.position) - self.own_q) <= self.params.r + self.hysteresis:
+                keep.add(j)
+        for j in set(self.neighbour_subs) - keep:
+            self.destroy_subscription(self.neighbour_subs.pop(j))
+            self.latest.pop(j, None)
+        for j in sorted(keep - set(self.neighbour_subs)):
+            self.neighbour_subs[j] = self.create_subscription(
+                AgentState, f'/map_{j}/state', lambda m, j=j: self.on_state(j, m), STATE_QOS)
+
+    # ------------------------------------------------------------------ step
+    def publish_state(self, s: Sensing) -> None:
+        mem = self.memory
+        msg = AgentState(header=s.header, id=self.map_id, step=s.step, position=s.position,
+                         velocity=s.velocity, user_count=s.user_count, mode=mem.mode, goal=mem.goal,
+                         bridge=list(mem.bridge) if mem.bridge else [],
+                         achieved_goals=convert.achieved_list(mem.achieved))
+        self.state_pub.publish(msg)
+
+    def try_step(self) -> None:
+        s = self.pending
+        if s is None or self.clusters is None:
+            return
+        needed = [j for j in s.neighbors.ids if j not in self.dead]
+        if any(j not in self.latest or self.latest[j].step != s.step for j in needed):
+            return
+        heard = [self.latest[j] for j in needed]  # ascending id, as the world lists them
+        hood = Neighbourhood(
+            q=np.array([convert.xyz(m.position) for m in heard]).reshape(-1, 3),
+            p=np.array([convert.xyz(m.velocity) for m in heard]).reshape(-1, 3),
+            n_users=np.array([float(m.user_count) for m in heard]),
+            achieved=[convert.achieved_mask(m) for m in heard])
+        coverage = np.zeros(self.clusters.count)
+        if self.memory.goal != NO_GOAL:
+            coverage[self.memory.goal] = s.goal_coverage  # r_g of the goal the world knows we hold
+        u, mem = agent_step(self.memory, self.map_id, convert.xyz(s.position), convert.xyz(s.velocity),
+                            int(s.user_count), coverage, hood, self.clusters, self.params)
+        if not np.all(np.isfinite(u)):
+            self.reject('core', f'non-finite control input at step {s.step}; holding u = 0')
+            u = np.zeros(3)
+        self.memory = mem
+        self.pending = None
+        self.cmd_pub.publish(Command(header=s.header, id=self.map_id, step=s.step, accel=convert.vector(u),
+                                     mode=mem.mode, goal=mem.goal))
+
+    def watch_world(self) -> None:
+        """Say what a stuck step waits for; end on our own when the world is gone."""
+        silent = (self.get_clock().now() - self.last_sensing).nanoseconds * 1e-9
+        if self.pending is not None and silent > 2.0:
+            missing = {j: (self.latest[j].step if j in self.latest else None) for j in self.pending.neighbors.ids
+                       if j not in self.dead and (j not in self.latest or self.latest[j].step != self.pending.step)}
+            self.get_logger().warning(f'step {self.pending.step}: waiting {silent:.0f} s for neighbours '
+                                      f'(id: last step heard) {missing}, clusters known: {self.clusters is not None}')
+        if silent > WORLD_TIMEOUT_S and self.count_publishers(f'/map_{self.map_id}/sensing') == 0:
+            self.get_logger().error(f'no world_sim for {silent:.0f} s: stopping MAP {self.map_id}')
+            self.stopped = True
+
+
+def parse_ids(argv: list[str]) -> list[int]:
+    parser = argparse.ArgumentParser(prog='uav_agent_node', description='Run one or more MAP agent nodes.')
+    parser.add_argument('--ids', required=True, help='MAP ids hosted by this process, e.g. 3 or 0,1,2')
+    args = parser.parse_args(argv)
+    try:
+        ids = [int(v) for v in args.ids.split(',') if v.strip()]
+    except ValueError:
+        parser.error(f'--ids: expected integers separated by commas, got {args.ids!r}')
+    if not ids or min(ids) < 0:
+        parser.error(f'--ids: expected non-negative integers, got {args.ids!r}')
+    return ids
+
+
+def main(argv: Optional[list[str]] = None) -> int:
+    argv = sys.argv if argv is None else argv
+    ids = parse_ids(rclpy.utilities.remove_ros_args(argv)[1:])
+    rclpy.init(args=argv)
+    executor = SingleThreadedExecutor()
+    nodes = [AgentNode(i) for i in ids]
+    for n in nodes:
+        executor.add_node(n)
+    try:
+        while rclpy.ok() and not all(n.stopped for n in nodes):
+            executor.spin_once(timeout_sec=0.5)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except RCLError:
+        if rclpy.ok():  # only a shutdown by signal (SIGINT/SIGTERM) invalidates the context mid-spin
+            raise
+    finally:
+        for n in nodes:
+            n.destroy_node()
+        rclpy.try_shutdown()
+    return 0 if not any(n.stopped for n in nodes) else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

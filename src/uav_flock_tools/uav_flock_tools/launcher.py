@@ -1,0 +1,200 @@
+"""Start world_sim and the MAP agents as real OS processes, and end them all, whatever happens.
+
+Every run gets its own ROS_DOMAIN_ID, so runs and tests on one host never hear each other. Fast DDS is
+told to use UDP only: a SIGKILLed process then leaves no shared-memory files behind in /dev/shm.
+"""
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import yaml
+
+from world_sim.batch import RunResult, World
+from world_sim.core import records
+from world_sim.core.scenario import Scenario
+
+GRACE_S = 3.0  # after SIGINT/SIGTERM, how long children get before SIGKILL
+
+
+def executable(package: str, name: str) -> str:
+    """The console script `ros2 run package name` would start."""
+    from ament_index_python.packages import get_package_prefix
+    return os.path.join(get_package_prefix(package), 'lib', package, name)
+
+
+def ros_env(domain_id: int) -> dict[str, str]:
+    env = dict(os.environ)
+    env.update(ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               FASTDDS_BUILTIN_TRANSPORTS='UDPv4', PYTHONUNBUFFERED='1')
+    return env
+
+
+def fresh_domain_id() -> int:
+    return random.SystemRandom().randint(1, 101)
+
+
+def write_pid_table(path: Path, table: dict[int, int]) -> None:
+    tmp = path.with_suffix('.tmp')
+    tmp.write_text(json.dumps({str(k): v for k, v in sorted(table.items())}, indent=1))
+    tmp.replace(path)
+
+
+def read_pid_table(run: Path) -> dict[int, int]:
+    path = run / 'pids.json'
+    if not path.exists():
+        raise FileNotFoundError(f'{run}: no pids.json (is it a run folder of ./uav-flock up?)')
+    return {int(k): int(v) for k, v in json.loads(path.read_text()).items()}
+
+
+@dataclass
+class Fleet:
+    world: subprocess.Popen
+    agents: list[subprocess.Popen]
+
+    def all(self) -> list[subprocess.Popen]:
+        return [self.world, *self.agents]
+
+
+def stop(procs: list[subprocess.Popen], first: int = signal.SIGTERM) -> None:
+    """Signal, wait up to GRACE_S, then SIGKILL and reap: no orphans."""
+    for p in procs:
+        if p.poll() is None:
+            try:
+                os.killpg(p.pid, first)
+            except ProcessLookupError:
+                pass
+    deadline = time.monotonic() + GRACE_S
+    for p in procs:
+        try:
+            p.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            pass
+    for p in procs:
+        if p.poll() is None:
+            try:
+                os.killpg(p.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            p.wait()
+
+
+def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: int = 1,
+       domain_id: Optional[int] = None) -> tuple[int, Optional[RunResult]]:
+    """Run the scenario distributed; returns (world exit code, result read back from the run folder)."""
+    run.mkdir(parents=True, exist_ok=True)
+    domain = domain_id if domain_id is not None else fresh_domain_id()
+    env = ros_env(domain)
+    params = run / 'agent_params.yaml'
+    params.write_text(yaml.safe_dump({'/**': {'ros__parameters': scenario.flock.as_dict()}}, sort_keys=False))
+    (run / 'run.json').write_text(json.dumps({'domain_id': domain, 'scenario': str(scenario_path),
+                                              'maps': scenario.maps, 'seed': scenario.seed,
+                                              'agents_per_process': agents_per_process}, indent=1))
+    logs = run / 'logs'
+    logs.mkdir(exist_ok=True)
+    print(f'uav-flock up: {scenario.maps} MAPs in {-(-scenario.maps // agents_per_process)} processes, '
+          f'ROS_DOMAIN_ID={domain}, run folder {run}', flush=True)
+
+    agent_exe, world_exe = executable('uav_agent', 'uav_agent_node'), executable('world_sim', 'world_sim_node')
+    agents: list[subprocess.Popen] = []
+    table: dict[int, int] = {}
+    fleet: Optional[Fleet] = None
+    interrupted = False
+
+    def on_signal(signum: int, frame: object) -> None:
+        nonlocal interrupted
+        interrupted = True
+        raise KeyboardInterrupt
+
+    old_int, old_term = signal.signal(signal.SIGINT, on_signal), signal.signal(signal.SIGTERM, on_signal)
+    try:
+        for first in range(0, scenario.maps, agents_per_process):
+            ids = list(range(first, min(first + agents_per_process, scenario.maps)))
+            with open(logs / f'agents_{first}.log', 'w') as log:
+                p = subprocess.Popen([agent_exe, '--ids', ','.join(map(str, ids)), '--ros-args',
+                                      '--params-file', str(params)], env=env, stdout=log, stderr=subprocess.STDOUT,
+                                     start_new_session=True)
+            agents.append(p)
+            table.update({i: p.pid for i in ids})
+        write_pid_table(run / 'pids.json', table)
+        s = scenario
+        world_args = [world_exe, '--ros-args', '-p', f'scenario:={scenario_path}', '-p', f'maps:={s.maps}',
+                      '-p', f'seed:={s.seed}', '-p', f'duration:={float(s.duration)}', '-p', f'out:={run}',
+                      '-p', f'pid_table:={run / "pids.json"}']
+        if s.fail_at is not None:
+            world_args += ['-p', f'fail_at:={float(s.fail_at)}', '-p', f'fail_fraction:={float(s.fail_fraction)}']
+        world = subprocess.Popen(world_args, env=env, stdout=subprocess.PIPE, stderr=open(logs / 'world.log', 'w'),
+                                 text=True, start_new_session=True)
+        fleet = Fleet(world, agents)
+        assert world.stdout is not None
+        for line in world.stdout:
+            print(line.rstrip(), flush=True)
+        code = world.wait()
+    except KeyboardInterrupt:
+        code = 130
+    finally:
+        signal.signal(signal.SIGINT, old_int)
+        signal.signal(signal.SIGTERM, old_term)
+        if fleet is not None:
+            stop([fleet.world], signal.SIGINT)  # the world writes its records first
+        stop(agents)
+    if interrupted:
+        print(f'uav-flock up: interrupted; every process ended, records so far in {run}', file=sys.stderr)
+    if code not in (0, 130) and not (run / 'metrics.csv').exists():
+        tail = (logs / 'world.log').read_text().strip().splitlines()[-1:] if (logs / 'world.log').exists() else []
+        print(f'uav-flock up: world_sim failed (exit {code}){": " + tail[0] if tail else ""}', file=sys.stderr)
+        return code, None
+    return code, read_result(run, scenario)
+
+
+def read_result(run: Path, scenario: Scenario) -> Optional[RunResult]:
+    """The run's records as a RunResult (users regenerated from the seed, as the world made them)."""
+    if not (run / 'metrics.csv').exists():
+        return None
+    m = records.read_csv(run / 'metrics.csv')
+    t = records.read_csv(run / 'trajectory.csv')
+    metrics = np.column_stack([m[c] for c in records.METRICS_COLUMNS]).reshape(-1, len(records.METRICS_COLUMNS))
+    traj = np.column_stack([t[c] for c in records.TRAJECTORY_COLUMNS]).reshape(-1, len(records.TRAJECTORY_COLUMNS))
+    w = World(scenario)
+    fail_step = w.fail_step if scenario.fail_fraction > 0 else None
+    steps = traj[:, 0]
+    first, last = traj[steps == steps.min(), 2], traj[steps == steps.max(), 2]
+    failed = np.setdiff1d(first, last).astype(np.intp)
+    return RunResult(scenario, w.users, metrics, traj, failed, fail_step)
+
+
+def kill(run: Path, ids: Optional[list[int]], fraction: Optional[float]) -> list[int]:
+    """SIGKILL agent processes of a running `up`: by MAP id, or a random fraction of the live ones."""
+    table = read_pid_table(run)
+    live = sorted(i for i, pid in table.items() if _alive(pid))
+    if ids is None:
+        count = int(round((fraction or 0.0) * len(live)))
+        ids = sorted(random.SystemRandom().sample(live, count))
+    unknown = [i for i in ids if i not in table]
+    if unknown:
+        raise ValueError(f'--ids: no MAP {unknown[0]} in this run (ids 0-{max(table)})')
+    killed = []
+    for i in ids:
+        if _alive(table[i]):
+            os.kill(table[i], signal.SIGKILL)
+            killed.append(i)
+    return killed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+        return True
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True

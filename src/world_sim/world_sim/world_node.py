@@ -1,0 +1,257 @@
+"""The physical world as an rclpy node: MSDs, dynamics, association and metrics, in lockstep with the MAPs.
+
+Step k: drop failed MAPs, sense at q(k), publish /clock, /association and every live MAP's
+/map_<id>/sensing; wait for each live MAP's /map_<id>/cmd of step k (a MAP whose process is gone is
+dropped); then record and integrate with the very `World` the batch simulator uses.
+"""
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import rclpy
+from builtin_interfaces.msg import Time
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Header
+from uav_flock_msgs.msg import (Association, Clusters, Command, FailureEvent, Metrics, NeighborList,
+                                Sensing, Users)
+
+from uav_agent import convert
+from uav_agent.core.modes import NO_GOAL
+from uav_agent.qos import LATCHED_QOS, STEP_QOS
+
+from .batch import Sensed, World
+from .core import records
+from .core.scenario import ScenarioError, load
+
+LIVENESS_PERIOD_S = 0.2  # how often the processes of MAPs we wait for are checked
+
+
+def sim_time(t: float) -> Time:
+    sec = int(np.floor(t))
+    return Time(sec=sec, nanosec=int(round((t - sec) * 1e9)) % 1_000_000_000)
+
+
+def process_alive(pid: int) -> bool:
+    """A process that exists and is not a zombie (killed but not yet reaped)."""
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            return f.read().rsplit(')', 1)[1].split()[0] != 'Z'
+    except (OSError, IndexError):
+        return False
+
+
+class WorldNode(Node):
+    def __init__(self) -> None:
+        super().__init__('world_sim')
+        for name, default in (('scenario', ''), ('maps', 0), ('seed', -1), ('duration', 0.0), ('fail_at', -1.0),
+                              ('fail_fraction', -1.0), ('out', ''), ('pid_table', ''), ('start_timeout', 60.0)):
+            self.declare_parameter(name, default)
+        get = lambda n: self.get_parameter(n).value  # noqa: E731
+        scenario = load(get('scenario'))
+        scenario = scenario.with_overrides(
+            maps=get('maps') or None, seed=get('seed') if get('seed') >= 0 else None,
+            duration=get('duration') or None, fail_at=get('fail_at') if get('fail_at') >= 0 else None,
+            fail_fraction=get('fail_fraction') if get('fail_fraction') >= 0 else None)
+        self.s = scenario
+        self.world = World(scenario)
+        self.out = Path(get('out')) if get('out') else None
+        self.pid_table = Path(get('pid_table')) if get('pid_table') else None
+        self.start_timeout = float(get('start_timeout'))
+        n = scenario.maps
+
+        self.clock_pub = self.create_publisher(Clock, '/clock', QoSProfile(depth=10))
+        self.assoc_pub = self.create_publisher(Association, '/association', STEP_QOS)
+        self.metrics_pub = self.create_publisher(Metrics, '/metrics', STEP_QOS)
+        self.failure_pub = self.create_publisher(FailureEvent, '/events/failure', STEP_QOS)
+        self.users_pub = self.create_publisher(Users, '/users', LATCHED_QOS)
+        self.clusters_pub = self.create_publisher(Clusters, '/clusters', LATCHED_QOS)
+        self.sensing_pubs = [self.create_publisher(Sensing, f'/map_{i}/sensing', STEP_QOS) for i in range(n)]
+        for i in range(n):
+            self.create_subscription(Command, f'/map_{i}/cmd', lambda m, i=i: self.on_command(i, m), STEP_QOS)
+        self.publish_fixed()
+
+        self.sensed: Optional[Sensed] = None
+        self.commands: dict[int, Command] = {}
+        self.last_mode: dict[int, int] = {}
+        self.rejected = 0
+        self.started = False
+        self.finished = False
+        self.wall_start = time.monotonic()
+        self.last_report = -1.0
+        self.create_timer(LIVENESS_PERIOD_S, self.tick)
+
+    # ------------------------------------------------------------------ fixed topics
+    def header(self) -> Header:
+        return Header(stamp=sim_time(self.world.k * self.s.dt), frame_id='world')
+
+    def publish_fixed(self) -> None:
+        u = self.world.users
+        self.users_pub.publish(Users(header=self.header(), positions=[convert.point(y) for y in u.xyz],
+                                     cluster=u.cluster.astype(np.uint32).tolist()))
+        self.clusters_pub.publish(Clusters(
+            header=self.header(), centroids=[convert.point(np.array([c[0], c[1], 0.0])) for c in u.centroids],
+            sizes=u.cluster_sizes.astype(np.uint32).tolist()))
+
+    # ------------------------------------------------------------------ lockstep
+    def tick(self) -> None:
+        if not self.started:
+            self.try_start()
+        elif not self.finished:
+            self.check_liveness()
+
+    def try_start(self) -> None:
+        """Begin once every MAP listens to its sensing topic and publishes commands."""
+        ready = sum(1 for i in range(self.s.maps)
+                    if self.sensing_pubs[i].get_subscription_count() > 0
+                    and self.count_publishers(f'/map_{i}/cmd') > 0)
+        if ready == self.s.maps:
+            self.started = True
+            self.get_logger().info(f'{ready} MAPs ready after {time.monotonic() - self.wall_start:.1f} s: starting')
+            self.wall_start = time.monotonic()
+            self.begin_step()
+        elif time.monotonic() - self.wall_start > self.start_timeout:
+            self.get_logger().error(f'only {ready} of {self.s.maps} MAPs appeared within {self.start_timeout:g} s')
+            self.finish(ok=False)
+
+    def begin_step(self) -> None:
+        w = self.world
+        failing = w.scheduled_failures()
+        if len(failing):
+            self.drop(failing, 'scheduled')
+        self.sensed = s = w.sense()
+        self.commands = {}
+        hdr = self.header()
+        self.clock_pub.publish(Clock(clock=hdr.stamp))
+        self.assoc_pub.publish(Association(
+            header=hdr, step=s.k, map_ids=s.ids.astype(np.uint32).tolist(),
+            user_counts=s.n_users.astype(np.uint32).tolist(), cluster_coverage=s.cluster_coverage.tolist(),
+            coverage_ratio=s.coverage_ratio))
+        for row, i in enumerate(s.ids.tolist()):
+            nbr = s.neighbours(row)
+            goal = int(w.goal[i])
+            self.sensing_pubs[i].publish(Sensing(
+                header=hdr, id=i, step=s.k, position=convert.point(s.q[row]), velocity=convert.vector(s.p[row]),
+                user_count=int(s.n_users[row]),
+                goal_coverage=float(s.cluster_coverage[goal]) if goal != NO_GOAL else 0.0,
+                neighbors=NeighborList(id=i, ids=s.ids[nbr].astype(np.uint32).tolist(),
+                                       distances=np.linalg.norm(s.q[nbr] - s.q[row], axis=1).tolist())))
+
+    def on_command(self, sender: int, msg: Command) -> None:
+        s = self.sensed
+        if s is None or self.finished:
+            return
+        if msg.id != sender or msg.step != s.k or not convert.finite(msg.accel) or sender not in s.ids:
+            self.rejected += 1
+            return
+        self.commands[sender] = msg
+        self.maybe_advance()
+
+    def maybe_advance(self) -> None:
+        s = self.sensed
+        if any(self.world.alive[i] and i not in self.commands for i in s.ids.tolist()):
+            return
+        # A MAP that died during this step sent nothing: it drifts with u = 0 and keeps its last mode.
+        cmds = [self.commands.get(i) for i in s.ids.tolist()]
+        u = np.array([convert.xyz(c.accel) if c else np.zeros(3) for c in cmds]).reshape(-1, 3)
+        modes = np.array([c.mode if c else self.last_mode.get(i, 0) for c, i in zip(cmds, s.ids.tolist())],
+                         dtype=np.intp)
+        goals = np.array([c.goal if c else self.world.goal[i] for c, i in zip(cmds, s.ids.tolist())],
+                         dtype=np.intp)
+        self.last_mode.update(zip(s.ids.tolist(), modes.tolist()))
+        last = self.world.k >= self.s.steps
+        row = self.world.advance(s, u, modes, goals, integrate=not last)
+        self.publish_metrics(row)
+        if last:
+            self.finish(ok=True)
+        else:
+            self.begin_step()
+
+    def publish_metrics(self, row: np.ndarray) -> None:
+        k, t, rc, lam2, alive, comp, m0, m1, m2 = row.tolist()
+        self.metrics_pub.publish(Metrics(header=Header(stamp=sim_time(t), frame_id='world'), step=int(k), t=t,
+                                         coverage_ratio=rc, fiedler=lam2, alive=int(alive), components=int(comp),
+                                         mode0=int(m0), mode1=int(m1), mode2=int(m2)))
+        if int(k) % int(round(1.0 / self.s.dt)) == 0:
+            wall = time.monotonic() - self.wall_start
+            print(f't = {t:5.1f} s  R_c = {100 * rc:5.1f} %  λ2 = {lam2:.4f}  alive = {int(alive)}  '
+                  f'modes = {int(m0)}/{int(m1)}/{int(m2)}  {(k + 1) / max(wall, 1e-9):.1f} steps/s', flush=True)
+
+    # ------------------------------------------------------------------ failures
+    def drop(self, ids: np.ndarray, cause: str) -> None:
+        ids = np.asarray(sorted(int(i) for i in ids), dtype=np.intp)
+        self.world.drop(ids)
+        self.failure_pub.publish(FailureEvent(header=self.header(), step=self.world.k,
+                                              ids=ids.astype(np.uint32).tolist(), cause=cause))
+        self.get_logger().warning(f'step {self.world.k}: dropped MAPs {ids.tolist()} ({cause})')
+
+    def pids(self) -> dict[int, int]:
+        if self.pid_table is None or not self.pid_table.exists():
+            return {}
+        try:
+            return {int(k): int(v) for k, v in json.loads(self.pid_table.read_text()).items()}
+        except (ValueError, OSError):
+            return {}
+
+    def check_liveness(self) -> None:
+        """Drop the MAPs we wait for whose process is gone; a slow but living MAP is waited for."""
+        s = self.sensed
+        if s is None:
+            return
+        waiting = [i for i in s.ids.tolist() if i not in self.commands and self.world.alive[i]]
+        if not waiting:
+            return
+        table = self.pids()
+        gone = [i for i in waiting if (i in table and not process_alive(table[i]))
+                or (not table and self.sensing_pubs[i].get_subscription_count() == 0)]
+        if gone:
+            self.drop(np.array(gone), 'killed')
+            self.maybe_advance()
+
+    # ------------------------------------------------------------------ end
+    def finish(self, ok: bool) -> None:
+        self.finished = True
+        self.ok = ok
+        if self.out is not None:
+            self.out.mkdir(parents=True, exist_ok=True)
+            result = self.world.result()
+            records.write_metrics(self.out / 'metrics.csv', result.metrics)
+            records.write_trajectory(self.out / 'trajectory.csv', result.trajectory)
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    """SIGTERM ends the run like Ctrl-C: records are written before exit."""
+    raise KeyboardInterrupt
+
+
+def main(argv: Optional[list[str]] = None) -> int:
+    rclpy.init(args=sys.argv if argv is None else argv)
+    signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        node = WorldNode()
+    except (ScenarioError, ValueError) as exc:
+        print(f'world_sim: error: {exc}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    try:
+        while rclpy.ok() and not node.finished:
+            rclpy.spin_once(node, timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        if not node.finished:
+            node.finish(ok=False)  # keep what was simulated
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0 if getattr(node, 'ok', False) else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())
