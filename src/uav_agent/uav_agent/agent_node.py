@@ -23,7 +23,7 @@ from . import convert
 from .core.agent import Neighbourhood, agent_step
 from .core.modes import NO_GOAL, ClusterMap, Memory
 from .core.params import FlockParams
-from .qos import LATCHED_QOS, STATE_QOS, STEP_QOS
+from .qos import LATCHED_QOS, STATE_QOS, STATE_READ_QOS, STEP_QOS
 
 WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long: the world is gone
 
@@ -124,7 +124,7 @@ class AgentNode(Node):
             self.latest.pop(j, None)
         for j in sorted(keep - set(self.neighbour_subs)):
             self.neighbour_subs[j] = self.create_subscription(
-                AgentState, f'/map_{j}/state', lambda m, j=j: self.on_state(j, m), STATE_QOS)
+                AgentState, f'/map_{j}/state', lambda m, j=j: self.on_state(j, m), STATE_READ_QOS)
 
     # ------------------------------------------------------------------ step
     def publish_state(self, s: Sensing) -> None:

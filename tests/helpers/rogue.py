@@ -1,0 +1,47 @@
+"""A rogue publisher on /map_<id>/state: NaN, a wrong sender id and stale steps, until SIGTERM.
+
+Usage: python -m helpers.rogue ID. Prints 'published N readers R' when it ends.
+"""
+from __future__ import annotations
+
+import signal
+import sys
+
+import rclpy
+from geometry_msgs.msg import Point, Vector3
+from uav_flock_msgs.msg import AgentState
+
+from uav_agent.qos import STATE_QOS
+
+running = True
+
+
+def stop(*_: object) -> None:
+    global running
+    running = False
+
+
+def main() -> int:
+    target = int(sys.argv[1])
+    signal.signal(signal.SIGTERM, stop)
+    rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    node = rclpy.create_node('rogue')
+    pub = node.create_publisher(AgentState, f'/map_{target}/state', STATE_QOS)
+    here = Point(x=-150.0, y=50.0, z=20.0)
+    bad = [AgentState(id=target, step=1, position=Point(x=float('nan'))),
+           AgentState(id=target + 2, step=1, position=here),
+           AgentState(id=target, step=0, position=here, velocity=Vector3(x=float('inf')))]
+    n = readers = 0
+    while running:
+        pub.publish(bad[n % len(bad)])
+        n += 1
+        readers = max(readers, pub.get_subscription_count())
+        rclpy.spin_once(node, timeout_sec=0.005)
+    print(f'published {n} readers {readers}', flush=True)
+    node.destroy_node()
+    rclpy.shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

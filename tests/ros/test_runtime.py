@@ -1,0 +1,125 @@
+"""The distributed system: real processes over DDS, compared with the batch simulator (the oracle)."""
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from world_sim.core.records import read_csv
+
+
+def cli(*args: str, env: dict[str, str] | None = None, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', *args], capture_output=True, text=True,
+                          timeout=timeout, env=env)
+
+
+def up(*args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'up', *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=env)
+
+
+def dead(pid: int) -> bool:
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            return f.read().rsplit(')', 1)[1].split()[0] == 'Z'
+    except OSError:
+        return True
+
+
+def wait_for_line(proc: subprocess.Popen[str], needle: str, timeout: float) -> list[str]:
+    seen: list[str] = []
+    deadline = time.monotonic() + timeout
+    assert proc.stdout is not None
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        seen.append(line)
+        if needle in line:
+            return seen
+    raise AssertionError(f'{needle!r} not printed within {timeout} s:\n' + ''.join(seen))
+
+
+def test_lockstep_run_equals_the_batch_simulator(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    args = ('--maps', '20', '--seed', '3', '--duration', '10')
+    distributed = cli('up', *args, '--out', str(tmp_path / 'up'), env=ros_env)
+    assert distributed.returncode == 0, distributed.stdout + distributed.stderr
+    batch = cli('sim', *args, '--out', str(tmp_path / 'sim'))
+    assert batch.returncode == 0, batch.stderr
+    a, b = read_csv(tmp_path / 'up' / 'trajectory.csv'), read_csv(tmp_path / 'sim' / 'trajectory.csv')
+    assert len(a['step']) == len(b['step']) == 20 * 101
+    for col in ('x', 'y', 'z', 'vx', 'vy', 'vz'):
+        assert np.max(np.abs(a[col] - b[col])) <= 1e-9, col
+    for col in ('step', 'id', 'mode', 'goal', 'user_count'):
+        assert np.array_equal(a[col], b[col]), col
+    pids = json.loads((tmp_path / 'up' / 'pids.json').read_text()).values()
+    assert len(set(pids)) == 20 and all(dead(p) for p in pids), 'every agent process is gone after the run'
+
+
+def test_packed_agents_give_the_same_run(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    args = ('--maps', '9', '--seed', '1', '--duration', '4')
+    packed = cli('up', *args, '--agents-per-process', '4', '--out', str(tmp_path / 'up'), env=ros_env)
+    assert packed.returncode == 0, packed.stdout + packed.stderr
+    assert len(set(json.loads((tmp_path / 'up' / 'pids.json').read_text()).values())) == 3
+    assert cli('sim', *args, '--out', str(tmp_path / 'sim')).returncode == 0
+    assert (tmp_path / 'up' / 'trajectory.csv').read_bytes() == (tmp_path / 'sim' / 'trajectory.csv').read_bytes()
+
+
+def test_killed_agents_are_dropped_and_the_run_completes(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    run = tmp_path / 'up'
+    proc = up('--maps', '12', '--seed', '0', '--duration', '12', '--out', str(run), env=ros_env)
+    try:
+        wait_for_line(proc, 't =   2.0 s', 120)
+        killed = cli('kill', '--run', str(run), '--ids', '3,7')
+        assert killed.returncode == 0 and 'SIGKILLed MAPs [3, 7]' in killed.stdout, killed.stdout + killed.stderr
+        out, _ = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, out
+    m = read_csv(run / 'metrics.csv')
+    assert m['t'][-1] == 12.0
+    assert m['alive'][0] == 12 and m['alive'][-1] == 10
+    t = read_csv(run / 'trajectory.csv')
+    last = set(t['id'][t['step'] == t['step'].max()].astype(int).tolist())
+    assert last == set(range(12)) - {3, 7}
+    assert 'dropped MAPs [3, 7] (killed)' in (run / 'logs' / 'world.log').read_text() or \
+        'dropped MAPs [3]' in (run / 'logs' / 'world.log').read_text()
+
+
+def test_ctrl_c_ends_every_process_and_keeps_the_records(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    run = tmp_path / 'up'
+    proc = up('--maps', '8', '--seed', '0', '--duration', '600', '--out', str(run), env=ros_env)
+    wait_for_line(proc, 't =   1.0 s', 120)
+    pids = list(json.loads((run / 'pids.json').read_text()).values())
+    proc.send_signal(signal.SIGINT)
+    t0 = time.monotonic()
+    out, _ = proc.communicate(timeout=30)
+    assert time.monotonic() - t0 < 5.0 + 3.0, 'up must end its children within 5 s (plus plotting)'
+    assert 'interrupted' in out
+    assert all(dead(p) for p in pids), 'no orphan agent processes'
+    m = read_csv(run / 'metrics.csv')
+    assert m['t'][-1] >= 1.0
+
+
+def test_rogue_state_messages_change_nothing(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """NaN, a wrong sender id and stale steps on /map_3/state from another process: every agent ignores them."""
+    args = ('--maps', '10', '--seed', '2', '--duration', '5')
+    rogue = subprocess.Popen([sys.executable, '-m', 'helpers.rogue', '3'], cwd=Path(__file__).resolve().parents[1],
+                             env=ros_env, stdout=subprocess.PIPE, text=True)
+    try:
+        run = cli('up', *args, '--domain-id', ros_env['ROS_DOMAIN_ID'], '--out', str(tmp_path / 'up'), env=ros_env)
+    finally:
+        rogue.terminate()
+        said, _ = rogue.communicate(timeout=30)
+    assert run.returncode == 0, run.stdout + run.stderr
+    published, readers = (int(v) for v in said.split()[1::2])
+    assert published > 30 and readers > 0, f'the rogue must reach the neighbours of MAP 3: {said}'
+    assert cli('sim', *args, '--out', str(tmp_path / 'sim')).returncode == 0
+    assert (tmp_path / 'up' / 'trajectory.csv').read_bytes() == (tmp_path / 'sim' / 'trajectory.csv').read_bytes()
+    logs = ''.join(p.read_text() for p in (tmp_path / 'up' / 'logs').glob('agents_*.log'))
+    assert 'rejected a message from /map_3/state' in logs
