@@ -123,3 +123,54 @@ def test_rogue_state_messages_change_nothing(tmp_path: Path, ros_env: dict[str, 
     assert (tmp_path / 'up' / 'trajectory.csv').read_bytes() == (tmp_path / 'sim' / 'trajectory.csv').read_bytes()
     logs = ''.join(p.read_text() for p in (tmp_path / 'up' / 'logs').glob('agents_*.log'))
     assert 'rejected a message from /map_3/state' in logs
+
+
+def test_agents_listen_only_to_maps_in_radio_range(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """Sampled from the live ROS graph: no MAP subscribes to a MAP beyond r + hysteresis."""
+    r, hysteresis, dt = 24.0, 2.0, 0.1
+    sampler = subprocess.Popen([sys.executable, '-m', 'helpers.graph_sampler', '16'],
+                               cwd=Path(__file__).resolve().parents[1], env=ros_env, stdout=subprocess.PIPE, text=True)
+    try:
+        run = cli('up', '--maps', '16', '--seed', '5', '--duration', '12', '--domain-id', ros_env['ROS_DOMAIN_ID'],
+                  '--out', str(tmp_path), env=ros_env)
+    finally:
+        sampler.terminate()
+        said, _ = sampler.communicate(timeout=30)
+    assert run.returncode == 0, run.stdout + run.stderr
+    samples = json.loads(said)
+    t = read_csv(tmp_path / 'trajectory.csv')
+    pos = {(int(k), int(i)): np.array([x, y, z]) for k, i, x, y, z in zip(t['step'], t['id'], t['x'], t['y'], t['z'])}
+    vel = {(int(k), int(i)): np.hypot(vx, vy) for k, i, vx, vy in zip(t['step'], t['id'], t['vx'], t['vy'])}
+    last = int(t['step'].max())
+    links = far_pairs = 0
+    for k, j, subscribers in samples:
+        for i in subscribers:
+            steps = [s for s in (k - 1, k, k + 1) if 0 <= s <= last]
+            gap = min(np.linalg.norm(pos[(s, i)] - pos[(s, j)]) for s in steps)
+            slack = 2 * dt * max(vel[(s, i)] + vel[(s, j)] for s in steps)  # the graph is sampled between steps
+            assert gap <= r + hysteresis + slack, f'MAP {i} listens to MAP {j} at {gap:.1f} m (step {k})'
+            links += 1
+        far_pairs += sum(np.linalg.norm(pos[(k, i)] - pos[(k, j)]) > r + hysteresis + 10
+                         for i in range(16) if i != j and (k, i) in pos and (k, j) in pos)
+    assert links > 50, f'the sampler saw too few subscriptions ({links}) to judge'
+    assert far_pairs > 50, 'the run must have MAPs far apart, or the check proves nothing'
+
+
+def test_echo_and_topics_show_a_live_run(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    import yaml
+    run = tmp_path / 'up'
+    proc = up('--maps', '4', '--seed', '0', '--duration', '600', '--out', str(run), env=ros_env)
+    try:
+        wait_for_line(proc, 't =   1.0 s', 120)
+        echoed = cli('echo', '/metrics', '--once', '--run', str(run), timeout=60)
+        listed = cli('topics', '--run', str(run), timeout=60)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=30)
+    assert echoed.returncode == 0, echoed.stderr
+    body = echoed.stdout.split('---')[0]
+    msg = yaml.safe_load(body)
+    assert list(msg) == ['header', 'step', 't', 'coverage_ratio', 'fiedler', 'alive', 'components', 'mode0',
+                         'mode1', 'mode2'] and msg['alive'] == 4
+    assert '/map_3/state [uav_flock_msgs/msg/AgentState]' in listed.stdout
+    assert '/metrics [uav_flock_msgs/msg/Metrics]' in listed.stdout

@@ -150,6 +150,22 @@ def cmd_kill(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_echo(args: argparse.Namespace) -> int:
+    from . import echo
+    try:
+        return echo.echo(args.topic, args.once, args.timeout, args.run, args.domain_id)
+    except FileNotFoundError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def cmd_topics(args: argparse.Namespace) -> int:
+    from . import echo
+    try:
+        return echo.topics(args.run, args.domain_id)
+    except FileNotFoundError as exc:
+        raise UsageError(str(exc)) from None
+
+
 def cmd_paper(args: argparse.Namespace) -> int:
     from . import paper
     return paper.main(seeds=args.seeds, out=Path(args.out), docs=Path(args.docs), scenario=args.scenario,
@@ -177,6 +193,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--ids', type=int_list, help='MAP ids to kill, e.g. 3,7')
     p.add_argument('--fraction', type=fraction, help='fraction of the live MAPs to kill, chosen at random')
     p.set_defaults(func=cmd_kill)
+    p = sub.add_parser('echo', help='print messages of a topic as `ros2 topic echo` does')
+    p.add_argument('topic')
+    p.add_argument('--once', action='store_true', help='print one message and exit')
+    p.add_argument('--timeout', type=positive_float, default=10.0, help='wait this long for a publisher (s)')
+    p.add_argument('--run', help='a run folder of `up`: use its ROS_DOMAIN_ID')
+    p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID to listen on (default: the environment)')
+    p.set_defaults(func=cmd_echo)
+    p = sub.add_parser('topics', help='list topics with their types, as `ros2 topic list -t` does')
+    p.add_argument('--run', help='a run folder of `up`: use its ROS_DOMAIN_ID')
+    p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID to look at (default: the environment)')
+    p.set_defaults(func=cmd_topics)
     p = sub.add_parser('paper', help="regenerate the paper's figures over several seeds and docs/results.md")
     p.add_argument('--scenario', default='paper')
     p.add_argument('--seeds', type=int, default=5, help='seeds per configuration (default: 5)')

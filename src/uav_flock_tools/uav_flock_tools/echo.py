@@ -1,0 +1,107 @@
+"""`echo` and `topics` for installs without ros2cli: the YAML of `ros2 topic echo`, the list of `ros2 topic list -t`."""
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any, Optional
+
+import yaml
+
+DISCOVERY_S = 1.5  # time given to discovery before listing
+
+
+def use_domain(run: Optional[str], domain_id: Optional[int]) -> None:
+    """Point this process at a run's domain (from its run.json) or an explicit one."""
+    if run is not None:
+        info = Path(run) / 'run.json'
+        if not info.exists():
+            raise FileNotFoundError(f'--run: {run} has no run.json (is it a run folder of ./uav-flock up?)')
+        domain_id = int(json.loads(info.read_text())['domain_id'])
+    if domain_id is not None:
+        os.environ['ROS_DOMAIN_ID'] = str(domain_id)
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+
+
+def to_plain(value: Any) -> Any:
+    """A message as nested dicts and lists, field order kept (what ros2cli's message_to_ordereddict gives)."""
+    if hasattr(value, 'get_fields_and_field_types'):
+        return {name: to_plain(getattr(value, name)) for name in value.get_fields_and_field_types()}
+    if hasattr(value, 'tolist'):
+        value = value.tolist()
+    if isinstance(value, (list, tuple)):
+        return [to_plain(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    return value
+
+
+def to_yaml(msg: Any) -> str:
+    return yaml.safe_dump(to_plain(msg), default_flow_style=False, sort_keys=False, width=10**9) + '---'
+
+
+def message_type(name: str) -> type:
+    """'uav_flock_msgs/msg/AgentState' -> the class."""
+    pkg, kind, cls = name.split('/')
+    return getattr(importlib.import_module(f'{pkg}.{kind}'), cls)
+
+
+def topics(run: Optional[str], domain_id: Optional[int]) -> int:
+    use_domain(run, domain_id)
+    import rclpy
+    rclpy.init()
+    try:
+        node = rclpy.create_node('uav_flock_topics')
+        end = time.monotonic() + DISCOVERY_S
+        while time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        for name, types in sorted(node.get_topic_names_and_types()):
+            print(f'{name} [{", ".join(types)}]')
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+    return 0
+
+
+def echo(topic: str, once: bool, timeout: float, run: Optional[str], domain_id: Optional[int]) -> int:
+    use_domain(run, domain_id)
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    rclpy.init()
+    try:
+        node = rclpy.create_node('uav_flock_echo')
+        end = time.monotonic() + timeout
+        infos = []
+        while time.monotonic() < end and not infos:
+            infos = node.get_publishers_info_by_topic(topic)
+            rclpy.spin_once(node, timeout_sec=0.1)
+        if not infos:
+            print(f'uav-flock: error: no publisher of {topic} appeared within {timeout:g} s '
+                  f'(ROS_DOMAIN_ID={os.environ.get("ROS_DOMAIN_ID", "0")})', file=sys.stderr)
+            return 2
+        # Like ros2cli: ask for what every publisher offers, so that no QoS mismatch hides the data.
+        latched = all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
+        reliable = all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+        qos = QoSProfile(depth=10,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+                         reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT)
+        done = False
+
+        def show(msg: Any) -> None:
+            nonlocal done
+            print(to_yaml(msg), flush=True)
+            done = once
+
+        node.create_subscription(message_type(infos[0].topic_type), topic, show, qos)
+        while not done:
+            rclpy.spin_once(node, timeout_sec=0.2)
+        node.destroy_node()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        rclpy.try_shutdown()
+    return 0

@@ -1,0 +1,50 @@
+"""Samples the ROS graph during a run: which MAPs subscribe to each /map_<j>/state, at which step.
+
+Usage: python -m helpers.graph_sampler N_MAPS. On SIGTERM prints JSON [[step, j, [i, ...]], ...].
+"""
+from __future__ import annotations
+
+import json
+import signal
+import sys
+
+import rclpy
+from uav_flock_msgs.msg import Metrics
+
+from uav_agent.qos import STEP_QOS
+
+running = True
+
+
+def stop(*_: object) -> None:
+    global running
+    running = False
+
+
+def main() -> int:
+    n = int(sys.argv[1])
+    signal.signal(signal.SIGTERM, stop)
+    rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    node = rclpy.create_node('graph_sampler')
+    samples: list[list[object]] = []
+
+    def on_metrics(m: Metrics) -> None:
+        if m.step % 5:
+            return
+        for j in range(n):
+            subs = sorted(int(i.node_namespace.rsplit('_', 1)[1]) for i in
+                          node.get_subscriptions_info_by_topic(f'/map_{j}/state')
+                          if i.node_namespace.startswith('/map_'))
+            samples.append([int(m.step), j, subs])
+
+    node.create_subscription(Metrics, '/metrics', on_metrics, STEP_QOS)
+    while running:
+        rclpy.spin_once(node, timeout_sec=0.1)
+    print(json.dumps(samples), flush=True)
+    node.destroy_node()
+    rclpy.shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
