@@ -14,7 +14,7 @@ from typing import Optional
 import numpy as np
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.subscription import Subscription
 from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
@@ -23,6 +23,7 @@ from . import convert
 from .core.agent import Neighbourhood, agent_step
 from .core.modes import NO_GOAL, ClusterMap, Memory
 from .core.params import FlockParams
+from .executors import make_executor
 from .qos import LATCHED_QOS, STATE_QOS, STATE_READ_QOS, STEP_QOS
 
 WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long: the world is gone
@@ -191,7 +192,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     argv = sys.argv if argv is None else argv
     ids = parse_ids(rclpy.utilities.remove_ros_args(argv)[1:])
     rclpy.init(args=argv)
-    executor = SingleThreadedExecutor()
+    executor = make_executor()
     nodes = [AgentNode(i) for i in ids]
     for n in nodes:
         executor.add_node(n)

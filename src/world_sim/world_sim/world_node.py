@@ -26,6 +26,7 @@ from uav_flock_msgs.msg import (Association, Clusters, Command, FailureEvent, Me
 
 from uav_agent import convert
 from uav_agent.core.modes import NO_GOAL
+from uav_agent.executors import make_executor
 from uav_agent.qos import LATCHED_QOS, STEP_QOS
 
 from .batch import Sensed, World
@@ -241,9 +242,11 @@ def main(argv: Optional[list[str]] = None) -> int:
         print(f'world_sim: error: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
+    executor = make_executor()
+    executor.add_node(node)
     try:
         while rclpy.ok() and not node.finished:
-            rclpy.spin_once(node, timeout_sec=0.1)
+            executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         if not node.finished:
             node.finish(ok=False)  # keep what was simulated
