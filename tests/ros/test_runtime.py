@@ -98,10 +98,13 @@ def test_ctrl_c_ends_every_process_and_keeps_the_records(tmp_path: Path, ros_env
     pids = list(json.loads((run / 'pids.json').read_text()).values())
     proc.send_signal(signal.SIGINT)
     t0 = time.monotonic()
-    out, _ = proc.communicate(timeout=30)
-    assert time.monotonic() - t0 < 5.0 + 3.0, 'up must end its children within 5 s (plus plotting)'
-    assert 'interrupted' in out
+    while not all(dead(p) for p in pids) and time.monotonic() - t0 < 10:
+        time.sleep(0.05)
+    gone_after = time.monotonic() - t0
+    out, _ = proc.communicate(timeout=60)
     assert all(dead(p) for p in pids), 'no orphan agent processes'
+    assert gone_after <= 5.0, f'children ended {gone_after:.1f} s after Ctrl-C (limit 5 s)'
+    assert 'interrupted' in out
     m = read_csv(run / 'metrics.csv')
     assert m['t'][-1] >= 1.0
 

@@ -12,7 +12,9 @@ from typing import Any, Optional
 
 import yaml
 
-DISCOVERY_S = 1.5  # time given to discovery before listing
+DISCOVERY_S = 1.5  # least time given to discovery before listing
+SETTLED_S = 1.0  # ... and the list must not have grown for this long
+DISCOVERY_MAX_S = 10.0
 
 
 def use_domain(run: Optional[str], domain_id: Optional[int]) -> None:
@@ -56,10 +58,17 @@ def topics(run: Optional[str], domain_id: Optional[int]) -> int:
     rclpy.init()
     try:
         node = rclpy.create_node('uav_flock_topics')
-        end = time.monotonic() + DISCOVERY_S
-        while time.monotonic() < end:
+        start = changed = time.monotonic()
+        seen: list = []
+        while True:
             rclpy.spin_once(node, timeout_sec=0.1)
-        for name, types in sorted(node.get_topic_names_and_types()):
+            now_seen = node.get_topic_names_and_types()
+            now = time.monotonic()
+            if len(now_seen) != len(seen):
+                seen, changed = now_seen, now
+            if (now - start >= DISCOVERY_S and now - changed >= SETTLED_S) or now - start >= DISCOVERY_MAX_S:
+                break
+        for name, types in sorted(seen):
             print(f'{name} [{", ".join(types)}]')
         node.destroy_node()
     finally:
