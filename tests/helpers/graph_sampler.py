@@ -5,26 +5,17 @@ Usage: python -m helpers.graph_sampler N_MAPS. On SIGTERM prints JSON [[step, j,
 from __future__ import annotations
 
 import json
-import signal
 import sys
 
 import rclpy
 from uav_flock_msgs.msg import Metrics
 
+from helpers.lifecycle import UntilTerm
 from uav_agent.qos import STEP_QOS
-
-running = True
-
-
-def stop(*_: object) -> None:
-    global running
-    running = False
-
 
 def main() -> int:
     n = int(sys.argv[1])
-    signal.signal(signal.SIGTERM, stop)
-    rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    running = UntilTerm()
     node = rclpy.create_node('graph_sampler')
     samples: list[list[object]] = []
 

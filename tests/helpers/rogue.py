@@ -4,27 +4,18 @@ Usage: python -m helpers.rogue ID. Prints 'published N readers R' when it ends.
 """
 from __future__ import annotations
 
-import signal
 import sys
 
 import rclpy
 from geometry_msgs.msg import Point, Vector3
 from uav_flock_msgs.msg import AgentState
 
+from helpers.lifecycle import UntilTerm
 from uav_agent.qos import STATE_QOS
-
-running = True
-
-
-def stop(*_: object) -> None:
-    global running
-    running = False
-
 
 def main() -> int:
     target = int(sys.argv[1])
-    signal.signal(signal.SIGTERM, stop)
-    rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    running = UntilTerm()
     node = rclpy.create_node('rogue')
     pub = node.create_publisher(AgentState, f'/map_{target}/state', STATE_QOS)
     here = Point(x=-150.0, y=50.0, z=20.0)

@@ -61,9 +61,6 @@ class Fleet:
     world: subprocess.Popen
     agents: list[subprocess.Popen]
 
-    def all(self) -> list[subprocess.Popen]:
-        return [self.world, *self.agents]
-
 
 def stop(procs: list[subprocess.Popen], first: int = signal.SIGTERM) -> None:
     """Signal, wait up to GRACE_S, then SIGKILL and reap: no orphans."""

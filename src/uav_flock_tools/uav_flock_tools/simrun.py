@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Optional
 
@@ -32,15 +31,6 @@ def resolve_scenario(name_or_path: str) -> Path:
 
 def load_scenario(name_or_path: str) -> Scenario:
     return load(resolve_scenario(name_or_path))
-
-
-@dataclass
-class Outcome:
-    """A finished (or interrupted) run and where its files went."""
-
-    result: RunResult
-    folder: Path
-    complete: bool
 
 
 def trajectory_columns(result: RunResult) -> dict[str, np.ndarray]:

@@ -152,6 +152,9 @@ class WorldNode(Node):
             return
         if msg.id != sender or msg.step != s.k or not convert.finite(msg.accel) or sender not in s.ids:
             self.rejected += 1
+            if self.rejected == 1:
+                self.get_logger().warning(f'rejected a command on /map_{sender}/cmd (id {msg.id}, step {msg.step}); '
+                                          'further ones only counted')
             return
         self.commands[sender] = msg
         self.maybe_advance()
