@@ -196,6 +196,7 @@ class WorldNode(Node):
         self.failure_pub.publish(FailureEvent(header=self.header(), step=self.world.k,
                                               ids=ids.astype(np.uint32).tolist(), cause=cause))
         self.get_logger().warning(f'step {self.world.k}: dropped MAPs {ids.tolist()} ({cause})')
+        print(f't = {self.world.k * self.s.dt:5.1f} s  dropped MAPs {ids.tolist()} ({cause})', flush=True)
 
     def pids(self) -> dict[int, int]:
         if self.pid_table is None or not self.pid_table.exists():
