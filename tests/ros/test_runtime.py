@@ -181,3 +181,16 @@ def test_echo_and_topics_show_a_live_run(tmp_path: Path, ros_env: dict[str, str]
                          'mode1', 'mode2'] and msg['alive'] == 4
     assert '/map_3/state [uav_flock_msgs/msg/AgentState]' in listed.stdout
     assert '/metrics [uav_flock_msgs/msg/Metrics]' in listed.stdout
+
+
+def test_discovery_server_run_equals_the_batch_simulator(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """The Fast DDS discovery server `up` uses beyond 30 processes, forced here on a small run."""
+    args = ('--maps', '6', '--seed', '4', '--duration', '2')
+    run = tmp_path / 'up'
+    proc = up(*args, '--discovery', 'server', '--out', str(run), env=ros_env)
+    out, _ = proc.communicate(timeout=300)
+    assert proc.returncode == 0, out
+    assert 'discovery server 127.0.0.1:' in out
+    assert json.loads((run / 'run.json').read_text())['discovery_server'].startswith('127.0.0.1:')
+    assert cli('sim', *args, '--out', str(tmp_path / 'sim')).returncode == 0
+    assert (run / 'trajectory.csv').read_bytes() == (tmp_path / 'sim' / 'trajectory.csv').read_bytes()

@@ -128,7 +128,8 @@ def cmd_up(args: argparse.Namespace) -> int:
     if args.agents_per_process < 1:
         raise UsageError('up: --agents-per-process must be at least 1')
     out = Path(args.out) if args.out else default_out('up')
-    code, result = launcher.up(path.resolve(), s, out.resolve(), args.agents_per_process, args.domain_id)
+    code, result = launcher.up(path.resolve(), s, out.resolve(), args.agents_per_process, args.domain_id,
+                               args.discovery)
     if result is None:
         return code or 1
     simrun.write_run(result, out, f'{s.maps} MAPs, seed {s.seed} (distributed)')
@@ -186,6 +187,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_scenario_options(p)
     p.add_argument('--agents-per-process', type=int, default=1, help='pack K agent nodes into one process')
     p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID to use (default: a fresh one per run)')
+    p.add_argument('--discovery', choices=('auto', 'localhost', 'server'), default='auto',
+                   help='LOCALHOST discovery, or a Fast DDS discovery server for the run '
+                        '(auto: the server above 30 processes)')
     p.add_argument('--out', help='run folder (default: runs/up-<time>)')
     p.set_defaults(func=cmd_up)
     p = sub.add_parser('kill', help='SIGKILL agent processes of a running `up`')

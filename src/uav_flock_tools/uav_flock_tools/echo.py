@@ -23,7 +23,10 @@ def use_domain(run: Optional[str], domain_id: Optional[int]) -> None:
         info = Path(run) / 'run.json'
         if not info.exists():
             raise FileNotFoundError(f'--run: {run} has no run.json (is it a run folder of ./uav-flock up?)')
-        domain_id = int(json.loads(info.read_text())['domain_id'])
+        meta = json.loads(info.read_text())
+        domain_id = int(meta['domain_id'])
+        if meta.get('discovery_server'):  # a super client sees every endpoint the server knows
+            os.environ.update(ROS_DISCOVERY_SERVER=meta['discovery_server'], ROS_SUPER_CLIENT='TRUE')
     if domain_id is not None:
         os.environ['ROS_DOMAIN_ID'] = str(domain_id)
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')

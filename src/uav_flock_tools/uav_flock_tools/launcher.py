@@ -24,6 +24,10 @@ from world_sim.core import records
 from world_sim.core.scenario import Scenario
 
 GRACE_S = 3.0  # after SIGINT/SIGTERM, how long children get before SIGKILL
+# rmw_fastrtps finds no more than about 32 participants on one host with LOCALHOST discovery; beyond
+# this many processes `up` starts a Fast DDS discovery server for the run (--discovery auto).
+LOCALHOST_LIMIT = 30
+DISCOVERY_BASE_PORT = 11811
 
 
 def executable(package: str, name: str) -> str:
@@ -32,10 +36,16 @@ def executable(package: str, name: str) -> str:
     return os.path.join(get_package_prefix(package), 'lib', package, name)
 
 
-def ros_env(domain_id: int) -> dict[str, str]:
+def ros_env(domain_id: int, discovery_server: Optional[str] = None) -> dict[str, str]:
+    """Environment of a run's processes: its own domain, and its discovery server if it has one."""
     env = dict(os.environ)
-    env.update(ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               FASTDDS_BUILTIN_TRANSPORTS='UDPv4', PYTHONUNBUFFERED='1')
+    env.update(ROS_DOMAIN_ID=str(domain_id), FASTDDS_BUILTIN_TRANSPORTS='UDPv4', PYTHONUNBUFFERED='1')
+    if discovery_server:
+        env['ROS_DISCOVERY_SERVER'] = discovery_server
+        env.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
+    else:
+        env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+        env.pop('ROS_DISCOVERY_SERVER', None)
     return env
 
 
@@ -86,20 +96,24 @@ def stop(procs: list[subprocess.Popen], first: int = signal.SIGTERM) -> None:
 
 
 def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: int = 1,
-       domain_id: Optional[int] = None) -> tuple[int, Optional[RunResult]]:
+       domain_id: Optional[int] = None, discovery: str = 'auto') -> tuple[int, Optional[RunResult]]:
     """Run the scenario distributed; returns (world exit code, result read back from the run folder)."""
     run.mkdir(parents=True, exist_ok=True)
     domain = domain_id if domain_id is not None else fresh_domain_id()
-    env = ros_env(domain)
+    processes = -(-scenario.maps // agents_per_process) + 1
+    use_server = discovery == 'server' or (discovery == 'auto' and processes > LOCALHOST_LIMIT)
+    server_address = f'127.0.0.1:{DISCOVERY_BASE_PORT + domain}' if use_server else None
+    env = ros_env(domain, server_address)
     params = run / 'agent_params.yaml'
     params.write_text(yaml.safe_dump({'/**': {'ros__parameters': scenario.flock.as_dict()}}, sort_keys=False))
-    (run / 'run.json').write_text(json.dumps({'domain_id': domain, 'scenario': str(scenario_path),
+    (run / 'run.json').write_text(json.dumps({'domain_id': domain, 'discovery_server': server_address,
+                                              'scenario': str(scenario_path),
                                               'maps': scenario.maps, 'seed': scenario.seed,
                                               'agents_per_process': agents_per_process}, indent=1))
     logs = run / 'logs'
     logs.mkdir(exist_ok=True)
-    print(f'uav-flock up: {scenario.maps} MAPs in {-(-scenario.maps // agents_per_process)} processes, '
-          f'ROS_DOMAIN_ID={domain}, run folder {run}', flush=True)
+    print(f'uav-flock up: {scenario.maps} MAPs in {processes - 1} processes, ROS_DOMAIN_ID={domain}, '
+          f'discovery {"server " + server_address if server_address else "LOCALHOST"}, run folder {run}', flush=True)
 
     agent_exe, world_exe = executable('uav_agent', 'uav_agent_node'), executable('world_sim', 'world_sim_node')
     agents: list[subprocess.Popen] = []
@@ -113,7 +127,13 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
         raise KeyboardInterrupt
 
     old_int, old_term = signal.signal(signal.SIGINT, on_signal), signal.signal(signal.SIGTERM, on_signal)
+    server: Optional[subprocess.Popen] = None
     try:
+        if server_address:
+            port = server_address.rsplit(':', 1)[1]
+            with open(logs / 'discovery_server.log', 'w') as log:
+                server = subprocess.Popen(['fast-discovery-server', '-i', '0', '-l', '127.0.0.1', '-p', port],
+                                          env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         for first in range(0, scenario.maps, agents_per_process):
             ids = list(range(first, min(first + agents_per_process, scenario.maps)))
             with open(logs / f'agents_{first}.log', 'w') as log:
@@ -144,13 +164,15 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
         if fleet is not None:
             stop([fleet.world], signal.SIGINT)  # the world writes its records first
         stop(agents)
+        if server is not None:
+            stop([server])
     if interrupted:
         print(f'uav-flock up: interrupted; every process ended, records so far in {run}', file=sys.stderr)
-    if code not in (0, 130) and not (run / 'metrics.csv').exists():
+    result = read_result(run, scenario)
+    if code not in (0, 130):
         tail = (logs / 'world.log').read_text().strip().splitlines()[-1:] if (logs / 'world.log').exists() else []
         print(f'uav-flock up: world_sim failed (exit {code}){": " + tail[0] if tail else ""}', file=sys.stderr)
-        return code, None
-    return code, read_result(run, scenario)
+    return code, result
 
 
 def read_result(run: Path, scenario: Scenario) -> Optional[RunResult]:
@@ -158,6 +180,8 @@ def read_result(run: Path, scenario: Scenario) -> Optional[RunResult]:
     if not (run / 'metrics.csv').exists():
         return None
     m = records.read_csv(run / 'metrics.csv')
+    if len(m['step']) == 0:
+        return None
     t = records.read_csv(run / 'trajectory.csv')
     metrics = np.column_stack([m[c] for c in records.METRICS_COLUMNS]).reshape(-1, len(records.METRICS_COLUMNS))
     traj = np.column_stack([t[c] for c in records.TRAJECTORY_COLUMNS]).reshape(-1, len(records.TRAJECTORY_COLUMNS))
