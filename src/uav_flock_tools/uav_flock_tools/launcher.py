@@ -12,7 +12,6 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
@@ -66,12 +65,6 @@ def read_pid_table(run: Path) -> dict[int, int]:
     return {int(k): int(v) for k, v in json.loads(path.read_text()).items()}
 
 
-@dataclass
-class Fleet:
-    world: subprocess.Popen
-    agents: list[subprocess.Popen]
-
-
 def stop(procs: list[subprocess.Popen], first: int = signal.SIGTERM) -> None:
     """Signal, wait up to GRACE_S, then SIGKILL and reap: no orphans."""
     for p in procs:
@@ -118,7 +111,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     agent_exe, world_exe = executable('uav_agent', 'uav_agent_node'), executable('world_sim', 'world_sim_node')
     agents: list[subprocess.Popen] = []
     table: dict[int, int] = {}
-    fleet: Optional[Fleet] = None
+    world: Optional[subprocess.Popen] = None
     interrupted = False
 
     def on_signal(signum: int, frame: object) -> None:
@@ -151,7 +144,6 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
             world_args += ['-p', f'fail_at:={float(s.fail_at)}', '-p', f'fail_fraction:={float(s.fail_fraction)}']
         world = subprocess.Popen(world_args, env=env, stdout=subprocess.PIPE, stderr=open(logs / 'world.log', 'w'),
                                  text=True, start_new_session=True)
-        fleet = Fleet(world, agents)
         assert world.stdout is not None
         for line in world.stdout:
             print(line.rstrip(), flush=True)
@@ -161,8 +153,8 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     finally:
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)
-        if fleet is not None:
-            stop([fleet.world], signal.SIGINT)  # the world writes its records first
+        if world is not None:
+            stop([world], signal.SIGINT)  # the world writes its records first
         stop(agents)
         if server is not None:
             stop([server])

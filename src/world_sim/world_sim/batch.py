@@ -40,11 +40,14 @@ class Sensed:
     cluster_coverage: np.ndarray  # (K,)
     pairs: np.ndarray          # (E, 2) ordered neighbour pairs (row, row), sorted; ids[row] is the MAP id
     coverage_ratio: float
+    bounds: list[int] = field(default_factory=list)  # neighbours of row n are pairs[bounds[n]:bounds[n+1], 1]
+
+    def __post_init__(self) -> None:
+        self.bounds = np.searchsorted(self.pairs[:, 0], np.arange(len(self.ids) + 1)).tolist()
 
     def neighbours(self, row: int) -> np.ndarray:
         """Rows of the neighbours of row, ascending."""
-        lo, hi = np.searchsorted(self.pairs[:, 0], [row, row + 1])
-        return self.pairs[lo:hi, 1]
+        return self.pairs[self.bounds[row]:self.bounds[row + 1], 1]
 
 
 class World:
@@ -140,8 +143,7 @@ class BatchSimulator:
         sensed = w.sense()
         rows = sensed.ids
         told = [self.memory[i].achieved for i in rows]  # what each MAP's state message of step k carries
-        nbr, counts = sensed.pairs[:, 1].tolist(), sensed.n_users.tolist()
-        bounds = np.searchsorted(sensed.pairs[:, 0], np.arange(len(rows) + 1)).tolist()
+        nbr, counts, bounds = sensed.pairs[:, 1].tolist(), sensed.n_users.tolist(), sensed.bounds
         refs = []
         for n, i in enumerate(rows.tolist()):
             heard = [told[j] for j in nbr[bounds[n]:bounds[n + 1]]]

@@ -225,9 +225,11 @@ class WorldNode(Node):
     def finish(self, ok: bool) -> None:
         self.finished = True
         self.ok = ok
-        if self.out is not None and len(self.world.result().metrics) > 0:  # a run that never started leaves no records
+        if self.out is None:
+            return
+        result = self.world.result()
+        if len(result.metrics) > 0:  # a run that never started leaves no records
             self.out.mkdir(parents=True, exist_ok=True)
-            result = self.world.result()
             records.write_metrics(self.out / 'metrics.csv', result.metrics)
             records.write_trajectory(self.out / 'trajectory.csv', result.trajectory)
 
