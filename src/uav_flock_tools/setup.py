@@ -22,6 +22,7 @@ setup(
     entry_points={
         'console_scripts': [
             'uav-flock-cli = uav_flock_tools.cli:main',
+            'uav_flock_recorder = uav_flock_tools.recorder:main',
         ],
     },
 )

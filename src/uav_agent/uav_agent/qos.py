@@ -1,16 +1,21 @@
 """QoS profiles of uav-flock topics, named once for every node."""
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-# Latest state of a MAP: a neighbour that subscribes late gets the last sample at once.
-STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
-# Reading states: a deeper queue, so that a flood of bad samples from another writer on the same topic
+# Samples every writer keeps: a reader (a neighbour, or the recorder) that is up to this many steps
+# behind still gets each one. world_sim keeps the recorder within RECORDER_MAX_LAG_STEPS of the run.
+HISTORY_DEPTH = 50
+RECORDER_MAX_LAG_STEPS = 16
+
+# State of a MAP: a neighbour that subscribes late gets the recent samples at once, the last one last.
+STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=HISTORY_DEPTH,
+                       reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# Reading states: a deep queue, so that a flood of bad samples from another writer on the same topic
 # cannot evict the genuine one before the callback has seen it.
-STATE_READ_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.RELIABLE,
-                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+STATE_READ_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=HISTORY_DEPTH,
+                            reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Per-step traffic that must not be lost in lockstep: sensing, commands, association, metrics, events.
-STEP_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
+STEP_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=HISTORY_DEPTH,
+                      reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 # Fixed for a run (users, clusters): latched.
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)

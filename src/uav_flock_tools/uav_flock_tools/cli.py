@@ -128,8 +128,11 @@ def cmd_up(args: argparse.Namespace) -> int:
     if args.agents_per_process < 1:
         raise UsageError('up: --agents-per-process must be at least 1')
     out = Path(args.out) if args.out else default_out('up')
-    code, result = launcher.up(path.resolve(), s, out.resolve(), args.agents_per_process, args.domain_id,
-                               args.discovery)
+    try:
+        code, result = launcher.up(path.resolve(), s, out.resolve(), args.agents_per_process, args.domain_id,
+                                   args.discovery, args.record)
+    except FileExistsError as exc:
+        raise UsageError(f'up: {exc}') from None
     if result is None:
         return code or 1
     simrun.write_run(result, out, f'{s.maps} MAPs, seed {s.seed} (distributed)')
@@ -190,6 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--discovery', choices=('auto', 'localhost', 'server'), default='auto',
                    help='LOCALHOST discovery, or a Fast DDS discovery server for the run '
                         '(auto: the server above 30 processes)')
+    p.add_argument('--record', action='store_true', help='record every topic into RUN/bag (rosbag2, MCAP)')
     p.add_argument('--out', help='run folder (default: runs/up-<time>)')
     p.set_defaults(func=cmd_up)
     p = sub.add_parser('kill', help='SIGKILL agent processes of a running `up`')

@@ -88,12 +88,22 @@ def stop(procs: list[subprocess.Popen], first: int = signal.SIGTERM) -> None:
             p.wait()
 
 
+def scenario_summary(path: Path, s: Scenario) -> dict[str, object]:
+    """What a bag says about the run it holds, beside the agents' parameters."""
+    return {'scenario': str(path), 'maps': s.maps, 'seed': s.seed, 'dt': s.dt, 'duration': s.duration,
+            'fail_at': s.fail_at, 'fail_fraction': s.fail_fraction, 'association': s.association}
+
+
 def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: int = 1,
-       domain_id: Optional[int] = None, discovery: str = 'auto') -> tuple[int, Optional[RunResult]]:
+       domain_id: Optional[int] = None, discovery: str = 'auto', record: bool = False
+       ) -> tuple[int, Optional[RunResult]]:
     """Run the scenario distributed; returns (world exit code, result read back from the run folder)."""
+    bag_path = run / 'bag'
+    if record and bag_path.exists():
+        raise FileExistsError(f'{bag_path} exists already: give a new --out folder')
     run.mkdir(parents=True, exist_ok=True)
     domain = domain_id if domain_id is not None else fresh_domain_id()
-    processes = -(-scenario.maps // agents_per_process) + 1
+    processes = -(-scenario.maps // agents_per_process) + 1 + int(record)
     use_server = discovery == 'server' or (discovery == 'auto' and processes > LOCALHOST_LIMIT)
     server_address = f'127.0.0.1:{DISCOVERY_BASE_PORT + domain}' if use_server else None
     env = ros_env(domain, server_address)
@@ -102,16 +112,18 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     (run / 'run.json').write_text(json.dumps({'domain_id': domain, 'discovery_server': server_address,
                                               'scenario': str(scenario_path),
                                               'maps': scenario.maps, 'seed': scenario.seed,
-                                              'agents_per_process': agents_per_process}, indent=1))
+                                              'agents_per_process': agents_per_process,
+                                              'bag': str(bag_path) if record else None}, indent=1))
     logs = run / 'logs'
     logs.mkdir(exist_ok=True)
-    print(f'uav-flock up: {scenario.maps} MAPs in {processes - 1} processes, ROS_DOMAIN_ID={domain}, '
+    print(f'uav-flock up: {scenario.maps} MAPs in {processes - 1 - int(record)} processes, ROS_DOMAIN_ID={domain}, '
           f'discovery {"server " + server_address if server_address else "LOCALHOST"}, run folder {run}', flush=True)
 
     agent_exe, world_exe = executable('uav_agent', 'uav_agent_node'), executable('world_sim', 'world_sim_node')
     agents: list[subprocess.Popen] = []
     table: dict[int, int] = {}
     world: Optional[subprocess.Popen] = None
+    recorder: Optional[subprocess.Popen] = None
     interrupted = False
 
     def on_signal(signum: int, frame: object) -> None:
@@ -127,6 +139,14 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
             with open(logs / 'discovery_server.log', 'w') as log:
                 server = subprocess.Popen(['fast-discovery-server', '-i', '0', '-l', '127.0.0.1', '-p', port],
                                           env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        if record:
+            rec_params = run / 'recorder_params.yaml'
+            rec_params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {
+                'out': str(bag_path), 'maps': scenario.maps, 'params_json': json.dumps(scenario.flock.as_dict()),
+                'scenario_json': json.dumps(scenario_summary(scenario_path, scenario))}}}))
+            recorder = subprocess.Popen(
+                [executable('uav_flock_tools', 'uav_flock_recorder'), '--ros-args', '--params-file', str(rec_params)],
+                env=env, stdout=open(logs / 'recorder.log', 'w'), stderr=subprocess.STDOUT, start_new_session=True)
         for first in range(0, scenario.maps, agents_per_process):
             ids = list(range(first, min(first + agents_per_process, scenario.maps)))
             with open(logs / f'agents_{first}.log', 'w') as log:
@@ -140,6 +160,8 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
         world_args = [world_exe, '--ros-args', '-p', f'scenario:={scenario_path}', '-p', f'maps:={s.maps}',
                       '-p', f'seed:={s.seed}', '-p', f'duration:={float(s.duration)}', '-p', f'out:={run}',
                       '-p', f'pid_table:={run / "pids.json"}']
+        if record:
+            world_args += ['-p', 'record:=true']
         if s.fail_at is not None:
             world_args += ['-p', f'fail_at:={float(s.fail_at)}', '-p', f'fail_fraction:={float(s.fail_fraction)}']
         world = subprocess.Popen(world_args, env=env, stdout=subprocess.PIPE, stderr=open(logs / 'world.log', 'w'),
@@ -156,6 +178,8 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
         if world is not None:
             stop([world], signal.SIGINT)  # the world writes its records first
         stop(agents)
+        if recorder is not None:
+            stop([recorder], signal.SIGINT)  # drains and closes the bag
         if server is not None:
             stop([server])
     if interrupted:

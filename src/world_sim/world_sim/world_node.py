@@ -20,20 +20,21 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import Header
+from std_msgs.msg import Header, Int64
 from uav_flock_msgs.msg import (Association, Clusters, Command, FailureEvent, Metrics, NeighborList,
                                 Sensing, Users)
 
 from uav_agent import convert
 from uav_agent.core.modes import NO_GOAL
 from uav_agent.executors import make_executor
-from uav_agent.qos import LATCHED_QOS, STEP_QOS
+from uav_agent.qos import LATCHED_QOS, RECORDER_MAX_LAG_STEPS, STEP_QOS
 
 from .batch import Sensed, World
 from .core import records
 from .core.scenario import ScenarioError, load
 
 LIVENESS_PERIOD_S = 0.2  # how often the processes of MAPs we wait for are checked
+RECORDER_TIMEOUT_S = 10.0  # a recorder silent this long while we wait for it is given up on
 
 
 def sim_time(t: float) -> Time:
@@ -54,7 +55,8 @@ class WorldNode(Node):
     def __init__(self) -> None:
         super().__init__('world_sim')
         for name, default in (('scenario', ''), ('maps', 0), ('seed', -1), ('duration', 0.0), ('fail_at', -1.0),
-                              ('fail_fraction', -1.0), ('out', ''), ('pid_table', ''), ('start_timeout', 60.0)):
+                              ('fail_fraction', -1.0), ('out', ''), ('pid_table', ''), ('start_timeout', 60.0),
+                              ('record', False)):
             self.declare_parameter(name, default)
         get = lambda n: self.get_parameter(n).value  # noqa: E731
         scenario = load(get('scenario'))
@@ -67,6 +69,14 @@ class WorldNode(Node):
         self.out = Path(get('out')) if get('out') else None
         self.pid_table = Path(get('pid_table')) if get('pid_table') else None
         self.start_timeout = float(get('start_timeout'))
+        # With a recorder, the run waits for it at start and never gets more than
+        # RECORDER_MAX_LAG_STEPS ahead of what it has written, so no sample leaves a writer unrecorded.
+        self.record = bool(get('record'))
+        self.recorded = -2  # last /metrics step the recorder wrote; -1 once it is ready, -2 before
+        self.recorder_heard = time.monotonic()
+        self.held = False
+        if self.record:
+            self.create_subscription(Int64, '/recorder/progress', self.on_recorder, LATCHED_QOS)
         n = scenario.maps
 
         self.clock_pub = self.create_publisher(Clock, '/clock', QoSProfile(depth=10))
@@ -106,6 +116,9 @@ class WorldNode(Node):
     def tick(self) -> None:
         if not self.started:
             self.try_start()
+        elif self.held and self.recorder_gone():
+            self.held = False
+            self.begin_step()
         elif not self.finished:
             self.check_liveness()
 
@@ -114,6 +127,11 @@ class WorldNode(Node):
         ready = sum(1 for i in range(self.s.maps)
                     if self.sensing_pubs[i].get_subscription_count() > 0
                     and self.count_publishers(f'/map_{i}/cmd') > 0)
+        if ready == self.s.maps and self.record and self.recorded < -1:
+            if time.monotonic() - self.wall_start > self.start_timeout:
+                self.get_logger().error(f'the recorder was not ready within {self.start_timeout:g} s')
+                self.finish(ok=False)
+            return
         if ready == self.s.maps:
             self.started = True
             self.get_logger().info(f'{ready} MAPs ready after {time.monotonic() - self.wall_start:.1f} s: starting')
@@ -177,7 +195,32 @@ class WorldNode(Node):
         if last:
             self.finish(ok=True)
         else:
+            self.next_step()
+
+    # ------------------------------------------------------------------ recorder
+    def recorder_behind(self) -> bool:
+        return self.record and self.world.k - self.recorded > RECORDER_MAX_LAG_STEPS
+
+    def next_step(self) -> None:
+        if self.recorder_behind():
+            self.held = True
+            return
+        self.begin_step()
+
+    def on_recorder(self, msg: Int64) -> None:
+        self.recorded = max(self.recorded, int(msg.data))
+        self.recorder_heard = time.monotonic()
+        if self.held and not self.recorder_behind():
+            self.held = False
             self.begin_step()
+
+    def recorder_gone(self) -> bool:
+        """A recorder that stopped answering is not waited for any longer: the run goes on unrecorded."""
+        if time.monotonic() - self.recorder_heard < RECORDER_TIMEOUT_S:
+            return False
+        self.get_logger().error(f'no word from the recorder for {RECORDER_TIMEOUT_S:g} s: going on without it')
+        self.record = False
+        return True
 
     def publish_metrics(self, row: np.ndarray) -> None:
         k, t, rc, lam2, alive, comp, m0, m1, m2 = row.tolist()
@@ -222,9 +265,18 @@ class WorldNode(Node):
             self.maybe_advance()
 
     # ------------------------------------------------------------------ end
+    def done(self) -> bool:
+        """Finished, and the recorder (if any) has written the last step or stopped answering."""
+        if not self.finished:
+            return False
+        if not self.ok or not self.record or self.recorded >= self.world.k:
+            return True
+        return self.recorder_gone()
+
     def finish(self, ok: bool) -> None:
         self.finished = True
         self.ok = ok
+        self.recorder_heard = time.monotonic()
         if self.out is None:
             return
         result = self.world.result()
@@ -251,7 +303,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     executor = make_executor()
     executor.add_node(node)
     try:
-        while rclpy.ok() and not node.finished:
+        while rclpy.ok() and not node.done():
             executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         if not node.finished:

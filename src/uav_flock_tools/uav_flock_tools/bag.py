@@ -1,0 +1,215 @@
+"""rosbag2 bags of uav-flock runs, read and written with the `rosbags` library (no rclpy needed).
+
+A bag holds everything a run was: the MSDs (/users, /clusters), every MAP's sensing, state and command
+at every step, the association results, the metrics and the failure events. `load` turns any such bag,
+ours or one from `ros2 bag record`, sqlite3 or MCAP, into arrays; `recompute` re-derives R_c and the
+Fiedler value from the raw positions with the world's own functions.
+"""
+from __future__ import annotations
+
+import json
+from collections import Counter, defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Optional
+
+import numpy as np
+import yaml
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.rosbag2 import ReaderError
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+from world_sim.core import records, world
+
+MSG_PACKAGE = 'uav_flock_msgs'
+PARAMS_KEY = 'uav_flock.params'      # custom_data key: the run's FlockParams as JSON
+SCENARIO_KEY = 'uav_flock.scenario'  # custom_data key: scenario summary (maps, seed, dt, duration) as JSON
+
+# Fixed topics of a run; per-MAP topics are /map_<id>/{sensing,state,cmd}.
+GLOBAL_TOPICS = ('/clock', '/users', '/clusters', '/association', '/metrics', '/events/failure')
+MAP_TOPICS = ('sensing', 'state', 'cmd')
+
+
+class BagError(Exception):
+    """A bag that cannot be read as a uav-flock run: one line for the user."""
+
+
+def run_topics(maps: int) -> list[str]:
+    """Every topic a run of `maps` MAPs publishes, in a stable order."""
+    return list(GLOBAL_TOPICS) + [f'/map_{i}/{t}' for i in range(maps) for t in MAP_TOPICS]
+
+
+def msg_definitions(msg_dir: Optional[Path] = None) -> dict[str, Any]:
+    """The uav_flock_msgs definitions as installed (share/uav_flock_msgs/msg/*.msg)."""
+    if msg_dir is None:
+        from ament_index_python.packages import get_package_share_directory
+        msg_dir = Path(get_package_share_directory(MSG_PACKAGE)) / 'msg'
+    types: dict[str, Any] = {}
+    for path in sorted(msg_dir.glob('*.msg')):
+        types.update(get_types_from_msg(path.read_text(), f'{MSG_PACKAGE}/msg/{path.stem}'))
+    if not types:
+        raise BagError(f'no message definitions in {msg_dir}')
+    return types
+
+
+def typestore(msg_dir: Optional[Path] = None) -> Typestore:
+    """Jazzy's standard types plus ours: what rosbags needs to write schemas and RIHS01 hashes."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    store.register(msg_definitions(msg_dir))
+    return store
+
+
+@dataclass
+class BagRun:
+    """A run as read back from its bag; arrays follow the CSV records' column order."""
+
+    path: Path
+    counts: dict[str, int]                   # messages per topic
+    metrics: np.ndarray                      # (S, 9) records.METRICS_COLUMNS, from /metrics
+    trajectory: np.ndarray                   # (R, 12) records.TRAJECTORY_COLUMNS, from the states
+    sensed: dict[int, dict[int, np.ndarray]]  # step -> id -> q measured by the world
+    users: Optional[world.Users]
+    failures: list[tuple[int, list[int], str]]  # (step, ids, cause)
+    association: dict[int, tuple[np.ndarray, float]]  # step -> (map ids, recorded R_c)
+    commands: dict[int, dict[int, Any]] = field(default_factory=dict)  # id -> step -> Command (on request)
+    states: dict[int, dict[int, Any]] = field(default_factory=dict)    # id -> step -> AgentState (on request)
+    sensing: dict[int, dict[int, Any]] = field(default_factory=dict)   # id -> step -> Sensing (on request)
+    clusters: Any = None                     # the /clusters message
+    params: dict[str, Any] = field(default_factory=dict)
+    scenario: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def dt(self) -> float:
+        if 'dt' in self.scenario:
+            return float(self.scenario['dt'])
+        m = self.metrics
+        return float(m[1, 1] - m[0, 1]) if len(m) > 1 else 0.1
+
+    @property
+    def r(self) -> float:
+        return float(self.params.get('r', 24.0))
+
+
+def _map_topic(topic: str) -> tuple[Optional[int], str]:
+    parts = topic.strip('/').split('/')
+    if len(parts) == 2 and parts[0].startswith('map_') and parts[0][4:].isdigit():
+        return int(parts[0][4:]), parts[1]
+    return None, topic
+
+
+def _custom(path: Path, key: str) -> dict[str, Any]:
+    """A JSON entry of metadata.yaml's custom_data, {} if absent (e.g. bags of `ros2 bag record`)."""
+    try:
+        info = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+        return dict(json.loads((info.get('custom_data') or {})[key]))
+    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
+        return {}
+
+
+def load(path: Path, keep_messages_of: Iterable[int] = ()) -> BagRun:
+    """Read a run's bag; keep the full sensing/state/command messages of the MAP ids asked for."""
+    path = Path(path)
+    if not path.exists():
+        raise BagError(f'{path}: no such bag')
+    keep = set(keep_messages_of)
+    try:
+        with AnyReader([path], default_typestore=typestore()) as reader:
+            return _read(path, reader, keep)
+    except (AnyReaderError, ReaderError) as exc:
+        raise BagError(f'{path}: not a readable rosbag2 bag ({exc})') from None
+
+
+def _read(path: Path, reader: AnyReader, keep: set[int]) -> BagRun:
+    counts: Counter[str] = Counter()
+    metrics: list[list[float]] = []
+    traj: list[list[float]] = []
+    sensed: dict[int, dict[int, np.ndarray]] = defaultdict(dict)
+    failures: list[tuple[int, list[int], str]] = []
+    association: dict[int, tuple[np.ndarray, float]] = {}
+    per_map: dict[str, dict[int, dict[int, Any]]] = {'cmd': defaultdict(dict), 'state': defaultdict(dict),
+                                                     'sensing': defaultdict(dict)}
+    users_msg = clusters_msg = None
+    wanted = [c for c in reader.connections if c.msgtype.startswith(f'{MSG_PACKAGE}/')]
+    for conn, _, raw in reader.messages(connections=wanted):
+        counts[conn.topic] += 1
+        i, kind = _map_topic(conn.topic)
+        if i is not None and kind == 'cmd' and i not in keep:
+            continue  # commands are only counted unless asked for
+        msg = reader.deserialize(raw, conn.msgtype)
+        if i is not None:
+            if kind == 'state':
+                q, p = msg.position, msg.velocity
+                traj.append([msg.step, np.nan, msg.id, q.x, q.y, q.z, p.x, p.y, p.z, msg.mode, msg.goal,
+                             msg.user_count])
+            elif kind == 'sensing':
+                sensed[int(msg.step)][int(msg.id)] = np.array([msg.position.x, msg.position.y, msg.position.z])
+            if i in keep and kind in per_map:
+                per_map[kind][i][int(msg.step)] = msg
+        elif conn.topic == '/metrics':
+            metrics.append([msg.step, msg.t, msg.coverage_ratio, msg.fiedler, msg.alive, msg.components,
+                            msg.mode0, msg.mode1, msg.mode2])
+        elif conn.topic == '/events/failure':
+            failures.append((int(msg.step), [int(v) for v in msg.ids], str(msg.cause)))
+        elif conn.topic == '/association':
+            association[int(msg.step)] = (np.asarray(msg.map_ids, dtype=np.intp), float(msg.coverage_ratio))
+        elif conn.topic == '/users':
+            users_msg = msg
+        elif conn.topic == '/clusters':
+            clusters_msg = msg
+    if not metrics and not traj:
+        raise BagError(f'{path}: no /metrics and no /map_<id>/state messages: not a uav-flock run')
+    m = np.array(sorted(metrics), dtype=float).reshape(-1, len(records.METRICS_COLUMNS))
+    run = BagRun(path=path, counts=dict(counts), metrics=m, trajectory=np.zeros((0, 12)), sensed=dict(sensed),
+                 users=None, failures=sorted(failures), association=association,
+                 commands=dict(per_map['cmd']), states=dict(per_map['state']), sensing=dict(per_map['sensing']),
+                 clusters=clusters_msg, params=_custom(path, PARAMS_KEY), scenario=_custom(path, SCENARIO_KEY))
+    t = np.array(sorted(traj), dtype=float).reshape(-1, len(records.TRAJECTORY_COLUMNS))
+    t[:, 1] = t[:, 0] * run.dt
+    run.trajectory = t
+    if users_msg is not None and clusters_msg is not None:
+        xyz = np.array([[p.x, p.y, p.z] for p in users_msg.positions]).reshape(-1, 3)
+        centroids = np.array([[c.x, c.y] for c in clusters_msg.centroids]).reshape(-1, 2)
+        run.users = world.Users(xyz, np.asarray(users_msg.cluster, dtype=np.intp), centroids)
+    return run
+
+
+def recompute(run: BagRun, association: str = '3d') -> np.ndarray:
+    """(step, R_c, Fiedler) per step from the positions the world measured, with the world's functions."""
+    if run.users is None:
+        raise BagError(f'{run.path}: no /users or /clusters message, cannot recompute coverage')
+    rows = []
+    for k in sorted(run.sensed):
+        ids = sorted(run.sensed[k])
+        q = np.array([run.sensed[k][i] for i in ids]).reshape(-1, 3)
+        assoc = world.associate(run.users, q, run.r, association)
+        pairs = world.neighbour_pairs(q, run.r)
+        rows.append([k, world.coverage_ratio(assoc), world.fiedler(pairs, len(ids))])
+    return np.array(rows, dtype=float).reshape(-1, 3)
+
+
+def first_time(t: np.ndarray, ok: np.ndarray) -> Optional[float]:
+    """First time from which `ok` holds to the end of the record, or None if it does not hold at the end."""
+    if len(ok) == 0 or not ok[-1]:
+        return None
+    bad = np.nonzero(~ok)[0]
+    return float(t[bad[-1] + 1]) if len(bad) else float(t[0])
+
+
+def summary(run: BagRun) -> dict[str, Any]:
+    """The figures a reader of a run wants first."""
+    m = run.metrics
+    if len(m) == 0:
+        raise BagError(f'{run.path}: no /metrics messages to summarise')
+    t, rc, lam2 = m[:, 1], m[:, 2], m[:, 3]
+    return {
+        'steps': int(len(m)),
+        'duration_s': float(t[-1]),
+        'maps_start': int(m[0, 4]),
+        'maps_end': int(m[-1, 4]),
+        'final_coverage': float(rc[-1]),
+        'final_fiedler': float(lam2[-1]),
+        'time_to_95_coverage_s': first_time(t, rc >= 0.95),
+        'time_to_connectivity_s': first_time(t, lam2 > 0),
+        'failures': [{'t_s': step * run.dt, 'ids': ids, 'cause': cause} for step, ids, cause in run.failures],
+    }

@@ -1,0 +1,171 @@
+"""Record a run into a rosbag2 bag (MCAP) with the rosbags library, as `ros2 bag record -a` would.
+
+Every message is taken serialized (raw CDR) and written as received, with the schema (ros2msg), the
+RIHS01 type hash and the publishers' offered QoS of its topic. The run's fixed topics are subscribed
+before the world starts stepping; any other topic that appears later is added when it is discovered.
+The recorder reports the last /metrics step it has written on /recorder/progress, so that world_sim can
+keep the run within a bounded lag of what is on disk and nothing is overwritten in a writer's history.
+SIGINT/SIGTERM drain what is still in flight and close the bag, so an interrupted run leaves a readable one.
+"""
+from __future__ import annotations
+
+import importlib
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any, Optional
+
+import rclpy
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
+from rclpy.signals import SignalHandlerOptions
+from rclpy.subscription import Subscription
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+from std_msgs.msg import Int64
+from uav_flock_msgs.msg import Metrics
+
+from uav_agent.executors import make_executor
+from uav_agent.qos import LATCHED_QOS
+
+from . import bag
+
+PROGRESS_TOPIC = '/recorder/progress'
+RECORD_DEPTH = 1000        # reader history: room for bursts while the writer is busy on disk
+DISCOVERY_PERIOD_S = 0.1   # how often the graph is looked at for topics not yet recorded
+DRAIN_IDLE_S = 0.3         # on shutdown, stop once nothing arrived for this long ...
+DRAIN_MAX_S = 2.0          # ... or after this long in all
+
+
+def message_class(type_name: str) -> Any:
+    """The rclpy message class of 'pkg/msg/Name'."""
+    pkg, _, name = type_name.split('/')
+    return getattr(importlib.import_module(f'{pkg}.msg'), name)
+
+
+def _time(d: Any) -> QosTime:
+    return QosTime(sec=int(d.nanoseconds // 1_000_000_000), nsec=int(d.nanoseconds % 1_000_000_000))
+
+
+def offered_qos(profile: QoSProfile) -> Qos:
+    """rclpy's view of a publisher's QoS as rosbags writes it into metadata.yaml."""
+    return Qos(history=QosHistory(int(profile.history)), depth=int(profile.depth),
+               reliability=QosReliability(int(profile.reliability)),
+               durability=QosDurability(int(profile.durability)), deadline=_time(profile.deadline),
+               lifespan=_time(profile.lifespan), liveliness=QosLiveliness(int(profile.liveliness)),
+               liveliness_lease_duration=_time(profile.liveliness_lease_duration),
+               avoid_ros_namespace_conventions=bool(profile.avoid_ros_namespace_conventions))
+
+
+def reading_qos(offered: list[QoSProfile]) -> QoSProfile:
+    """A reader every publisher of the topic matches, as deep as bursts need (rosbag2 adapts the same way)."""
+    reliable = all(p.reliability == ReliabilityPolicy.RELIABLE for p in offered)
+    latched = all(p.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in offered)
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=RECORD_DEPTH,
+                      reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+
+class Recorder(Node):
+    def __init__(self) -> None:
+        super().__init__('recorder')
+        for name, default in (('out', ''), ('maps', 0), ('params_json', '{}'), ('scenario_json', '{}')):
+            self.declare_parameter(name, default)
+        out = str(self.get_parameter('out').value)
+        if not out:
+            raise ValueError('parameter out (the bag folder to create) is required')
+        self.expected = bag.run_topics(int(self.get_parameter('maps').value))
+        self.store = bag.typestore()
+        self.writer = Writer(Path(out), version=9, storage_plugin=StoragePlugin.MCAP)
+        self.writer.set_custom_data(bag.PARAMS_KEY, str(self.get_parameter('params_json').value))
+        self.writer.set_custom_data(bag.SCENARIO_KEY, str(self.get_parameter('scenario_json').value))
+        self.writer.open()
+        self.subs: dict[str, Subscription] = {}
+        self.skipped = {PROGRESS_TOPIC}
+        self.connections: dict[str, Any] = {}
+        self.last_message = time.monotonic()
+        self.written = 0
+        self.ready = False
+        self.progress = -1
+        self.progress_pub = self.create_publisher(Int64, PROGRESS_TOPIC, LATCHED_QOS)
+        self.create_timer(DISCOVERY_PERIOD_S, self.discover)
+
+    def discover(self) -> None:
+        """Subscribe to topics with publishers; say once when every run topic is matched."""
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self.subs or topic in self.skipped or len(types) != 1:
+                continue
+            infos = self.get_publishers_info_by_topic(topic)
+            if not infos:
+                continue
+            try:
+                cls = message_class(types[0])
+                msgtype = types[0]
+                self.store.generate_msgdef(msgtype, ros_version=2)
+            except (ImportError, AttributeError, ValueError, KeyError):
+                self.get_logger().warning(f'not recording {topic}: unknown type {types[0]}')
+                self.skipped.add(topic)
+                continue
+            offered = [i.qos_profile for i in infos]
+            self.connections[topic] = self.writer.add_connection(
+                topic, msgtype, typestore=self.store, offered_qos_profiles=[offered_qos(p) for p in offered])
+            self.subs[topic] = self.create_subscription(
+                cls, topic, lambda raw, topic=topic: self.on_message(topic, raw), reading_qos(offered), raw=True)
+        if not self.ready and all(t in self.subs and self.subs[t].get_publisher_count() > 0 for t in self.expected):
+            self.ready = True
+            self.get_logger().info(f'recording {len(self.subs)} topics')
+        if self.ready:
+            self.progress_pub.publish(Int64(data=self.progress))
+
+    def on_message(self, topic: str, raw: bytes) -> None:
+        self.writer.write(self.connections[topic], time.time_ns(), raw)
+        self.written += 1
+        self.last_message = time.monotonic()
+        if topic == '/metrics':
+            self.progress = int(deserialize_message(raw, Metrics).step)
+            self.progress_pub.publish(Int64(data=self.progress))
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+_stop = False
+
+
+def _on_signal(signum: int, frame: object) -> None:
+    global _stop
+    _stop = True
+
+
+def main(argv: Optional[list[str]] = None) -> int:
+    rclpy.init(args=sys.argv if argv is None else argv, signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+    try:
+        node = Recorder()
+    except (ValueError, WriterError) as exc:
+        print(f'uav_flock_recorder: error: {exc}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    executor = make_executor()
+    executor.add_node(node)
+    try:
+        while not _stop:
+            executor.spin_once(timeout_sec=0.1)
+        # Drain what is already on its way, then close: the bag is complete and readable.
+        start = time.monotonic()
+        while time.monotonic() - node.last_message < DRAIN_IDLE_S and time.monotonic() - start < DRAIN_MAX_S:
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        node.close()
+        print(json.dumps({'bag': str(node.writer.path), 'messages': node.written}), flush=True)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
