@@ -9,39 +9,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+from helpers.runs import cli, dead, up, wait_for_line
 from world_sim.core.records import read_csv
-
-
-def cli(*args: str, env: dict[str, str] | None = None, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', *args], capture_output=True, text=True,
-                          timeout=timeout, env=env)
-
-
-def up(*args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'up', *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, env=env)
-
-
-def dead(pid: int) -> bool:
-    try:
-        with open(f'/proc/{pid}/stat') as f:
-            return f.read().rsplit(')', 1)[1].split()[0] == 'Z'
-    except OSError:
-        return True
-
-
-def wait_for_line(proc: subprocess.Popen[str], needle: str, timeout: float) -> list[str]:
-    seen: list[str] = []
-    deadline = time.monotonic() + timeout
-    assert proc.stdout is not None
-    while time.monotonic() < deadline:
-        line = proc.stdout.readline()
-        if not line:
-            break
-        seen.append(line)
-        if needle in line:
-            return seen
-    raise AssertionError(f'{needle!r} not printed within {timeout} s:\n' + ''.join(seen))
 
 
 def test_lockstep_run_equals_the_batch_simulator(tmp_path: Path, ros_env: dict[str, str]) -> None:

@@ -11,7 +11,7 @@ import json
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Optional
+from typing import Any, Optional
 
 import numpy as np
 import yaml
@@ -72,9 +72,7 @@ class BagRun:
     users: Optional[world.Users]
     failures: list[tuple[int, list[int], str]]  # (step, ids, cause)
     association: dict[int, tuple[np.ndarray, float]]  # step -> (map ids, recorded R_c)
-    commands: dict[int, dict[int, Any]] = field(default_factory=dict)  # id -> step -> Command (on request)
-    states: dict[int, dict[int, Any]] = field(default_factory=dict)    # id -> step -> AgentState (on request)
-    sensing: dict[int, dict[int, Any]] = field(default_factory=dict)   # id -> step -> Sensing (on request)
+    heard: dict[str, dict[int, set[int]]] = field(default_factory=dict)  # sensing|state|cmd -> step -> ids
     clusters: Any = None                     # the /clusters message
     params: dict[str, Any] = field(default_factory=dict)
     scenario: dict[str, Any] = field(default_factory=dict)
@@ -107,45 +105,40 @@ def _custom(path: Path, key: str) -> dict[str, Any]:
         return {}
 
 
-def load(path: Path, keep_messages_of: Iterable[int] = ()) -> BagRun:
-    """Read a run's bag; keep the full sensing/state/command messages of the MAP ids asked for."""
+def load(path: Path) -> BagRun:
+    """Read a run's bag."""
     path = Path(path)
     if not path.exists():
         raise BagError(f'{path}: no such bag')
-    keep = set(keep_messages_of)
     try:
         with AnyReader([path], default_typestore=typestore()) as reader:
-            return _read(path, reader, keep)
+            return _read(path, reader)
     except (AnyReaderError, ReaderError) as exc:
         raise BagError(f'{path}: not a readable rosbag2 bag ({exc})') from None
 
 
-def _read(path: Path, reader: AnyReader, keep: set[int]) -> BagRun:
+def _read(path: Path, reader: AnyReader) -> BagRun:
     counts: Counter[str] = Counter()
     metrics: list[list[float]] = []
     traj: list[list[float]] = []
     sensed: dict[int, dict[int, np.ndarray]] = defaultdict(dict)
     failures: list[tuple[int, list[int], str]] = []
     association: dict[int, tuple[np.ndarray, float]] = {}
-    per_map: dict[str, dict[int, dict[int, Any]]] = {'cmd': defaultdict(dict), 'state': defaultdict(dict),
-                                                     'sensing': defaultdict(dict)}
+    heard: dict[str, dict[int, set[int]]] = {kind: defaultdict(set) for kind in MAP_TOPICS}
     users_msg = clusters_msg = None
     wanted = [c for c in reader.connections if c.msgtype.startswith(f'{MSG_PACKAGE}/')]
     for conn, _, raw in reader.messages(connections=wanted):
         counts[conn.topic] += 1
         i, kind = _map_topic(conn.topic)
-        if i is not None and kind == 'cmd' and i not in keep:
-            continue  # commands are only counted unless asked for
         msg = reader.deserialize(raw, conn.msgtype)
-        if i is not None:
+        if i is not None and kind in heard:
+            heard[kind][int(msg.step)].add(i)
             if kind == 'state':
                 q, p = msg.position, msg.velocity
                 traj.append([msg.step, np.nan, msg.id, q.x, q.y, q.z, p.x, p.y, p.z, msg.mode, msg.goal,
                              msg.user_count])
             elif kind == 'sensing':
                 sensed[int(msg.step)][int(msg.id)] = np.array([msg.position.x, msg.position.y, msg.position.z])
-            if i in keep and kind in per_map:
-                per_map[kind][i][int(msg.step)] = msg
         elif conn.topic == '/metrics':
             metrics.append([msg.step, msg.t, msg.coverage_ratio, msg.fiedler, msg.alive, msg.components,
                             msg.mode0, msg.mode1, msg.mode2])
@@ -162,7 +155,7 @@ def _read(path: Path, reader: AnyReader, keep: set[int]) -> BagRun:
     m = np.array(sorted(metrics), dtype=float).reshape(-1, len(records.METRICS_COLUMNS))
     run = BagRun(path=path, counts=dict(counts), metrics=m, trajectory=np.zeros((0, 12)), sensed=dict(sensed),
                  users=None, failures=sorted(failures), association=association,
-                 commands=dict(per_map['cmd']), states=dict(per_map['state']), sensing=dict(per_map['sensing']),
+                 heard={kind: dict(v) for kind, v in heard.items()},
                  clusters=clusters_msg, params=_custom(path, PARAMS_KEY), scenario=_custom(path, SCENARIO_KEY))
     t = np.array(sorted(traj), dtype=float).reshape(-1, len(records.TRAJECTORY_COLUMNS))
     t[:, 1] = t[:, 0] * run.dt
@@ -213,3 +206,56 @@ def summary(run: BagRun) -> dict[str, Any]:
         'time_to_connectivity_s': first_time(t, lam2 > 0),
         'failures': [{'t_s': step * run.dt, 'ids': ids, 'cause': cause} for step, ids, cause in run.failures],
     }
+
+
+@dataclass
+class ReplayInputs:
+    """What one MAP heard during a recorded run, serialized as it was on the wire, and what it answered."""
+
+    agent: int
+    params: dict[str, Any]
+    clusters: bytes
+    sensing: dict[int, tuple[bytes, list[int]]]           # step -> (raw Sensing, neighbour ids)
+    states: dict[int, dict[int, bytes]]                   # MAP id -> step -> raw AgentState
+    commands: dict[int, tuple[np.ndarray, int, int]]      # step -> (u, mode, goal)
+    failures: list[tuple[int, str, bytes]]                # (step, cause, raw FailureEvent)
+
+
+def replay_inputs(path: Path, agent: int) -> ReplayInputs:
+    """One MAP's recorded inputs and commands, for `replay`."""
+    path = Path(path)
+    if not path.exists():
+        raise BagError(f'{path}: no such bag')
+    sensing: dict[int, tuple[bytes, list[int]]] = {}
+    states: dict[int, dict[int, bytes]] = defaultdict(dict)
+    commands: dict[int, tuple[np.ndarray, int, int]] = {}
+    failures: list[tuple[int, str, bytes]] = []
+    clusters = b''
+    mine = {f'/map_{agent}/sensing', f'/map_{agent}/cmd', '/clusters', '/events/failure'}
+    try:
+        with AnyReader([path], default_typestore=typestore()) as reader:
+            wanted = [c for c in reader.connections if c.topic in mine or _map_topic(c.topic)[1] == 'state']
+            for conn, _, raw in reader.messages(connections=wanted):
+                raw = bytes(raw)
+                i, kind = _map_topic(conn.topic)
+                if kind == 'state':
+                    states[i][int(reader.deserialize(raw, conn.msgtype).step)] = raw
+                    continue
+                msg = reader.deserialize(raw, conn.msgtype)
+                if kind == 'sensing':
+                    sensing[int(msg.step)] = (raw, [int(j) for j in msg.neighbors.ids])
+                elif kind == 'cmd':
+                    a = msg.accel
+                    commands[int(msg.step)] = (np.array([a.x, a.y, a.z]), int(msg.mode), int(msg.goal))
+                elif conn.topic == '/clusters':
+                    clusters = raw
+                else:
+                    failures.append((int(msg.step), str(msg.cause), raw))
+    except (AnyReaderError, ReaderError) as exc:
+        raise BagError(f'{path}: not a readable rosbag2 bag ({exc})') from None
+    if not sensing:
+        raise BagError(f'{path}: no /map_{agent}/sensing messages: MAP {agent} is not in this bag')
+    if not clusters:
+        raise BagError(f'{path}: no /clusters message')
+    return ReplayInputs(agent, _custom(path, PARAMS_KEY), clusters, sensing, dict(states), commands,
+                        sorted(failures, key=lambda f: f[0]))

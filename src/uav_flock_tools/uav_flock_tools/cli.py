@@ -34,6 +34,18 @@ def int_list(text: str) -> list[int]:
     return values
 
 
+def key_value(text: str) -> tuple[str, object]:
+    """KEY=VALUE, the value read as YAML (a number stays a number)."""
+    import yaml
+    key, sep, value = text.partition('=')
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f'expected KEY=VALUE, got {text!r}')
+    try:
+        return key, yaml.safe_load(value)
+    except yaml.YAMLError:
+        raise argparse.ArgumentTypeError(f'unreadable value in {text!r}') from None
+
+
 def _float_in(text: str, low: float, high: float, low_open: bool, what: str) -> float:
     try:
         v = float(text)
@@ -170,6 +182,29 @@ def cmd_topics(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
 
 
+def cmd_report(args: argparse.Namespace) -> int:
+    from . import bag, report
+    path = Path(args.bag)
+    out = Path(args.out) if args.out else (path.parent / 'report' if path.name == 'bag' else path / 'report')
+    try:
+        summary, files = report.report(path, out)
+    except bag.BagError as exc:
+        raise UsageError(f'report: {exc}') from None
+    print(report.summary_table(summary))
+    print(f'{len(files)} files in {out}')
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from . import bag, replay
+    try:
+        outcome = replay.replay(Path(args.bag), args.agent, args.tolerance, args.timeout, dict(args.set or []))
+    except (bag.BagError, replay.ReplayError) as exc:
+        raise UsageError(f'replay: {exc}') from None
+    print(outcome.describe())
+    return 0 if outcome.ok else 1
+
+
 def cmd_paper(args: argparse.Namespace) -> int:
     from . import paper
     return paper.main(seeds=args.seeds, out=Path(args.out), docs=Path(args.docs), scenario=args.scenario,
@@ -212,6 +247,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--run', help='a run folder of `up`: use its ROS_DOMAIN_ID')
     p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID to look at (default: the environment)')
     p.set_defaults(func=cmd_topics)
+    p = sub.add_parser('report', help="plots and a summary table from a run's bag (ours or ros2 bag record's)")
+    p.add_argument('bag', help='the bag folder (RUN/bag for `up --record`)')
+    p.add_argument('--out', help='output folder (default: RUN/report next to the bag)')
+    p.set_defaults(func=cmd_report)
+    p = sub.add_parser('replay', help="feed one MAP's recorded inputs to a fresh agent node, compare commands")
+    p.add_argument('bag', help='the bag folder (RUN/bag for `up --record`)')
+    p.add_argument('--agent', type=int, required=True, help='the MAP id to replay')
+    p.add_argument('--tolerance', type=float, default=1e-9, help='largest |Δu| accepted (m/s^2, default 1e-9)')
+    p.add_argument('--timeout', type=positive_float, default=20.0, help='wait this long for a command (s)')
+    p.add_argument('--set', type=key_value, action='append', metavar='KEY=VALUE',
+                   help='replay with an agent parameter changed, e.g. --set c1=0.4 (repeatable)')
+    p.set_defaults(func=cmd_replay)
     p = sub.add_parser('paper', help="regenerate the paper's figures over several seeds and docs/results.md")
     p.add_argument('--scenario', default='paper')
     p.add_argument('--seeds', type=int, default=5, help='seeds per configuration (default: 5)')

@@ -90,7 +90,7 @@ def stop(procs: list[subprocess.Popen], first: int = signal.SIGTERM) -> None:
 
 def scenario_summary(path: Path, s: Scenario) -> dict[str, object]:
     """What a bag says about the run it holds, beside the agents' parameters."""
-    return {'scenario': str(path), 'maps': s.maps, 'seed': s.seed, 'dt': s.dt, 'duration': s.duration,
+    return {'scenario': Path(path).name, 'maps': s.maps, 'seed': s.seed, 'dt': s.dt, 'duration': s.duration,
             'fail_at': s.fail_at, 'fail_fraction': s.fail_fraction, 'association': s.association}
 
 

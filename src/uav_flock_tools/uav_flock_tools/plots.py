@@ -93,3 +93,26 @@ def formation_snapshots(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def run_figures(metrics: np.ndarray, traj: dict[str, np.ndarray], users_xy: np.ndarray | None,
+                users_cluster: np.ndarray | None, centroids: np.ndarray | None, r: float, label: str,
+                folder: Path, events: Sequence[float] = ()) -> list[Path]:
+    """The four figures of one run: coverage, Fiedler value, mode counts and formation snapshots.
+
+    metrics rows follow the METRICS_COLUMNS order; without MSDs the formation snapshots are left out.
+    """
+    t = metrics[:, 1]
+    out = [
+        time_series([(label, t, 100 * metrics[:, 2])], 'coverage ratio R_c (%)', f'Coverage, {label}',
+                    folder / 'coverage.png', events),
+        time_series([(label, t, metrics[:, 3])], 'Fiedler value λ2 (-)', f'Connectivity, {label}',
+                    folder / 'fiedler.png', events),
+        mode_counts(t, metrics[:, 6:9], f'Modes, {label}', folder / 'modes.png'),
+    ]
+    if users_xy is not None and users_cluster is not None and centroids is not None and len(traj['t']):
+        end = float(traj['t'].max())
+        times = sorted({0.0, round(end / 4, 1), round(end / 2, 1), end})
+        out.append(formation_snapshots(traj, users_xy, users_cluster, centroids, r, times,
+                                       f'Formation, {label}', folder / 'formation.png'))
+    return out

@@ -9,7 +9,6 @@ SIGINT/SIGTERM drain what is still in flight and close the bag, so an interrupte
 """
 from __future__ import annotations
 
-import importlib
 import json
 import signal
 import sys
@@ -18,6 +17,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 import rclpy
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
@@ -28,22 +28,16 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from std_msgs.msg import Int64
 from uav_flock_msgs.msg import Metrics
 
-from uav_agent.executors import make_executor
 from uav_agent.qos import LATCHED_QOS
 
 from . import bag
+from .echo import message_type
 
 PROGRESS_TOPIC = '/recorder/progress'
 RECORD_DEPTH = 1000        # reader history: room for bursts while the writer is busy on disk
 DISCOVERY_PERIOD_S = 0.1   # how often the graph is looked at for topics not yet recorded
 DRAIN_IDLE_S = 0.3         # on shutdown, stop once nothing arrived for this long ...
 DRAIN_MAX_S = 2.0          # ... or after this long in all
-
-
-def message_class(type_name: str) -> Any:
-    """The rclpy message class of 'pkg/msg/Name'."""
-    pkg, _, name = type_name.split('/')
-    return getattr(importlib.import_module(f'{pkg}.msg'), name)
 
 
 def _time(d: Any) -> QosTime:
@@ -102,7 +96,7 @@ class Recorder(Node):
             if not infos:
                 continue
             try:
-                cls = message_class(types[0])
+                cls = message_type(types[0])
                 msgtype = types[0]
                 self.store.generate_msgdef(msgtype, ros_version=2)
             except (ImportError, AttributeError, ValueError, KeyError):
@@ -150,7 +144,10 @@ def main(argv: Optional[list[str]] = None) -> int:
         print(f'uav_flock_recorder: error: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
-    executor = make_executor()
+    # Not the EventsExecutor the other nodes spin: with it, the recorder missed the last command of an
+    # agent SIGKILLed right after publishing it (the world had received it). The wait-set executor takes
+    # every sample that is in the reader's queue.
+    executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
         while not _stop:

@@ -42,22 +42,10 @@ def write_run(result: RunResult, folder: Path, label: str) -> list[Path]:
     folder.mkdir(parents=True, exist_ok=True)
     records.write_metrics(folder / 'metrics.csv', result.metrics)
     records.write_trajectory(folder / 'trajectory.csv', result.trajectory)
-    m = result.metrics
-    t = m[:, 1]
     events = [result.fail_step * result.scenario.dt] if result.fail_step is not None and len(result.failed) else []
-    out = [
-        plots.time_series([(label, t, 100 * m[:, 2])], 'coverage ratio R_c (%)', f'Coverage, {label}',
-                          folder / 'coverage.png', events),
-        plots.time_series([(label, t, m[:, 3])], 'Fiedler value λ2 (-)', f'Connectivity, {label}',
-                          folder / 'fiedler.png', events),
-        plots.mode_counts(t, m[:, 6:9], f'Modes, {label}', folder / 'modes.png'),
-    ]
-    end = float(t[-1])
-    times = sorted({0.0, round(end / 4, 1), round(end / 2, 1), end})
-    out.append(plots.formation_snapshots(
-        trajectory_columns(result), result.users.xyz[:, :2], result.users.cluster, result.users.centroids,
-        result.scenario.flock.r, times, f'Formation, {label}', folder / 'formation.png'))
-    return out
+    u = result.users
+    return plots.run_figures(result.metrics, trajectory_columns(result), u.xyz[:, :2], u.cluster, u.centroids,
+                             result.scenario.flock.r, label, folder, events)
 
 
 def simulate(scenario: Scenario, progress: Optional[Callable[[int], None]] = None) -> tuple[RunResult, bool]:

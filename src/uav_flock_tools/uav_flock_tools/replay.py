@@ -1,0 +1,157 @@
+"""`./uav-flock replay BAG --agent ID`: one MAP's recorded inputs fed to a fresh agent node.
+
+The agent is a real `uav_agent_node` process in a domain of its own. Step by step, this node plays the
+world and the neighbours from the bag, byte for byte: the scheduled failures of step k, the MAP's sensing
+of step k, the step-k states of the neighbours it lists, then failures noticed during step k. It waits
+for the agent's command and compares it with the recorded one: any change in the agent's behaviour
+shows as a difference.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import yaml
+
+from uav_agent.core.params import FlockParams
+
+from . import bag, launcher
+
+READY_TIMEOUT_S = 30.0  # the fresh agent must be on the graph within this
+
+
+class ReplayError(Exception):
+    """The replay could not run (not: the agent answered differently)."""
+
+
+@dataclass
+class Outcome:
+    agent: int
+    steps: int = 0                       # commands compared
+    max_du: float = 0.0                  # largest |u_replayed - u_recorded| (m/s^2)
+    mismatches: list[str] = field(default_factory=list)
+    stuck_at: Optional[int] = None       # step the agent gave no command for
+    tolerance: float = 1e-9
+    note: str = ''
+
+    @property
+    def ok(self) -> bool:
+        return self.steps > 0 and not self.mismatches and self.stuck_at is None
+
+    def describe(self) -> str:
+        head = (f'MAP {self.agent}: {self.steps} commands compared, max |Δu| = {self.max_du:.3g} m/s^2 '
+                f'(tolerance {self.tolerance:g}), {len(self.mismatches)} mismatching')
+        lines = [head] + [f'  {m}' for m in self.mismatches[:10]]
+        if len(self.mismatches) > 10:
+            lines.append(f'  ... {len(self.mismatches) - 10} more')
+        if self.stuck_at is not None:
+            lines.append(f'  no command for step {self.stuck_at}: the agent waited for something the bag '
+                         'does not hold')
+        if self.note:
+            lines.append(f'  note: {self.note}')
+        lines.append('same behaviour as recorded' if self.ok else 'behaviour differs from the recording')
+        return '\n'.join(lines)
+
+
+def replay(path: Path, agent: int, tolerance: float = 1e-9, timeout: float = 20.0,
+           overrides: Optional[dict[str, object]] = None) -> Outcome:
+    """Replay MAP `agent`; overrides change agent parameters (e.g. to see what a different gain does)."""
+    inputs = bag.replay_inputs(path, agent)
+    outcome = Outcome(agent, tolerance=tolerance)
+    if not inputs.params:
+        outcome.note = 'the bag carries no agent parameters (uav_flock.params): the defaults were used'
+    if overrides:
+        unknown = sorted(set(overrides) - {f.name for f in fields(FlockParams)})
+        if unknown:
+            raise ReplayError(f'--set: no agent parameter {unknown[0]!r}')
+        inputs.params = {**inputs.params, **overrides}
+    domain = launcher.fresh_domain_id()
+    env = launcher.ros_env(domain)
+    with tempfile.TemporaryDirectory(prefix='uav-flock-replay-') as tmp:
+        params = Path(tmp) / 'agent_params.yaml'
+        params.write_text(yaml.safe_dump({'/**': {'ros__parameters': inputs.params}}, sort_keys=False))
+        log = open(Path(tmp) / 'agent.log', 'w')
+        proc = subprocess.Popen([launcher.executable('uav_agent', 'uav_agent_node'), '--ids', str(agent),
+                                 '--ros-args', '--params-file', str(params)],
+                                env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        saved = {k: os.environ.get(k) for k in env}
+        os.environ.update(env)
+        try:
+            _drive(inputs, outcome, timeout)
+        finally:
+            launcher.stop([proc])
+            log.close()
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+    return outcome
+
+
+def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float) -> None:
+    import rclpy
+    from rclpy.node import Node
+    from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
+
+    from uav_agent.qos import LATCHED_QOS, STATE_QOS, STEP_QOS
+
+    i = inputs.agent
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        node = Node('replay', context=context)
+        executor = rclpy.executors.SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        answers: dict[int, Command] = {}
+        node.create_subscription(Command, f'/map_{i}/cmd', lambda m: answers.__setitem__(int(m.step), m), STEP_QOS)
+        clusters = node.create_publisher(Clusters, '/clusters', LATCHED_QOS)
+        sensing = node.create_publisher(Sensing, f'/map_{i}/sensing', STEP_QOS)
+        failures = node.create_publisher(FailureEvent, '/events/failure', STEP_QOS)
+        states = {j: node.create_publisher(AgentState, f'/map_{j}/state', STATE_QOS)
+                  for j in inputs.states if j != i}
+        clusters.publish(inputs.clusters)
+
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        while sensing.get_subscription_count() == 0 or node.count_publishers(f'/map_{i}/cmd') == 0:
+            if time.monotonic() > deadline:
+                raise ReplayError(f'the agent node of MAP {i} did not appear within {READY_TIMEOUT_S:g} s')
+            executor.spin_once(timeout_sec=0.05)
+
+        pending_failures = list(inputs.failures)
+        for k in sorted(inputs.sensing):
+            if k not in inputs.commands:
+                break  # the MAP answered nothing more in the recording (killed, or the run ended)
+            while pending_failures and (pending_failures[0][0] < k or
+                                        (pending_failures[0][0] == k and pending_failures[0][1] == 'scheduled')):
+                failures.publish(pending_failures.pop(0)[2])
+            raw, neighbours = inputs.sensing[k]
+            sensing.publish(raw)
+            for j in neighbours:
+                if k in inputs.states.get(j, {}):
+                    states[j].publish(inputs.states[j][k])
+            while pending_failures and pending_failures[0][0] == k:
+                failures.publish(pending_failures.pop(0)[2])
+            until = time.monotonic() + timeout
+            while k not in answers and time.monotonic() < until:
+                executor.spin_once(timeout_sec=0.01)
+            if k not in answers:
+                outcome.stuck_at = k
+                return
+            got = answers.pop(k)
+            u, mode, goal = inputs.commands[k]
+            du = float(np.max(np.abs(np.array([got.accel.x, got.accel.y, got.accel.z]) - u)))
+            outcome.max_du = max(outcome.max_du, du)
+            outcome.steps += 1
+            if du > outcome.tolerance or got.mode != mode or got.goal != goal:
+                outcome.mismatches.append(f'step {k}: |Δu| = {du:.3g}, mode {got.mode} (recorded {mode}), '
+                                          f'goal {got.goal} (recorded {goal})')
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)

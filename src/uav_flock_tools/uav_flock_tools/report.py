@@ -1,0 +1,48 @@
+"""`./uav-flock report BAG`: the paper's plots and a summary table from any bag of a run."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Optional
+
+from world_sim.core import records
+
+from . import bag, plots
+
+
+def _seconds(v: Optional[float]) -> str:
+    return 'not reached' if v is None else f'{v:.1f} s'
+
+
+def summary_table(s: dict[str, Any]) -> str:
+    """The summary as a Markdown table (what `report` prints and writes to summary.md)."""
+    failures = '; '.join(f'{len(f["ids"])} MAPs at t = {f["t_s"]:.1f} s ({f["cause"]})' for f in s['failures'])
+    rows = [
+        ('simulated time', f'{s["duration_s"]:.1f} s ({s["steps"]} steps)'),
+        ('MAPs at start / end', f'{s["maps_start"]} / {s["maps_end"]}'),
+        ('final coverage R_c', f'{100 * s["final_coverage"]:.1f} %'),
+        ('final Fiedler value λ2', f'{s["final_fiedler"]:.4f}'),
+        ('time to 95 % coverage (held to the end)', _seconds(s['time_to_95_coverage_s'])),
+        ('time to connectivity, λ2 > 0 (held to the end)', _seconds(s['time_to_connectivity_s'])),
+        ('failures', failures or 'none'),
+    ]
+    width = max(len(k) for k, _ in rows)
+    lines = [f'| {"figure".ljust(width)} | value |', f'|{"-" * (width + 2)}|-------|']
+    lines += [f'| {k.ljust(width)} | {v} |' for k, v in rows]
+    return '\n'.join(lines)
+
+
+def report(path: Path, out: Path) -> tuple[dict[str, Any], list[Path]]:
+    """Read the bag, write the PNGs and summary.md into out; returns the summary and the files."""
+    run = bag.load(path)
+    if len(run.metrics) == 0:
+        raise bag.BagError(f'{path}: no /metrics messages to plot')
+    out.mkdir(parents=True, exist_ok=True)
+    s = bag.summary(run)
+    label = f'{s["maps_start"]} MAPs, bag {path.name}'
+    traj = {c: run.trajectory[:, i] for i, c in enumerate(records.TRAJECTORY_COLUMNS)}
+    u = run.users
+    files = plots.run_figures(run.metrics, traj, None if u is None else u.xyz[:, :2], None if u is None else u.cluster,
+                              None if u is None else u.centroids, run.r, label, out,
+                              sorted({f['t_s'] for f in s['failures']}))
+    (out / 'summary.md').write_text(f'# Run recorded in {path}\n\n{summary_table(s)}\n')
+    return s, files + [out / 'summary.md']

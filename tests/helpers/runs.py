@@ -1,0 +1,38 @@
+"""Running the command line from tests: the CLI as a child process, `up` in the background."""
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+
+def cli(*args: str, env: dict[str, str] | None = None, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', *args], capture_output=True, text=True,
+                          timeout=timeout, env=env)
+
+
+def up(*args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'up', *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=env)
+
+
+def dead(pid: int) -> bool:
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            return f.read().rsplit(')', 1)[1].split()[0] == 'Z'
+    except OSError:
+        return True
+
+
+def wait_for_line(proc: subprocess.Popen[str], needle: str, timeout: float) -> list[str]:
+    seen: list[str] = []
+    deadline = time.monotonic() + timeout
+    assert proc.stdout is not None
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        seen.append(line)
+        if needle in line:
+            return seen
+    raise AssertionError(f'{needle!r} not printed within {timeout} s:\n' + ''.join(seen))

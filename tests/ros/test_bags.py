@@ -1,0 +1,205 @@
+"""Bags of real runs: what they hold, asserted from the bag alone, and the golden bag replayed."""
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from helpers.runs import cli, up, wait_for_line
+from mcap.reader import make_reader
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
+from uav_flock_tools import bag
+from world_sim.core.records import read_csv
+
+GOLDEN = Path(__file__).resolve().parents[1] / 'golden'
+SCENARIO = str(GOLDEN / 'scenario.yaml')  # 7 MAPs, 10 s: every mode within the run
+MODES_ALLOWED = {(0, 0), (0, 1), (0, 2), (1, 1), (2, 2)}  # Algorithm 2: M1 and M2 are kept once reached
+
+
+@pytest.fixture(scope='module')
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A recorded run with a scheduled failure of 2 of 7 MAPs at t = 6 s."""
+    run = tmp_path_factory.mktemp('bags') / 'run'
+    done = cli('up', '--scenario', SCENARIO, '--fail-at', '6', '--fail-fraction', '0.3', '--record', '--out', str(run))
+    assert done.returncode == 0, done.stdout + done.stderr
+    return run
+
+
+def assert_nothing_lost(run: Path) -> bag.BagRun:
+    """Per step k: the world sensed S, dropped K as dead, and heard commands C and states T.
+
+    Every sensing the world sent is in the bag, and so is the command of every MAP the world did not
+    drop (C >= S - K). A MAP SIGKILLed during the step may or may not have published before dying; what
+    it published is there too, in order (C <= T <= S).
+    """
+    b = bag.load(run / 'bag')
+    metrics = read_csv(run / 'metrics.csv')
+    traj = read_csv(run / 'trajectory.csv')
+    assert len(b.metrics) == len(metrics['step']) > 0, 'one /metrics message per step the world recorded'
+    assert np.array_equal(b.metrics[:, 0], metrics['step'])
+    killed: dict[int, set[int]] = {}
+    for step, ids, cause in b.failures:
+        if cause == 'killed':
+            killed.setdefault(step, set()).update(ids)
+    for k in metrics['step'].astype(int).tolist():
+        sensed = b.heard['sensing'].get(k, set())
+        assert sensed == set(traj['id'][traj['step'] == k].astype(int).tolist()), f'step {k}: sensing'
+        assert sensed == set(b.association[k][0].tolist()), f'step {k}: association'
+        commands = b.heard['cmd'].get(k, set())
+        states = b.heard['state'].get(k, set())
+        assert sensed - killed.get(k, set()) <= commands <= states <= sensed, \
+            f'step {k}: sensed {sorted(sensed)}, killed {sorted(killed.get(k, ()))}, commands {sorted(commands)}, ' \
+            f'states {sorted(states)}'
+    expected = sum(len(b.heard['sensing'][k]) for k in b.heard['sensing'])
+    assert sum(n for t, n in b.counts.items() if t.endswith('/sensing')) == expected
+    return b
+
+
+def test_bag_is_rosbag2_mcap_with_our_schemas_and_jazzy_hashes(recorded: Path) -> None:
+    folder = recorded / 'bag'
+    info = yaml.safe_load((folder / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['storage_identifier'] == 'mcap' and info['relative_file_paths'] == ['bag.mcap']
+    listed = {t['topic_metadata']['name']: t for t in info['topics_with_message_count']}
+    from ament_index_python.packages import get_package_share_directory
+    share = Path(get_package_share_directory('uav_flock_msgs')) / 'msg'
+    for topic, kind in (('/map_0/state', 'AgentState'), ('/metrics', 'Metrics'), ('/users', 'Users')):
+        meta = listed[topic]['topic_metadata']
+        hashes = json.loads((share / f'{kind}.json').read_text())['type_hashes']
+        rosidl = next(h['hash_string'] for h in hashes if h['type_name'] == f'uav_flock_msgs/msg/{kind}')
+        assert meta['type_description_hash'] == rosidl, f'{kind}: the hash rosidl generated for Jazzy'
+        assert meta['offered_qos_profiles'][0]['reliability'] == 'reliable'
+
+    with open(folder / 'bag.mcap', 'rb') as f:  # the mcap library alone, no rosbags
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        schemas = {s.name: s for s in summary.schemas.values()}
+        state = schemas['uav_flock_msgs/msg/AgentState']
+        assert state.encoding == 'ros2msg'
+        text = state.data.decode()
+        for line in ('uint32 user_count', 'uint8 MODE_CONNECT=1', 'MSG: geometry_msgs/Point'):
+            assert line in text
+        counts = {summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()}
+    for topic, entry in listed.items():
+        assert counts.get(topic, 0) == entry['message_count'], topic
+    with AnyReader([folder]) as r:
+        assert {c.topic: c.msgcount for c in r.connections} == {t: e['message_count'] for t, e in listed.items()}
+
+
+def test_every_published_message_is_in_the_bag(recorded: Path) -> None:
+    b = assert_nothing_lost(recorded)
+    assert b.counts['/users'] == b.counts['/clusters'] == 1
+    assert b.counts['/metrics'] == b.counts['/association'] == 101
+    assert [len(ids) for _, ids, _ in b.failures] == [2], 'one scheduled failure of 2 MAPs'
+
+
+def test_coverage_and_fiedler_recomputed_from_raw_positions_equal_the_recorded_ones(recorded: Path) -> None:
+    b = bag.load(recorded / 'bag')
+    again = bag.recompute(b, b.scenario['association'])
+    assert np.array_equal(again[:, 0], b.metrics[:, 0])
+    assert np.max(np.abs(again[:, 1] - b.metrics[:, 2])) <= 1e-12
+    assert np.max(np.abs(again[:, 2] - b.metrics[:, 3])) <= 1e-9
+
+
+def test_run_trends_modes_and_numbers_from_the_bag_alone(recorded: Path) -> None:
+    b = bag.load(recorded / 'bag')
+    m = b.metrics
+    assert m[-1, 2] > m[0, 2] + 0.5, 'coverage grows as the MAPs reach the clusters'
+    assert np.all((m[:, 3] > 0) == (m[:, 5] == 1)), 'λ2 > 0 exactly when the graph is one component'
+    assert np.all(np.isfinite(m)) and np.all(np.isfinite(b.trajectory)), 'no NaN anywhere'
+    t = b.trajectory
+    seen = set()
+    for i in np.unique(t[:, 2]):
+        modes = t[t[:, 2] == i][:, 9].astype(int)
+        pairs = set(zip(modes[:-1].tolist(), modes[1:].tolist()))
+        assert pairs <= MODES_ALLOWED, f'MAP {int(i)}: transitions {sorted(pairs - MODES_ALLOWED)}'
+        seen |= set(modes.tolist())
+    assert seen == {0, 1, 2}, 'the run goes through every mode'
+    for step, ids, _ in b.failures:
+        before, at = m[m[:, 0] == step - 1][0], m[m[:, 0] == step][0]
+        assert before[4] - at[4] == len(ids), 'alive drops by exactly the failed MAPs'
+        after = m[m[:, 0] >= step]
+        assert after[-1, 2] > after[:, 2].min(), 'coverage recovers after the failure'
+
+
+def test_sigkilled_agents_leave_a_complete_bag(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    run = tmp_path / 'up'
+    proc = up('--scenario', SCENARIO, '--maps', '10', '--duration', '30', '--record', '--out', str(run), env=ros_env)
+    try:
+        wait_for_line(proc, 't =   2.0 s', 120)
+        killed = cli('kill', '--run', str(run), '--fraction', '0.3')
+        assert killed.returncode == 0 and 'SIGKILLed MAPs' in killed.stdout, killed.stdout + killed.stderr
+        assert proc.wait(timeout=300) == 0
+    finally:
+        proc.kill()
+    b = assert_nothing_lost(run)
+    dropped = sorted(i for _, ids, cause in b.failures if cause == 'killed' for i in ids)
+    assert len(dropped) == 3 and int(b.metrics[-1, 4]) == 7
+
+
+def test_ctrl_c_leaves_a_finalised_readable_bag(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    run = tmp_path / 'up'
+    proc = up('--scenario', SCENARIO, '--duration', '60', '--record', '--out', str(run), env=ros_env)
+    try:
+        wait_for_line(proc, 't =   3.0 s', 120)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=30) == 130
+    finally:
+        proc.kill()
+    assert (run / 'bag' / 'metadata.yaml').exists(), 'metadata.yaml is written on Ctrl-C'
+    b = assert_nothing_lost(run)
+    assert 30 <= len(b.metrics) < 601
+
+
+def test_report_plots_and_summarises_a_bag(tmp_path: Path) -> None:
+    done = cli('report', str(GOLDEN / 'bag'), '--out', str(tmp_path / 'report'))
+    assert done.returncode == 0, done.stderr
+    for name in ('coverage.png', 'fiedler.png', 'modes.png', 'formation.png', 'summary.md'):
+        assert (tmp_path / 'report' / name).stat().st_size > 1000 or name == 'summary.md', name
+    assert 'final coverage R_c' in done.stdout and '1 MAPs at t = 6.0 s (scheduled)' in done.stdout
+
+
+def test_report_reads_a_bag_without_our_metadata(tmp_path: Path) -> None:
+    """A bag as another recorder writes it: sqlite3 storage, no custom_data, extra topics."""
+    foreign = tmp_path / 'foreign'
+    with AnyReader([GOLDEN / 'bag']) as r:
+        writer = Writer(foreign, version=8, storage_plugin=StoragePlugin.SQLITE3)
+        writer.open()
+        conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=r.typestore) for c in r.connections}
+        for c, t, raw in r.messages():
+            writer.write(conns[c.id], t, raw)
+        writer.close()
+    ours = cli('report', str(GOLDEN / 'bag'), '--out', str(tmp_path / 'a'))
+    theirs = cli('report', str(foreign), '--out', str(tmp_path / 'b'))
+    assert theirs.returncode == 0, theirs.stderr
+    assert theirs.stdout.splitlines()[:-1] == ours.stdout.splitlines()[:-1], 'the same summary table'
+
+
+def test_golden_bag_replays_exactly_for_every_map() -> None:
+    """Fails on any change of agent behaviour; regenerate on purpose with tests/golden/regenerate.py."""
+    maps = bag.load(GOLDEN / 'bag').heard['sensing'][0]
+    for i in sorted(maps):
+        done = cli('replay', str(GOLDEN / 'bag'), '--agent', str(i))
+        assert done.returncode == 0, f'MAP {i} behaves differently from the golden bag:\n{done.stdout}{done.stderr}'
+        assert 'commands compared' in done.stdout
+
+
+def test_replay_notices_a_changed_behaviour() -> None:
+    done = cli('replay', str(GOLDEN / 'bag'), '--agent', '2', '--set', 'c1=0.35')
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert 'behaviour differs from the recording' in done.stdout
+
+
+def test_bag_tools_reject_bad_input_in_one_line(tmp_path: Path) -> None:
+    for args in (('report', str(tmp_path / 'missing')), ('report', str(GOLDEN / 'scenario.yaml')),
+                 ('replay', str(GOLDEN / 'bag'), '--agent', '99')):
+        done = cli(*args)
+        assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    shutil.copytree(GOLDEN / 'bag', tmp_path / 'bag')
+    again = cli('up', '--scenario', SCENARIO, '--record', '--out', str(tmp_path))
+    assert again.returncode == 2 and 'exists already' in again.stderr  # a bag is never overwritten
