@@ -38,7 +38,8 @@ def report(path: Path, out: Path) -> tuple[dict[str, Any], list[Path]]:
         raise bag.BagError(f'{path}: no /metrics messages to plot')
     out.mkdir(parents=True, exist_ok=True)
     s = bag.summary(run)
-    label = f'{s["maps_start"]} MAPs, bag {path.name}'
+    name = path.resolve().parent.name if path.name == 'bag' else path.name  # RUN/bag: the run's name
+    label = f'{s["maps_start"]} MAPs, {name}'
     traj = {c: run.trajectory[:, i] for i, c in enumerate(records.TRAJECTORY_COLUMNS)}
     u = run.users
     files = plots.run_figures(run.metrics, traj, None if u is None else u.xyz[:, :2], None if u is None else u.cluster,
