@@ -53,6 +53,8 @@ class AgentNode(Node):
         self.rejected: dict[str, int] = {}
         self.last_sensing = self.get_clock().now()
         self.stopped = False
+        self.last_state: Optional[AgentState] = None
+        self.last_cmd: Optional[Command] = None
 
         self.state_pub = self.create_publisher(AgentState, 'state', STATE_QOS)
         self.cmd_pub = self.create_publisher(Command, 'cmd', STEP_QOS)
@@ -84,7 +86,10 @@ class AgentNode(Node):
         if msg.id != self.map_id or not convert.finite(msg.position, msg.velocity, msg.goal_coverage):
             self.reject('sensing', f'id {msg.id} or non-finite values')
             return
-        if msg.step <= self.step:
+        if msg.step == self.step and self.step >= 0:
+            self.answer_again()  # the world repeats a stalled step: say again what we said
+            return
+        if msg.step < self.step:
             self.reject('sensing', f'stale step {msg.step} (now at {self.step})')
             return
         self.last_sensing = self.get_clock().now()
@@ -128,6 +133,12 @@ class AgentNode(Node):
                 AgentState, f'/map_{j}/state', lambda m, j=j: self.on_state(j, m), STATE_READ_QOS)
 
     # ------------------------------------------------------------------ step
+    def answer_again(self) -> None:
+        if self.last_state is not None:
+            self.state_pub.publish(self.last_state)
+        if self.last_cmd is not None and self.last_cmd.step == self.step:
+            self.cmd_pub.publish(self.last_cmd)
+
     def publish_state(self, s: Sensing) -> None:
         mem = self.memory
         msg = AgentState(header=s.header, id=self.map_id, step=s.step, position=s.position,
@@ -135,6 +146,7 @@ class AgentNode(Node):
                          bridge=list(mem.bridge) if mem.bridge else [],
                          achieved_goals=convert.achieved_list(mem.achieved))
         self.state_pub.publish(msg)
+        self.last_state = msg
 
     def try_step(self) -> None:
         s = self.pending
@@ -159,8 +171,9 @@ class AgentNode(Node):
             u = np.zeros(3)
         self.memory = mem
         self.pending = None
-        self.cmd_pub.publish(Command(header=s.header, id=self.map_id, step=s.step, accel=convert.vector(u),
-                                     mode=mem.mode, goal=mem.goal))
+        self.last_cmd = Command(header=s.header, id=self.map_id, step=s.step, accel=convert.vector(u),
+                                mode=mem.mode, goal=mem.goal)
+        self.cmd_pub.publish(self.last_cmd)
 
     def watch_world(self) -> None:
         """Say what a stuck step waits for; end on our own when the world is gone."""

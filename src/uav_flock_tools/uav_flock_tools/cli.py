@@ -119,11 +119,21 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+RUN_AGENTS_PER_PROCESS = 10  # the main job packs agents: see docs/benchmarks.md for one process per MAP
+
+
 def cmd_run(args: argparse.Namespace) -> int:
-    """The main job: the paper scenario with 90 MAPs."""
+    """The main job: the paper scenario with 90 MAPs, distributed and recorded, then its report."""
     ns = argparse.Namespace(scenario='paper', maps=[90], seed=None, duration=None, fail_at=None,
-                            fail_fraction=None, out=args.out)
-    return cmd_sim(ns)
+                            fail_fraction=None, out=args.out or str(default_out('run')))
+    if args.batch:
+        return cmd_sim(ns)
+    ns.__dict__.update(agents_per_process=RUN_AGENTS_PER_PROCESS, domain_id=None, discovery='auto', record=True)
+    code = cmd_up(ns)
+    bag_path = Path(ns.out) / 'bag'
+    if (bag_path / 'metadata.yaml').exists():
+        code = cmd_report(argparse.Namespace(bag=str(bag_path), out=None)) or code
+    return code
 
 
 def cmd_up(args: argparse.Namespace) -> int:
@@ -218,8 +228,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_scenario_options(p)
     p.add_argument('--out', help='output folder (default: runs/sim-<time>)')
     p.set_defaults(func=cmd_sim)
-    p = sub.add_parser('run', help='the main job: the paper scenario with 90 MAPs, with plots')
-    p.add_argument('--out', help='output folder (default: runs/sim-<time>)')
+    p = sub.add_parser('run', help='the main job: the paper scenario with 90 MAPs, distributed and recorded, '
+                                   'with plots and a report of its bag')
+    p.add_argument('--batch', action='store_true', help='in one process with the batch simulator instead (seconds)')
+    p.add_argument('--out', help='output folder (default: runs/run-<time>)')
     p.set_defaults(func=cmd_run)
     p = sub.add_parser('up', help='run a scenario distributed: world_sim and one process per MAP, lockstep')
     add_scenario_options(p)

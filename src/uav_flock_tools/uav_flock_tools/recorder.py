@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import Any, Optional
 
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
@@ -28,6 +27,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from std_msgs.msg import Int64
 from uav_flock_msgs.msg import Metrics
 
+from uav_agent.executors import make_executor
 from uav_agent.qos import LATCHED_QOS
 
 from . import bag
@@ -122,6 +122,16 @@ class Recorder(Node):
             self.progress = int(deserialize_message(raw, Metrics).step)
             self.progress_pub.publish(Int64(data=self.progress))
 
+    def take_rest(self) -> int:
+        """Write whatever is still queued in any reader, whether or not an event announced it."""
+        taken = 0
+        for topic, sub in self.subs.items():
+            with sub.handle:
+                while (got := sub.handle.take_message(sub.msg_type, True)) is not None:
+                    self.on_message(topic, got[0])
+                    taken += 1
+        return taken
+
     def close(self) -> None:
         self.writer.close()
 
@@ -144,10 +154,7 @@ def main(argv: Optional[list[str]] = None) -> int:
         print(f'uav_flock_recorder: error: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
-    # Not the EventsExecutor the other nodes spin: with it, the recorder missed the last command of an
-    # agent SIGKILLed right after publishing it (the world had received it). The wait-set executor takes
-    # every sample that is in the reader's queue.
-    executor = SingleThreadedExecutor()
+    executor = make_executor()
     executor.add_node(node)
     try:
         while not _stop:
@@ -156,6 +163,11 @@ def main(argv: Optional[list[str]] = None) -> int:
         start = time.monotonic()
         while time.monotonic() - node.last_message < DRAIN_IDLE_S and time.monotonic() - start < DRAIN_MAX_S:
             executor.spin_once(timeout_sec=0.05)
+        # The events executor can leave the last sample of a writer that died unannounced in its reader
+        # (seen with an agent SIGKILLed right after publishing a command): take it all before closing.
+        late = node.take_rest()
+        if late:
+            node.get_logger().info(f'{late} queued messages taken at shutdown')
     finally:
         node.close()
         print(json.dumps({'bag': str(node.writer.path), 'messages': node.written}), flush=True)

@@ -41,6 +41,7 @@ class Sensed:
     pairs: np.ndarray          # (E, 2) ordered neighbour pairs (row, row), sorted; ids[row] is the MAP id
     coverage_ratio: float
     bounds: list[int] = field(default_factory=list)  # neighbours of row n are pairs[bounds[n]:bounds[n+1], 1]
+    assoc: np.ndarray = field(default_factory=lambda: np.zeros(0, np.intp))  # (M,) row serving each MSD, or -1
 
     def __post_init__(self) -> None:
         self.bounds = np.searchsorted(self.pairs[:, 0], np.arange(len(self.ids) + 1)).tolist()
@@ -89,7 +90,7 @@ class World:
         assoc = world.associate(self.users, q, fp.r, self.s.association)
         return Sensed(self.k, rows, q, p, world.user_counts(assoc, len(rows)),
                       world.cluster_coverage(self.users, assoc), world.neighbour_pairs(q, fp.r),
-                      world.coverage_ratio(assoc))
+                      world.coverage_ratio(assoc), assoc=assoc)
 
     def advance(self, sensed: Sensed, u: np.ndarray, modes: np.ndarray, goals: np.ndarray,
                 integrate: bool = True) -> np.ndarray:

@@ -21,6 +21,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header, Int64
+from visualization_msgs.msg import MarkerArray
 from uav_flock_msgs.msg import (Association, Clusters, Command, FailureEvent, Metrics, NeighborList,
                                 Sensing, Users)
 
@@ -30,11 +31,13 @@ from uav_agent.executors import make_executor
 from uav_agent.qos import LATCHED_QOS, RECORDER_MAX_LAG_STEPS, STEP_QOS
 
 from .batch import Sensed, World
+from .markers import world_markers
 from .core import records
 from .core.scenario import ScenarioError, load
 
 LIVENESS_PERIOD_S = 0.2  # how often the processes of MAPs we wait for are checked
-RECORDER_TIMEOUT_S = 10.0  # a recorder silent this long while we wait for it is given up on
+RECORDER_TIMEOUT_S = 10.0  # a recorder that writes nothing new this long while we wait for it is given up on
+RESEND_AFTER_S = 2.0  # a step stalled this long (every process alive) has its sensing sent again
 
 
 def sim_time(t: float) -> Time:
@@ -56,7 +59,7 @@ class WorldNode(Node):
         super().__init__('world_sim')
         for name, default in (('scenario', ''), ('maps', 0), ('seed', -1), ('duration', 0.0), ('fail_at', -1.0),
                               ('fail_fraction', -1.0), ('out', ''), ('pid_table', ''), ('start_timeout', 60.0),
-                              ('record', False)):
+                              ('record', False), ('marker_period', 5)):
             self.declare_parameter(name, default)
         get = lambda n: self.get_parameter(n).value  # noqa: E731
         scenario = load(get('scenario'))
@@ -73,8 +76,10 @@ class WorldNode(Node):
         # RECORDER_MAX_LAG_STEPS ahead of what it has written, so no sample leaves a writer unrecorded.
         self.record = bool(get('record'))
         self.recorded = -2  # last /metrics step the recorder wrote; -1 once it is ready, -2 before
-        self.recorder_heard = time.monotonic()
+        self.recorder_moved = time.monotonic()
         self.held = False
+        self.step_started = time.monotonic()
+        self.resent = 0
         if self.record:
             self.create_subscription(Int64, '/recorder/progress', self.on_recorder, LATCHED_QOS)
         n = scenario.maps
@@ -83,6 +88,8 @@ class WorldNode(Node):
         self.assoc_pub = self.create_publisher(Association, '/association', STEP_QOS)
         self.metrics_pub = self.create_publisher(Metrics, '/metrics', STEP_QOS)
         self.failure_pub = self.create_publisher(FailureEvent, '/events/failure', STEP_QOS)
+        self.marker_period = int(get('marker_period'))  # steps between /markers frames; 0: none
+        self.markers_pub = self.create_publisher(MarkerArray, '/markers', STEP_QOS)
         self.users_pub = self.create_publisher(Users, '/users', LATCHED_QOS)
         self.clusters_pub = self.create_publisher(Clusters, '/clusters', LATCHED_QOS)
         self.sensing_pubs = [self.create_publisher(Sensing, f'/map_{i}/sensing', STEP_QOS) for i in range(n)]
@@ -148,12 +155,17 @@ class WorldNode(Node):
             self.drop(failing, 'scheduled')
         self.sensed = s = w.sense()
         self.commands = {}
+        self.step_started = time.monotonic()
         hdr = self.header()
         self.clock_pub.publish(Clock(clock=hdr.stamp))
         self.assoc_pub.publish(Association(
             header=hdr, step=s.k, map_ids=s.ids.astype(np.uint32).tolist(),
             user_counts=s.n_users.astype(np.uint32).tolist(), cluster_coverage=s.cluster_coverage.tolist(),
             coverage_ratio=s.coverage_ratio))
+        self.publish_sensing(hdr)
+
+    def publish_sensing(self, hdr: Header) -> None:
+        s, w = self.sensed, self.world
         for row, i in enumerate(s.ids.tolist()):
             nbr = s.neighbours(row)
             goal = int(w.goal[i])
@@ -190,6 +202,8 @@ class WorldNode(Node):
                          dtype=np.intp)
         self.last_mode.update(zip(s.ids.tolist(), modes.tolist()))
         last = self.world.k >= self.s.steps
+        if self.marker_period > 0 and s.k % self.marker_period == 0:
+            self.markers_pub.publish(world_markers(self.header(), s, modes, self.world.users))
         row = self.world.advance(s, u, modes, goals, integrate=not last)
         self.publish_metrics(row)
         if last:
@@ -208,17 +222,18 @@ class WorldNode(Node):
         self.begin_step()
 
     def on_recorder(self, msg: Int64) -> None:
-        self.recorded = max(self.recorded, int(msg.data))
-        self.recorder_heard = time.monotonic()
+        if int(msg.data) > self.recorded:
+            self.recorded = int(msg.data)
+            self.recorder_moved = time.monotonic()
         if self.held and not self.recorder_behind():
             self.held = False
             self.begin_step()
 
     def recorder_gone(self) -> bool:
         """A recorder that stopped answering is not waited for any longer: the run goes on unrecorded."""
-        if time.monotonic() - self.recorder_heard < RECORDER_TIMEOUT_S:
+        if time.monotonic() - self.recorder_moved < RECORDER_TIMEOUT_S:
             return False
-        self.get_logger().error(f'no word from the recorder for {RECORDER_TIMEOUT_S:g} s: going on without it')
+        self.get_logger().error(f'the recorder wrote nothing new for {RECORDER_TIMEOUT_S:g} s: going on without it')
         self.record = False
         return True
 
@@ -263,6 +278,15 @@ class WorldNode(Node):
         if gone:
             self.drop(np.array(gone), 'killed')
             self.maybe_advance()
+        elif time.monotonic() - self.step_started > RESEND_AFTER_S:
+            # Every process lives, yet the step stalls: a first sample after discovery can go missing.
+            # Sending the step's sensing again is harmless: each MAP answers a repeat with its state and
+            # (if it already has one) its command of the step once more.
+            self.resent += 1
+            self.get_logger().warning(f'step {s.k} stalled {RESEND_AFTER_S:g} s waiting for MAPs {waiting}: '
+                                      f'sensing sent again (time {self.resent})')
+            self.step_started = time.monotonic()
+            self.publish_sensing(self.header())
 
     # ------------------------------------------------------------------ end
     def done(self) -> bool:
@@ -276,7 +300,7 @@ class WorldNode(Node):
     def finish(self, ok: bool) -> None:
         self.finished = True
         self.ok = ok
-        self.recorder_heard = time.monotonic()
+        self.recorder_moved = time.monotonic()
         if self.out is None:
             return
         result = self.world.result()
