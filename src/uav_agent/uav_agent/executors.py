@@ -6,7 +6,14 @@ dispatches each callback directly.
 """
 from __future__ import annotations
 
+import sys
+from typing import Callable, Optional, TypeVar
+
+import rclpy
 from rclpy.executors import Executor, SingleThreadedExecutor
+from rclpy.node import Node
+
+N = TypeVar('N', bound=Node)
 
 
 def make_executor() -> Executor:
@@ -15,3 +22,17 @@ def make_executor() -> Executor:
     except ImportError:  # rclpy before Jazzy
         return SingleThreadedExecutor()
     return EventsExecutor()
+
+
+def spun_node(program: str, factory: Callable[[], N], user_errors: tuple[type[Exception], ...]
+              ) -> tuple[Optional[N], Optional[Executor]]:
+    """The node on its executor; a user mistake in its parameters is one line on stderr and (None, None)."""
+    try:
+        node = factory()
+    except user_errors as exc:
+        print(f'{program}: error: {exc}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return None, None
+    executor = make_executor()
+    executor.add_node(node)
+    return node, executor

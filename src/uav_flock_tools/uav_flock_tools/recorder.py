@@ -27,7 +27,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from std_msgs.msg import Int64
 from uav_flock_msgs.msg import Metrics
 
-from uav_agent.executors import make_executor
+from uav_agent.executors import spun_node
 from uav_agent.qos import LATCHED_QOS
 
 from . import bag
@@ -148,14 +148,9 @@ def main(argv: Optional[list[str]] = None) -> int:
     rclpy.init(args=sys.argv if argv is None else argv, signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
-    try:
-        node = Recorder()
-    except (ValueError, WriterError) as exc:
-        print(f'uav_flock_recorder: error: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
+    node, executor = spun_node('uav_flock_recorder', Recorder, (ValueError, WriterError))
+    if node is None or executor is None:
         return 2
-    executor = make_executor()
-    executor.add_node(node)
     try:
         while not _stop:
             executor.spin_once(timeout_sec=0.1)

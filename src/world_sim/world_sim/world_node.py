@@ -27,7 +27,7 @@ from uav_flock_msgs.msg import (Association, Clusters, Command, FailureEvent, Me
 
 from uav_agent import convert
 from uav_agent.core.modes import NO_GOAL
-from uav_agent.executors import make_executor
+from uav_agent.executors import spun_node
 from uav_agent.qos import LATCHED_QOS, RECORDER_MAX_LAG_STEPS, STEP_QOS
 
 from .batch import Sensed, World
@@ -318,14 +318,9 @@ def _interrupt(signum: int, frame: object) -> None:
 def main(argv: Optional[list[str]] = None) -> int:
     rclpy.init(args=sys.argv if argv is None else argv)
     signal.signal(signal.SIGTERM, _interrupt)
-    try:
-        node = WorldNode()
-    except (ScenarioError, ValueError) as exc:
-        print(f'world_sim: error: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
+    node, executor = spun_node('world_sim', WorldNode, (ScenarioError, ValueError))
+    if node is None or executor is None:
         return 2
-    executor = make_executor()
-    executor.add_node(node)
     try:
         while rclpy.ok() and not node.done():
             executor.spin_once(timeout_sec=0.1)
