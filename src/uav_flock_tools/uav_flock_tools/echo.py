@@ -15,6 +15,7 @@ import yaml
 DISCOVERY_S = 1.5  # least time given to discovery before listing
 SETTLED_S = 1.0  # ... and the list must not have grown for this long
 DISCOVERY_MAX_S = 10.0
+OWN_TOPICS = {'/rosout', '/parameter_events'}  # every node has them, ours included
 
 
 def use_domain(run: Optional[str], domain_id: Optional[int]) -> None:
@@ -69,7 +70,10 @@ def topics(run: Optional[str], domain_id: Optional[int]) -> int:
             now = time.monotonic()
             if len(now_seen) != len(seen):
                 seen, changed = now_seen, now
-            if (now - start >= DISCOVERY_S and now - changed >= SETTLED_S) or now - start >= DISCOVERY_MAX_S:
+            # Our own node's topics are seen at once: settle only once some other participant is known.
+            others = any(name not in OWN_TOPICS for name, _ in now_seen)
+            settled = others and now - start >= DISCOVERY_S and now - changed >= SETTLED_S
+            if settled or now - start >= DISCOVERY_MAX_S:
                 break
         for name, types in sorted(seen):
             print(f'{name} [{", ".join(types)}]')
