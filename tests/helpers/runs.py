@@ -17,11 +17,9 @@ def up(*args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
 
 
 def dead(pid: int) -> bool:
-    try:
-        with open(f'/proc/{pid}/stat') as f:
-            return f.read().rsplit(')', 1)[1].split()[0] == 'Z'
-    except OSError:
-        return True
+    """Gone or a zombie: world_sim's own test of a MAP's process."""
+    from world_sim.world_node import process_alive
+    return not process_alive(pid)
 
 
 def wait_for_line(proc: subprocess.Popen[str], needle: str, timeout: float) -> list[str]:

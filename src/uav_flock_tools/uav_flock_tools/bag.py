@@ -73,7 +73,6 @@ class BagRun:
     failures: list[tuple[int, list[int], str]]  # (step, ids, cause)
     association: dict[int, tuple[np.ndarray, float]]  # step -> (map ids, recorded R_c)
     heard: dict[str, dict[int, set[int]]] = field(default_factory=dict)  # sensing|state|cmd -> step -> ids
-    clusters: Any = None                     # the /clusters message
     params: dict[str, Any] = field(default_factory=dict)
     scenario: dict[str, Any] = field(default_factory=dict)
 
@@ -156,7 +155,7 @@ def _read(path: Path, reader: AnyReader) -> BagRun:
     run = BagRun(path=path, counts=dict(counts), metrics=m, trajectory=np.zeros((0, 12)), sensed=dict(sensed),
                  users=None, failures=sorted(failures), association=association,
                  heard={kind: dict(v) for kind, v in heard.items()},
-                 clusters=clusters_msg, params=_custom(path, PARAMS_KEY), scenario=_custom(path, SCENARIO_KEY))
+                 params=_custom(path, PARAMS_KEY), scenario=_custom(path, SCENARIO_KEY))
     t = np.array(sorted(traj), dtype=float).reshape(-1, len(records.TRAJECTORY_COLUMNS))
     t[:, 1] = t[:, 0] * run.dt
     run.trajectory = t

@@ -34,10 +34,8 @@ def summary_table(s: dict[str, Any]) -> str:
 def report(path: Path, out: Path) -> tuple[dict[str, Any], list[Path]]:
     """Read the bag, write the PNGs and summary.md into out; returns the summary and the files."""
     run = bag.load(path)
-    if len(run.metrics) == 0:
-        raise bag.BagError(f'{path}: no /metrics messages to plot')
+    s = bag.summary(run)  # raises BagError for a bag without /metrics
     out.mkdir(parents=True, exist_ok=True)
-    s = bag.summary(run)
     name = path.resolve().parent.name if path.name == 'bag' else path.name  # RUN/bag: the run's name
     label = f'{s["maps_start"]} MAPs, {name}'
     traj = {c: run.trajectory[:, i] for i, c in enumerate(records.TRAJECTORY_COLUMNS)}
