@@ -1,8 +1,11 @@
 """One MAP as an rclpy node: hears only its radio neighbours, computes u_i and its mode with the core.
 
-Lockstep protocol for step k: the world sends /map_<id>/sensing (own q, p, N_u, r_g, neighbour ids);
-the MAP publishes its /map_<id>/state for step k, waits for the step-k states of exactly the listed
-neighbours, runs `agent_step` and publishes /map_<id>/cmd for step k.
+For step k the world sends /map_<id>/sensing (own q, p, N_u, r_g, neighbour ids) and the MAP publishes
+its /map_<id>/state for step k. Then, by sync mode:
+- lockstep: it waits for the step-k states of exactly the listed neighbours, runs `agent_step` and
+  publishes /map_<id>/cmd for step k (deterministic: equal to the batch simulator);
+- realtime: it runs `agent_step` at once on the latest state it holds of each listed neighbour, as an
+  aircraft would with whatever its radio last brought in.
 """
 from __future__ import annotations
 
@@ -26,7 +29,10 @@ from .core.params import FlockParams
 from .executors import make_executor
 from .qos import LATCHED_QOS, STATE_QOS, STATE_READ_QOS, STEP_QOS
 
-WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long: the world is gone
+WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long (after it was seen): it is gone
+SYNC_MODES = ('lockstep', 'realtime')
+# realtime: a neighbour's state may run ahead of our sensing by a few steps (it was sensed first), no more
+REALTIME_AHEAD_STEPS = 10
 
 
 class AgentNode(Node):
@@ -39,8 +45,17 @@ class AgentNode(Node):
         for f in fields(FlockParams):
             self.declare_parameter(f.name, getattr(defaults, f.name))
         self.declare_parameter('hysteresis', 2.0)  # m beyond r before a neighbour's topic is dropped
+        self.declare_parameter('sync', 'lockstep')
+        # Many processes starting on few cores take a while to bring the world up: wait this long for it.
+        self.declare_parameter('world_start_timeout', 120.0)
         self.params = FlockParams(**{f.name: self.get_parameter(f.name).value for f in fields(FlockParams)})
         self.hysteresis = float(self.get_parameter('hysteresis').value)
+        self.sync = str(self.get_parameter('sync').value)
+        if self.sync not in SYNC_MODES:
+            raise ValueError(f"parameter sync: expected one of {', '.join(SYNC_MODES)}, got {self.sync!r}")
+        self.realtime = self.sync == 'realtime'
+        self.world_start_timeout = float(self.get_parameter('world_start_timeout').value)
+        self.world_seen = False
 
         self.memory = Memory()
         self.clusters: Optional[ClusterMap] = None
@@ -86,13 +101,14 @@ class AgentNode(Node):
         if msg.id != self.map_id or not convert.finite(msg.position, msg.velocity, msg.goal_coverage):
             self.reject('sensing', f'id {msg.id} or non-finite values')
             return
-        if msg.step == self.step and self.step >= 0:
+        if msg.step == self.step and self.step >= 0 and not self.realtime:
             self.answer_again()  # the world repeats a stalled step: say again what we said
             return
-        if msg.step < self.step:
+        if msg.step < self.step or (self.realtime and msg.step == self.step):
             self.reject('sensing', f'stale step {msg.step} (now at {self.step})')
             return
         self.last_sensing = self.get_clock().now()
+        self.world_seen = True
         self.pending = msg
         self.step = msg.step
         self.own_q = convert.xyz(msg.position)
@@ -109,12 +125,13 @@ class AgentNode(Node):
             self.reject(source, 'non-finite position or velocity')
             return
         known = self.latest.get(sender)
-        if (known is not None and msg.step < known.step) or msg.step > self.step + 1:
-            # a neighbour is never more than one step ahead of us in lockstep
+        ahead = REALTIME_AHEAD_STEPS if self.realtime else 1  # in lockstep a neighbour is at most a step ahead
+        if (known is not None and msg.step < known.step) or msg.step > self.step + ahead:
             self.reject(source, f'step {msg.step} out of order (now at {self.step})')
             return
         self.latest[sender] = msg
-        self.try_step()
+        if not self.realtime:
+            self.try_step()
 
     # ------------------------------------------------------------------ neighbours
     def follow(self, listed: list[int]) -> None:
@@ -149,13 +166,17 @@ class AgentNode(Node):
         self.last_state = msg
 
     def try_step(self) -> None:
+        """Compute the pending step's command once what the sync mode needs from the neighbours is here."""
         s = self.pending
         if s is None or self.clusters is None:
             return
         needed = [j for j in s.neighbors.ids if j not in self.dead]
-        if any(j not in self.latest or self.latest[j].step != s.step for j in needed):
+        if self.realtime:
+            heard = [self.latest[j] for j in needed if j in self.latest]  # whatever came in, of any step
+        elif any(j not in self.latest or self.latest[j].step != s.step for j in needed):
             return
-        heard = [self.latest[j] for j in needed]  # ascending id, as the world lists them
+        else:
+            heard = [self.latest[j] for j in needed]  # ascending id, as the world lists them
         hood = Neighbourhood(
             q=np.array([convert.xyz(m.position) for m in heard]).reshape(-1, 3),
             p=np.array([convert.xyz(m.velocity) for m in heard]).reshape(-1, 3),
@@ -183,7 +204,12 @@ class AgentNode(Node):
                        if j not in self.dead and (j not in self.latest or self.latest[j].step != self.pending.step)}
             self.get_logger().warning(f'step {self.pending.step}: waiting {silent:.0f} s for neighbours '
                                       f'(id: last step heard) {missing}, clusters known: {self.clusters is not None}')
-        if silent > WORLD_TIMEOUT_S and self.count_publishers(f'/map_{self.map_id}/sensing') == 0:
+        world_listed = self.count_publishers(f'/map_{self.map_id}/sensing') > 0
+        self.world_seen = self.world_seen or world_listed
+        if not self.world_seen and silent > self.world_start_timeout:
+            self.get_logger().error(f'no world_sim appeared within {silent:.0f} s: stopping MAP {self.map_id}')
+            self.stopped = True
+        elif self.world_seen and silent > WORLD_TIMEOUT_S and not world_listed:
             self.get_logger().error(f'no world_sim for {silent:.0f} s: stopping MAP {self.map_id}')
             self.stopped = True
 
@@ -206,7 +232,12 @@ def main(argv: Optional[list[str]] = None) -> int:
     ids = parse_ids(rclpy.utilities.remove_ros_args(argv)[1:])
     rclpy.init(args=argv)
     executor = make_executor()
-    nodes = [AgentNode(i) for i in ids]
+    try:
+        nodes = [AgentNode(i) for i in ids]
+    except ValueError as exc:  # a bad parameter value: the user's mistake
+        print(f'uav_agent_node: error: {exc}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
     for n in nodes:
         executor.add_node(n)
     try:

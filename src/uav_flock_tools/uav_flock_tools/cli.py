@@ -128,7 +128,8 @@ def cmd_run(args: argparse.Namespace) -> int:
                             fail_fraction=None, out=args.out or str(default_out('run')))
     if args.batch:
         return cmd_sim(ns)
-    ns.__dict__.update(agents_per_process=RUN_AGENTS_PER_PROCESS, domain_id=None, discovery='auto', record=True)
+    ns.__dict__.update(agents_per_process=RUN_AGENTS_PER_PROCESS, domain_id=None, discovery='auto', record=True,
+                       sync='lockstep', rate=1.0)
     code = cmd_up(ns)
     bag_path = Path(ns.out) / 'bag'
     if (bag_path / 'metadata.yaml').exists():
@@ -137,7 +138,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_up(args: argparse.Namespace) -> int:
-    """world_sim and one process per MAP (or K per process), in lockstep."""
+    """world_sim and one process per MAP (or K per process), in lockstep or in real time."""
     from . import launcher, simrun
     path = simrun.resolve_scenario(args.scenario)
     base = simrun.load_scenario(args.scenario)
@@ -149,10 +150,12 @@ def cmd_up(args: argparse.Namespace) -> int:
                             duration=args.duration, fail_at=args.fail_at, fail_fraction=args.fail_fraction)
     if args.agents_per_process < 1:
         raise UsageError('up: --agents-per-process must be at least 1')
+    if args.rate != 1.0 and args.sync != 'realtime':
+        raise UsageError('up: --rate sets the pace of --sync realtime; lockstep runs as fast as it can')
     out = Path(args.out) if args.out else default_out('up')
     try:
         code, result = launcher.up(path.resolve(), s, out.resolve(), args.agents_per_process, args.domain_id,
-                                   args.discovery, args.record)
+                                   args.discovery, args.record, args.sync, args.rate)
     except FileExistsError as exc:
         raise UsageError(f'up: {exc}') from None
     if result is None:
@@ -233,7 +236,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--batch', action='store_true', help='in one process with the batch simulator instead (seconds)')
     p.add_argument('--out', help='output folder (default: runs/run-<time>)')
     p.set_defaults(func=cmd_run)
-    p = sub.add_parser('up', help='run a scenario distributed: world_sim and one process per MAP, lockstep')
+    p = sub.add_parser('up', help='run a scenario distributed: world_sim and one process per MAP')
     add_scenario_options(p)
     p.add_argument('--agents-per-process', type=int, default=1, help='pack K agent nodes into one process')
     p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID to use (default: a fresh one per run)')
@@ -241,6 +244,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help='LOCALHOST discovery, or a Fast DDS discovery server for the run '
                         '(auto: the server above 30 processes)')
     p.add_argument('--record', action='store_true', help='record every topic into RUN/bag (rosbag2, MCAP)')
+    p.add_argument('--sync', choices=('lockstep', 'realtime'), default='lockstep',
+                   help='lockstep: each step waits for every MAP (deterministic, equal to sim); realtime: steps '
+                        'at a fixed pace on /clock, each MAP flying on the latest data it has')
+    p.add_argument('--rate', type=positive_float, default=1.0,
+                   help='realtime: simulated seconds per wall second (default: 1)')
     p.add_argument('--out', help='run folder (default: runs/up-<time>)')
     p.set_defaults(func=cmd_up)
     p = sub.add_parser('kill', help='SIGKILL agent processes of a running `up`')

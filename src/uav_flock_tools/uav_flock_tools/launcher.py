@@ -27,6 +27,10 @@ GRACE_S = 3.0  # after SIGINT/SIGTERM, how long children get before SIGKILL
 # this many processes `up` starts a Fast DDS discovery server for the run (--discovery auto).
 LOCALHOST_LIMIT = 30
 DISCOVERY_BASE_PORT = 11811
+# How long world_sim waits for every MAP, and each MAP for world_sim, at start: Python processes on two
+# cores come up at about one per 0.6 s of CPU, so the wait grows with their number.
+START_TIMEOUT_MIN_S = 60.0
+START_TIMEOUT_PER_PROCESS_S = 1.5
 
 
 def executable(package: str, name: str) -> str:
@@ -95,8 +99,8 @@ def scenario_summary(path: Path, s: Scenario) -> dict[str, object]:
 
 
 def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: int = 1,
-       domain_id: Optional[int] = None, discovery: str = 'auto', record: bool = False
-       ) -> tuple[int, Optional[RunResult]]:
+       domain_id: Optional[int] = None, discovery: str = 'auto', record: bool = False,
+       sync: str = 'lockstep', rate: float = 1.0) -> tuple[int, Optional[RunResult]]:
     """Run the scenario distributed; returns (world exit code, result read back from the run folder)."""
     bag_path = run / 'bag'
     if record and bag_path.exists():
@@ -107,17 +111,21 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     use_server = discovery == 'server' or (discovery == 'auto' and processes > LOCALHOST_LIMIT)
     server_address = f'127.0.0.1:{DISCOVERY_BASE_PORT + domain}' if use_server else None
     env = ros_env(domain, server_address)
+    start_timeout = max(START_TIMEOUT_MIN_S, START_TIMEOUT_PER_PROCESS_S * processes)
     params = run / 'agent_params.yaml'
-    params.write_text(yaml.safe_dump({'/**': {'ros__parameters': scenario.flock.as_dict()}}, sort_keys=False))
+    params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {
+        **scenario.flock.as_dict(), 'sync': sync, 'world_start_timeout': 2 * start_timeout}}}, sort_keys=False))
     (run / 'run.json').write_text(json.dumps({'domain_id': domain, 'discovery_server': server_address,
                                               'scenario': str(scenario_path),
                                               'maps': scenario.maps, 'seed': scenario.seed,
-                                              'agents_per_process': agents_per_process,
+                                              'agents_per_process': agents_per_process, 'sync': sync,
+                                              'rate': rate if sync == 'realtime' else None,
                                               'bag': str(bag_path) if record else None}, indent=1))
     logs = run / 'logs'
     logs.mkdir(exist_ok=True)
-    print(f'uav-flock up: {scenario.maps} MAPs in {processes - 1 - int(record)} processes, ROS_DOMAIN_ID={domain}, '
-          f'discovery {"server " + server_address if server_address else "LOCALHOST"}, run folder {run}', flush=True)
+    pace = f'realtime x{rate:g}' if sync == 'realtime' else 'lockstep'
+    print(f'uav-flock up: {scenario.maps} MAPs in {processes - 1 - int(record)} processes, {pace}, '
+          f'ROS_DOMAIN_ID={domain}, discovery {"server " + server_address if server_address else "LOCALHOST"}, run folder {run}', flush=True)
 
     agent_exe, world_exe = executable('uav_agent', 'uav_agent_node'), executable('world_sim', 'world_sim_node')
     agents: list[subprocess.Popen] = []
@@ -159,7 +167,8 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
         s = scenario
         world_args = [world_exe, '--ros-args', '-p', f'scenario:={scenario_path}', '-p', f'maps:={s.maps}',
                       '-p', f'seed:={s.seed}', '-p', f'duration:={float(s.duration)}', '-p', f'out:={run}',
-                      '-p', f'pid_table:={run / "pids.json"}']
+                      '-p', f'pid_table:={run / "pids.json"}', '-p', f'start_timeout:={start_timeout}',
+                      '-p', f'sync:={sync}', '-p', f'rate:={float(rate)}']
         if record:
             world_args += ['-p', 'record:=true']
         if s.fail_at is not None:

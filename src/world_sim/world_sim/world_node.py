@@ -1,8 +1,11 @@
-"""The physical world as an rclpy node: MSDs, dynamics, association and metrics, in lockstep with the MAPs.
+"""The physical world as an rclpy node: MSDs, dynamics, association and metrics, stepped with the MAPs.
 
 Step k: drop failed MAPs, sense at q(k), publish /clock, /association and every live MAP's
-/map_<id>/sensing; wait for each live MAP's /map_<id>/cmd of step k (a MAP whose process is gone is
-dropped); then record and integrate with the very `World` the batch simulator uses.
+/map_<id>/sensing; then record and integrate with the very `World` the batch simulator uses. The sync
+mode says when a step ends:
+- lockstep: once each live MAP's /map_<id>/cmd of step k is in (a MAP whose process is gone is dropped);
+- realtime: on a wall-clock timer, every dt / rate, with the latest command each MAP has sent (held from
+  an earlier step if none came for this one; u = 0 before the first), as actuators hold their last input.
 """
 from __future__ import annotations
 
@@ -38,6 +41,7 @@ from .core.scenario import ScenarioError, load
 LIVENESS_PERIOD_S = 0.2  # how often the processes of MAPs we wait for are checked
 RECORDER_TIMEOUT_S = 10.0  # a recorder that writes nothing new this long while we wait for it is given up on
 RESEND_AFTER_S = 2.0  # a step stalled this long (every process alive) has its sensing sent again
+SYNC_MODES = ('lockstep', 'realtime')
 
 
 def sim_time(t: float) -> Time:
@@ -59,7 +63,7 @@ class WorldNode(Node):
         super().__init__('world_sim')
         for name, default in (('scenario', ''), ('maps', 0), ('seed', -1), ('duration', 0.0), ('fail_at', -1.0),
                               ('fail_fraction', -1.0), ('out', ''), ('pid_table', ''), ('start_timeout', 60.0),
-                              ('record', False), ('marker_period', 5)):
+                              ('record', False), ('marker_period', 5), ('sync', 'lockstep'), ('rate', 1.0)):
             self.declare_parameter(name, default)
         get = lambda n: self.get_parameter(n).value  # noqa: E731
         scenario = load(get('scenario'))
@@ -68,6 +72,13 @@ class WorldNode(Node):
             duration=get('duration') or None, fail_at=get('fail_at') if get('fail_at') >= 0 else None,
             fail_fraction=get('fail_fraction') if get('fail_fraction') >= 0 else None)
         self.s = scenario
+        self.sync = str(get('sync'))
+        if self.sync not in SYNC_MODES:
+            raise ValueError(f"parameter sync: expected one of {', '.join(SYNC_MODES)}, got {self.sync!r}")
+        self.realtime = self.sync == 'realtime'
+        self.rate = float(get('rate'))  # realtime: simulated seconds per wall second
+        if not (0.0 < self.rate < float('inf')):
+            raise ValueError(f'parameter rate: expected a positive number, got {self.rate!r}')
         self.world = World(scenario)
         self.out = Path(get('out')) if get('out') else None
         self.pid_table = Path(get('pid_table')) if get('pid_table') else None
@@ -98,7 +109,8 @@ class WorldNode(Node):
         self.publish_fixed()
 
         self.sensed: Optional[Sensed] = None
-        self.commands: dict[int, Command] = {}
+        self.commands: dict[int, Command] = {}  # lockstep: this step's; realtime: each MAP's latest
+        self.fresh = self.applied = 0  # realtime: commands applied in the step they were computed for, of all
         self.last_mode: dict[int, int] = {}
         self.rejected = 0
         self.started = False
@@ -143,6 +155,8 @@ class WorldNode(Node):
             self.started = True
             self.get_logger().info(f'{ready} MAPs ready after {time.monotonic() - self.wall_start:.1f} s: starting')
             self.wall_start = time.monotonic()
+            if self.realtime:
+                self.create_timer(self.s.dt / self.rate, self.end_step_realtime)
             self.begin_step()
         elif time.monotonic() - self.wall_start > self.start_timeout:
             self.get_logger().error(f'only {ready} of {self.s.maps} MAPs appeared within {self.start_timeout:g} s')
@@ -154,7 +168,8 @@ class WorldNode(Node):
         if len(failing):
             self.drop(failing, 'scheduled')
         self.sensed = s = w.sense()
-        self.commands = {}
+        if not self.realtime:
+            self.commands = {}
         self.step_started = time.monotonic()
         hdr = self.header()
         self.clock_pub.publish(Clock(clock=hdr.stamp))
@@ -180,21 +195,42 @@ class WorldNode(Node):
         s = self.sensed
         if s is None or self.finished:
             return
-        if msg.id != sender or msg.step != s.k or not convert.finite(msg.accel) or sender not in s.ids:
+        known = self.commands.get(sender)
+        if self.realtime:  # any step up to the current one, never older than what we hold
+            bad_step = msg.step > s.k or (known is not None and msg.step < known.step)
+        else:
+            bad_step = msg.step != s.k
+        flying = self.world.alive[sender] if self.realtime else sender in s.ids
+        if msg.id != sender or bad_step or not convert.finite(msg.accel) or not flying:
             self.rejected += 1
             if self.rejected == 1:
                 self.get_logger().warning(f'rejected a command on /map_{sender}/cmd (id {msg.id}, step {msg.step}); '
                                           'further ones only counted')
             return
         self.commands[sender] = msg
-        self.maybe_advance()
+        if not self.realtime:
+            self.maybe_advance()
 
     def maybe_advance(self) -> None:
+        """lockstep: end the step once every live MAP's command of it is in."""
         s = self.sensed
         if any(self.world.alive[i] and i not in self.commands for i in s.ids.tolist()):
             return
-        # A MAP that died during this step sent nothing: it drifts with u = 0 and keeps its last mode.
-        cmds = [self.commands.get(i) for i in s.ids.tolist()]
+        self.end_step([self.commands.get(i) for i in s.ids.tolist()])
+
+    def end_step_realtime(self) -> None:
+        """realtime: the step's time is up; each live MAP flies on the latest command it sent."""
+        if self.sensed is None or self.finished or self.held:
+            return
+        ids = self.sensed.ids.tolist()
+        cmds = [self.commands.get(i) if self.world.alive[i] else None for i in ids]
+        self.applied += len(ids)
+        self.fresh += sum(1 for c in cmds if c is not None and c.step == self.sensed.k)
+        self.end_step(cmds)
+
+    def end_step(self, cmds: list[Optional[Command]]) -> None:
+        """Record the step and integrate it; a MAP with no command (dead, or none yet) flies with u = 0."""
+        s = self.sensed
         u = np.array([convert.xyz(c.accel) if c else np.zeros(3) for c in cmds]).reshape(-1, 3)
         modes = np.array([c.mode if c else self.last_mode.get(i, 0) for c, i in zip(cmds, s.ids.tolist())],
                          dtype=np.intp)
@@ -216,7 +252,7 @@ class WorldNode(Node):
         return self.record and self.world.k - self.recorded > RECORDER_MAX_LAG_STEPS
 
     def next_step(self) -> None:
-        if self.recorder_behind():
+        if self.recorder_behind() and not self.realtime:  # realtime keeps its pace: it never waits
             self.held = True
             return
         self.begin_step()
@@ -244,13 +280,19 @@ class WorldNode(Node):
                                          mode0=int(m0), mode1=int(m1), mode2=int(m2)))
         if int(k) % int(round(1.0 / self.s.dt)) == 0:
             wall = time.monotonic() - self.wall_start
+            fresh = ''
+            if self.realtime and self.applied:
+                fresh = f'  fresh commands {100 * self.fresh / self.applied:.0f} %'
+                self.fresh = self.applied = 0
             print(f't = {t:5.1f} s  R_c = {100 * rc:5.1f} %  λ2 = {lam2:.4f}  alive = {int(alive)}  '
-                  f'modes = {int(m0)}/{int(m1)}/{int(m2)}  {(k + 1) / max(wall, 1e-9):.1f} steps/s', flush=True)
+                  f'modes = {int(m0)}/{int(m1)}/{int(m2)}  {(k + 1) / max(wall, 1e-9):.1f} steps/s{fresh}', flush=True)
 
     # ------------------------------------------------------------------ failures
     def drop(self, ids: np.ndarray, cause: str) -> None:
         ids = np.asarray(sorted(int(i) for i in ids), dtype=np.intp)
         self.world.drop(ids)
+        for i in ids.tolist():
+            self.commands.pop(i, None)  # a dropped MAP flies no command any more
         self.failure_pub.publish(FailureEvent(header=self.header(), step=self.world.k,
                                               ids=ids.astype(np.uint32).tolist(), cause=cause))
         self.get_logger().warning(f'step {self.world.k}: dropped MAPs {ids.tolist()} ({cause})')
@@ -269,7 +311,8 @@ class WorldNode(Node):
         s = self.sensed
         if s is None:
             return
-        waiting = [i for i in s.ids.tolist() if i not in self.commands and self.world.alive[i]]
+        # realtime waits for no one, so every live MAP is watched
+        waiting = [i for i in s.ids.tolist() if self.world.alive[i] and (self.realtime or i not in self.commands)]
         if not waiting:
             return
         table = self.pids()
@@ -277,8 +320,9 @@ class WorldNode(Node):
                 or (not table and self.sensing_pubs[i].get_subscription_count() == 0)]
         if gone:
             self.drop(np.array(gone), 'killed')
-            self.maybe_advance()
-        elif time.monotonic() - self.step_started > RESEND_AFTER_S:
+            if not self.realtime:
+                self.maybe_advance()
+        elif not self.realtime and time.monotonic() - self.step_started > RESEND_AFTER_S:
             # Every process lives, yet the step stalls: a first sample after discovery can go missing.
             # Sending the step's sensing again is harmless: each MAP answers a repeat with its state and
             # (if it already has one) its command of the step once more.
