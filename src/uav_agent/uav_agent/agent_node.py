@@ -33,6 +33,10 @@ WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long (af
 SYNC_MODES = ('lockstep', 'realtime')
 # realtime: a neighbour's state may run ahead of our sensing by a few steps (it was sensed first), no more
 REALTIME_AHEAD_STEPS = 10
+# lockstep: a reader of a neighbour's state still matched to no writer this long after the step's sensing,
+# while the graph lists that writer, is made anew (with a discovery server and ~90 processes a match can go
+# missing for good; a new reader is matched afresh). Then again after twice as long, and so on.
+RESUBSCRIBE_AFTER_S = 15.0
 
 
 class AgentNode(Node):
@@ -70,6 +74,7 @@ class AgentNode(Node):
         self.stopped = False
         self.last_state: Optional[AgentState] = None
         self.last_cmd: Optional[Command] = None
+        self.resubscribed = (-1, 0)  # (step, times the unmatched neighbours were subscribed anew in it)
 
         self.state_pub = self.create_publisher(AgentState, 'state', STATE_QOS)
         self.cmd_pub = self.create_publisher(Command, 'cmd', STEP_QOS)
@@ -146,8 +151,14 @@ class AgentNode(Node):
             self.destroy_subscription(self.neighbour_subs.pop(j))
             self.latest.pop(j, None)
         for j in sorted(keep - set(self.neighbour_subs)):
-            self.neighbour_subs[j] = self.create_subscription(
-                AgentState, f'/map_{j}/state', lambda m, j=j: self.on_state(j, m), STATE_READ_QOS)
+            self.subscribe(j)
+
+    def subscribe(self, j: int) -> None:
+        old = self.neighbour_subs.pop(j, None)
+        if old is not None:
+            self.destroy_subscription(old)
+        self.neighbour_subs[j] = self.create_subscription(
+            AgentState, f'/map_{j}/state', lambda m, j=j: self.on_state(j, m), STATE_READ_QOS)
 
     # ------------------------------------------------------------------ step
     def answer_again(self) -> None:
@@ -204,6 +215,16 @@ class AgentNode(Node):
                        if j not in self.dead and (j not in self.latest or self.latest[j].step != self.pending.step)}
             self.get_logger().warning(f'step {self.pending.step}: waiting {silent:.0f} s for neighbours '
                                       f'(id: last step heard) {missing}, clusters known: {self.clusters is not None}')
+            tries = self.resubscribed[1] if self.resubscribed[0] == self.step else 0
+            if not self.realtime and silent > RESUBSCRIBE_AFTER_S * 2 ** tries:
+                self.resubscribed = (self.step, tries + 1)
+                lost = [j for j in missing if self.neighbour_subs[j].get_publisher_count() == 0
+                        and self.count_publishers(f'/map_{j}/state') > 0]
+                for j in lost:
+                    self.subscribe(j)
+                if lost:
+                    self.get_logger().warning(f'step {self.pending.step}: no match with the listed state writers '
+                                              f'of {lost}: subscribed anew')
         world_listed = self.count_publishers(f'/map_{self.map_id}/sensing') > 0
         self.world_seen = self.world_seen or world_listed
         if not self.world_seen and silent > self.world_start_timeout:

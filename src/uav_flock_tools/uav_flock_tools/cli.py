@@ -240,7 +240,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_scenario_options(p)
     p.add_argument('--agents-per-process', type=int, default=1, help='pack K agent nodes into one process')
     p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID to use (default: a fresh one per run)')
-    p.add_argument('--discovery', choices=('auto', 'localhost', 'server'), default='auto',
+    p.add_argument('--discovery', choices=('auto', 'localhost', 'subnet', 'server'), default='auto',
                    help='LOCALHOST discovery, or a Fast DDS discovery server for the run '
                         '(auto: the server above 30 processes)')
     p.add_argument('--record', action='store_true', help='record every topic into RUN/bag (rosbag2, MCAP)')

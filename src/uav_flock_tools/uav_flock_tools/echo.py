@@ -28,6 +28,8 @@ def use_domain(run: Optional[str], domain_id: Optional[int]) -> None:
         domain_id = int(meta['domain_id'])
         if meta.get('discovery_server'):  # a super client sees every endpoint the server knows
             os.environ.update(ROS_DISCOVERY_SERVER=meta['discovery_server'], ROS_SUPER_CLIENT='TRUE')
+        elif meta.get('discovery_range'):
+            os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = meta['discovery_range']
     if domain_id is not None:
         os.environ['ROS_DOMAIN_ID'] = str(domain_id)
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')

@@ -39,7 +39,8 @@ def executable(package: str, name: str) -> str:
     return os.path.join(get_package_prefix(package), 'lib', package, name)
 
 
-def ros_env(domain_id: int, discovery_server: Optional[str] = None) -> dict[str, str]:
+def ros_env(domain_id: int, discovery_server: Optional[str] = None, discovery_range: str = 'LOCALHOST'
+            ) -> dict[str, str]:
     """Environment of a run's processes: its own domain, and its discovery server if it has one."""
     env = dict(os.environ)
     env.update(ROS_DOMAIN_ID=str(domain_id), FASTDDS_BUILTIN_TRANSPORTS='UDPv4', PYTHONUNBUFFERED='1')
@@ -47,7 +48,7 @@ def ros_env(domain_id: int, discovery_server: Optional[str] = None) -> dict[str,
         env['ROS_DISCOVERY_SERVER'] = discovery_server
         env.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
     else:
-        env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+        env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = discovery_range
         env.pop('ROS_DISCOVERY_SERVER', None)
     return env
 
@@ -69,14 +70,21 @@ def read_pid_table(run: Path) -> dict[int, int]:
     return {int(k): int(v) for k, v in json.loads(path.read_text()).items()}
 
 
-def stop(procs: list[subprocess.Popen], first: int = signal.SIGTERM) -> None:
-    """Signal, wait up to GRACE_S, then SIGKILL and reap: no orphans."""
-    for p in procs:
-        if p.poll() is None:
-            try:
-                os.killpg(p.pid, first)
-            except ProcessLookupError:
-                pass
+def stop(procs: list[subprocess.Popen], first: int = signal.SIGTERM,
+         also: Optional[dict[int, list[subprocess.Popen]]] = None) -> None:
+    """Signal (`also` maps other signals to other processes), wait up to GRACE_S, then SIGKILL and reap.
+
+    All are signalled at once, so that a run of a hundred processes still ends within one grace period.
+    """
+    groups = {first: list(procs), **(also or {})}
+    procs = [p for group in groups.values() for p in group]
+    for sig, group in groups.items():
+        for p in group:
+            if p.poll() is None:
+                try:
+                    os.killpg(p.pid, sig)
+                except ProcessLookupError:
+                    pass
     deadline = time.monotonic() + GRACE_S
     for p in procs:
         try:
@@ -110,12 +118,14 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     processes = -(-scenario.maps // agents_per_process) + 1 + int(record)
     use_server = discovery == 'server' or (discovery == 'auto' and processes > LOCALHOST_LIMIT)
     server_address = f'127.0.0.1:{DISCOVERY_BASE_PORT + domain}' if use_server else None
-    env = ros_env(domain, server_address)
+    discovery_range = 'SUBNET' if discovery == 'subnet' else 'LOCALHOST'
+    env = ros_env(domain, server_address, discovery_range)
     start_timeout = max(START_TIMEOUT_MIN_S, START_TIMEOUT_PER_PROCESS_S * processes)
     params = run / 'agent_params.yaml'
     params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {
         **scenario.flock.as_dict(), 'sync': sync, 'world_start_timeout': 2 * start_timeout}}}, sort_keys=False))
     (run / 'run.json').write_text(json.dumps({'domain_id': domain, 'discovery_server': server_address,
+                                              'discovery_range': None if server_address else discovery_range,
                                               'scenario': str(scenario_path),
                                               'maps': scenario.maps, 'seed': scenario.seed,
                                               'agents_per_process': agents_per_process, 'sync': sync,
@@ -125,7 +135,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     logs.mkdir(exist_ok=True)
     pace = f'realtime x{rate:g}' if sync == 'realtime' else 'lockstep'
     print(f'uav-flock up: {scenario.maps} MAPs in {processes - 1 - int(record)} processes, {pace}, '
-          f'ROS_DOMAIN_ID={domain}, discovery {"server " + server_address if server_address else "LOCALHOST"}, run folder {run}', flush=True)
+          f'ROS_DOMAIN_ID={domain}, discovery {"server " + server_address if server_address else discovery_range}, run folder {run}', flush=True)
 
     agent_exe, world_exe = executable('uav_agent', 'uav_agent_node'), executable('world_sim', 'world_sim_node')
     agents: list[subprocess.Popen] = []
@@ -184,11 +194,8 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     finally:
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)
-        if world is not None:
-            stop([world], signal.SIGINT)  # the world writes its records first
-        stop(agents)
-        if recorder is not None:
-            stop([recorder], signal.SIGINT)  # drains and closes the bag
+        # SIGINT: the world writes its records, the recorder drains and closes the bag
+        stop(agents, signal.SIGTERM, {signal.SIGINT: [p for p in (world, recorder) if p is not None]})
         if server is not None:
             stop([server])
     if interrupted:

@@ -1,0 +1,113 @@
+"""Realtime sync: the world steps on a wall-clock timer and every MAP flies on the latest data it has."""
+from __future__ import annotations
+
+import re
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+from helpers.runs import cli, up, wait_for_line
+from world_sim.core.records import read_csv
+
+PROGRESS = re.compile(r't = +([\d.]+) s .* fresh commands (\d+) %')
+
+
+def progress(lines: list[str]) -> list[tuple[float, int]]:
+    return [(float(m[1]), int(m[2])) for m in map(PROGRESS.search, lines) if m]
+
+
+def test_realtime_run_keeps_its_pace_and_flies_like_sim(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    args = ('--maps', '12', '--seed', '0', '--duration', '12')
+    proc = up(*args, '--sync', 'realtime', '--rate', '2', '--out', str(tmp_path / 'up'), env=ros_env)
+    stamped: list[tuple[float, str]] = []
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        stamped.append((time.monotonic(), line))
+    assert proc.wait(timeout=60) == 0, ''.join(line for _, line in stamped)
+    lines = [line for _, line in stamped]
+    assert 'realtime x2' in lines[0]
+    seen = progress(lines)
+    assert [t for t, _ in seen] == [float(t) for t in range(13)], 'a progress line per simulated second'
+    assert all(0 <= fresh <= 100 for _, fresh in seen)
+    # The timer sets the pace: 11 simulated seconds between the first and the last line at rate 2 take
+    # 5.5 s of wall time at least (a lower bound: the world may fall behind its timer, never ahead of it).
+    wall = [when for when, line in stamped if PROGRESS.search(line)]
+    assert wall[-1] - wall[0] >= 0.9 * 11 / 2, f'{wall[-1] - wall[0]:.2f} s of wall time for 11 simulated s'
+
+    m = read_csv(tmp_path / 'up' / 'metrics.csv')
+    assert np.array_equal(m['step'], np.arange(121)) and np.allclose(m['t'], 0.1 * m['step'])
+    t = read_csv(tmp_path / 'up' / 'trajectory.csv')
+    assert len(t['step']) == 12 * 121 and all(np.all(np.isfinite(t[c])) for c in ('x', 'y', 'vx', 'vy'))
+    assert cli('sim', *args, '--out', str(tmp_path / 'sim')).returncode == 0
+    s = read_csv(tmp_path / 'sim' / 'metrics.csv')
+    # Commands computed on neighbour states a step old, and held while late, change the path a little,
+    # not where the formation goes.
+    assert abs(m['coverage_ratio'][-1] - s['coverage_ratio'][-1]) <= 0.10, (m['coverage_ratio'][-1],
+                                                                            s['coverage_ratio'][-1])
+    a, b = read_csv(tmp_path / 'up' / 'trajectory.csv'), read_csv(tmp_path / 'sim' / 'trajectory.csv')
+    gap = np.hypot(a['x'] - b['x'], a['y'] - b['y'])
+    assert gap.max() > 1e-6, 'realtime is not lockstep: MAPs act on neighbour states of an earlier step'
+    assert np.median(gap[a['step'] == 120]) < 10.0, f'median gap to sim at the end {np.median(gap):.1f} m'
+
+
+def test_realtime_drops_killed_agents_and_goes_on(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    run = tmp_path / 'up'
+    proc = up('--maps', '10', '--seed', '1', '--duration', '20', '--sync', 'realtime', '--rate', '2',
+              '--out', str(run), env=ros_env)
+    try:
+        wait_for_line(proc, 't =   3.0 s', 120)
+        killed = cli('kill', '--run', str(run), '--ids', '2,5')
+        assert killed.returncode == 0 and 'SIGKILLed MAPs [2, 5]' in killed.stdout, killed.stdout + killed.stderr
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, out
+    dropped = sorted(int(i) for line in out.splitlines() if '(killed)' in line
+                     for i in line.split('[')[1].split(']')[0].split(','))
+    assert dropped == [2, 5], out
+    m = read_csv(run / 'metrics.csv')
+    assert m['t'][-1] == 20.0 and m['alive'][0] == 10 and m['alive'][-1] == 8
+    t = read_csv(run / 'trajectory.csv')
+    assert set(t['id'][t['step'] == t['step'].max()].astype(int).tolist()) == set(range(10)) - {2, 5}
+
+
+def agent(ids: str, env: dict[str, str], *ros_args: str) -> subprocess.Popen[str]:
+    from uav_flock_tools.launcher import executable
+    return subprocess.Popen([executable('uav_agent', 'uav_agent_node'), '--ids', ids, '--ros-args', *ros_args],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def test_agents_wait_for_a_world_that_comes_late(tmp_path: Path, ros_env: dict[str, str],
+                                                 paper_scenario_path: str) -> None:
+    """Agents started by hand before world_sim wait for it (many processes on few cores start slowly)."""
+    waiting = agent('0,1', ros_env)
+    impatient = agent('5', {**ros_env, 'ROS_DOMAIN_ID': str((int(ros_env['ROS_DOMAIN_ID']) + 50) % 101 + 1)},
+                      '-p', 'world_start_timeout:=2.0')
+    try:
+        said, _ = impatient.communicate(timeout=60)
+        assert impatient.returncode == 1 and 'no world_sim appeared within' in said, said
+        time.sleep(12.0)  # longer than an agent waits for a world it has already seen
+        assert waiting.poll() is None, 'an agent must keep waiting for a world that has not appeared yet'
+        from uav_flock_tools.launcher import executable
+        world = subprocess.run([executable('world_sim', 'world_sim_node'), '--ros-args', '-p',
+                                f'scenario:={paper_scenario_path}', '-p', 'maps:=2', '-p', 'duration:=1.0',
+                                '-p', f'out:={tmp_path}'], env=ros_env, capture_output=True, text=True, timeout=120)
+        assert world.returncode == 0, world.stdout + world.stderr
+        assert read_csv(tmp_path / 'metrics.csv')['t'][-1] == 1.0
+    finally:
+        for p in (waiting, impatient):
+            if p.poll() is None:
+                p.terminate()
+                p.communicate(timeout=30)
+
+
+def test_bad_sync_options_are_one_line_errors(ros_env: dict[str, str]) -> None:
+    bad = agent('0', ros_env, '-p', 'sync:=warp')
+    said, _ = bad.communicate(timeout=60)
+    assert bad.returncode == 2 and said.strip().count('\n') == 0 and "parameter sync" in said, said
+    rate = cli('up', '--maps', '2', '--rate', '2')
+    assert rate.returncode == 2 and '--rate' in rate.stderr and 'Traceback' not in rate.stderr, rate.stderr
+    sync = cli('up', '--maps', '2', '--sync', 'warp')
+    assert sync.returncode == 2 and 'Traceback' not in sync.stderr, sync.stderr
