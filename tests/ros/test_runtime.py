@@ -30,12 +30,35 @@ def test_lockstep_run_equals_the_batch_simulator(tmp_path: Path, ros_env: dict[s
 
 
 def test_packed_agents_give_the_same_run(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    args = ('--maps', '9', '--seed', '1', '--duration', '4')
+    """Also with a scheduled failure: a failed MAP sharing its process with live ones falls silent."""
+    args = ('--maps', '9', '--seed', '1', '--duration', '4', '--fail-at', '2', '--fail-fraction', '0.3')
     packed = cli('up', *args, '--agents-per-process', '4', '--out', str(tmp_path / 'up'), env=ros_env)
     assert packed.returncode == 0, packed.stdout + packed.stderr
     assert len(set(json.loads((tmp_path / 'up' / 'pids.json').read_text()).values())) == 3
     assert cli('sim', *args, '--out', str(tmp_path / 'sim')).returncode == 0
     assert (tmp_path / 'up' / 'trajectory.csv').read_bytes() == (tmp_path / 'sim' / 'trajectory.csv').read_bytes()
+
+
+def test_scheduled_failures_sigkill_the_agent_processes(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    args = ('--maps', '8', '--seed', '2', '--duration', '5', '--fail-at', '2', '--fail-fraction', '0.25')
+    run = tmp_path / 'up'
+    proc = up(*args, '--out', str(run), env=ros_env)
+    try:
+        seen = wait_for_line(proc, '(scheduled)', 120)
+        failed = [int(i) for i in seen[-1].split('[')[1].split(']')[0].split(',')]
+        table = {int(k): v for k, v in json.loads((run / 'pids.json').read_text()).items()}
+        t0 = time.monotonic()
+        while not all(dead(table[i]) for i in failed) and time.monotonic() - t0 < 5:
+            time.sleep(0.05)
+        gone = {i for i in table if dead(table[i])}
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert len(failed) == 2 and gone == set(failed), f'failed {failed}, processes gone {sorted(gone)}'
+    assert proc.returncode == 0, out
+    assert cli('sim', *args, '--out', str(tmp_path / 'sim')).returncode == 0
+    assert (run / 'trajectory.csv').read_bytes() == (tmp_path / 'sim' / 'trajectory.csv').read_bytes()
 
 
 def test_killed_agents_are_dropped_and_the_run_completes(tmp_path: Path, ros_env: dict[str, str]) -> None:

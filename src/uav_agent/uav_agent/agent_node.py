@@ -33,10 +33,13 @@ WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long (af
 SYNC_MODES = ('lockstep', 'realtime')
 # realtime: a neighbour's state may run ahead of our sensing by a few steps (it was sensed first), no more
 REALTIME_AHEAD_STEPS = 10
-# lockstep: a reader of a neighbour's state still matched to no writer this long after the step's sensing,
-# while the graph lists that writer, is made anew (with a discovery server and ~90 processes a match can go
-# missing for good; a new reader is matched afresh). Then again after twice as long, and so on.
-RESUBSCRIBE_AFTER_S = 15.0
+# lockstep: a reader that has heard nothing of a listed neighbour this long after the step's sensing (the
+# world re-sends a stalled step's sensing every 2 s, and each repeat makes the neighbour publish its state
+# again) is made anew: with a discovery server and ~90 processes, the writer of a new reader can go on
+# never learning of it. Then again after twice as long, and so on. Step 0, when the whole graph is being
+# discovered at once, gets longer.
+RESUBSCRIBE_AFTER_S = 5.0
+RESUBSCRIBE_AFTER_FIRST_S = 20.0
 
 
 class AgentNode(Node):
@@ -74,6 +77,7 @@ class AgentNode(Node):
         self.stopped = False
         self.last_state: Optional[AgentState] = None
         self.last_cmd: Optional[Command] = None
+        self.failed = False  # this MAP failed by the schedule (its process lives on for other MAPs)
         self.resubscribed = (-1, 0)  # (step, times the unmatched neighbours were subscribed anew in it)
 
         self.state_pub = self.create_publisher(AgentState, 'state', STATE_QOS)
@@ -100,9 +104,17 @@ class AgentNode(Node):
 
     def on_failure(self, msg: FailureEvent) -> None:
         self.dead.update(int(i) for i in msg.ids)
+        if self.map_id in self.dead and not self.failed:
+            # Failed by the schedule while sharing a process with live MAPs: fall silent, as if killed.
+            self.failed = True
+            self.pending = None
+            self.get_logger().warning(f'MAP {self.map_id} failed (event at step {msg.step}): silent from now on')
+            return
         self.try_step()
 
     def on_sensing(self, msg: Sensing) -> None:
+        if self.failed:
+            return
         if msg.id != self.map_id or not convert.finite(msg.position, msg.velocity, msg.goal_coverage):
             self.reject('sensing', f'id {msg.id} or non-finite values')
             return
@@ -213,18 +225,13 @@ class AgentNode(Node):
         if self.pending is not None and silent > 2.0:
             missing = {j: (self.latest[j].step if j in self.latest else None) for j in self.pending.neighbors.ids
                        if j not in self.dead and (j not in self.latest or self.latest[j].step != self.pending.step)}
+            matched = {j: (self.neighbour_subs[j].get_publisher_count(), self.count_publishers(f'/map_{j}/state'))
+                       for j in missing if j in self.neighbour_subs}
             self.get_logger().warning(f'step {self.pending.step}: waiting {silent:.0f} s for neighbours '
-                                      f'(id: last step heard) {missing}, clusters known: {self.clusters is not None}')
-            tries = self.resubscribed[1] if self.resubscribed[0] == self.step else 0
-            if not self.realtime and silent > RESUBSCRIBE_AFTER_S * 2 ** tries:
-                self.resubscribed = (self.step, tries + 1)
-                lost = [j for j in missing if self.neighbour_subs[j].get_publisher_count() == 0
-                        and self.count_publishers(f'/map_{j}/state') > 0]
-                for j in lost:
-                    self.subscribe(j)
-                if lost:
-                    self.get_logger().warning(f'step {self.pending.step}: no match with the listed state writers '
-                                              f'of {lost}: subscribed anew')
+                                      f'(id: last step heard) {missing}, (id: writers matched, listed) {matched}, '
+                                      f'clusters known: {self.clusters is not None}')
+            if not self.realtime:
+                self.recover(silent, {j: m for j, (m, listed) in matched.items() if m > 0 or listed > 0})
         world_listed = self.count_publishers(f'/map_{self.map_id}/sensing') > 0
         self.world_seen = self.world_seen or world_listed
         if not self.world_seen and silent > self.world_start_timeout:
@@ -233,6 +240,41 @@ class AgentNode(Node):
         elif self.world_seen and silent > WORLD_TIMEOUT_S and not world_listed:
             self.get_logger().error(f'no world_sim for {silent:.0f} s: stopping MAP {self.map_id}')
             self.stopped = True
+
+    def recover(self, silent: float, silent_writers: dict[int, int]) -> None:
+        """Get a stalled step going again, when the neighbours it waits for exist but are not heard.
+
+        First, samples that sit in a reader without the executor having been told of them are taken by
+        hand. Should that find nothing, the readers are made anew, RESUBSCRIBE_AFTER_S after the step's
+        sensing, then after twice as long, and so on.
+        """
+        taken = 0
+        for j, matched in silent_writers.items():
+            if matched and self.pending is not None:
+                taken += self.take_waiting(j)
+        if taken:
+            self.get_logger().warning(f'took {taken} state samples of {list(silent_writers)} by hand '
+                                      'that the executor had not delivered')
+            return
+        tries = self.resubscribed[1] if self.resubscribed[0] == self.step else 0
+        wait = RESUBSCRIBE_AFTER_FIRST_S if self.step == 0 else RESUBSCRIBE_AFTER_S
+        if silent_writers and silent > wait * 2 ** tries and self.pending is not None:
+            self.resubscribed = (self.step, tries + 1)
+            for j in silent_writers:
+                self.subscribe(j)
+            self.get_logger().warning(f'step {self.pending.step}: subscribed anew to the states of '
+                                      f'{list(silent_writers)}')
+
+    def take_waiting(self, j: int) -> int:
+        sub = self.neighbour_subs[j]
+        count = 0
+        with sub.handle:
+            while (taken := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
+                count += 1
+                self.on_state(j, taken[0])
+                if j not in self.neighbour_subs:  # the sample made us step and drop j
+                    break
+        return count
 
 
 def parse_ids(argv: list[str]) -> list[int]:

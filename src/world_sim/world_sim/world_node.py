@@ -10,6 +10,7 @@ mode says when a step ends:
 from __future__ import annotations
 
 import json
+import os
 import signal
 import sys
 import time
@@ -167,6 +168,7 @@ class WorldNode(Node):
         failing = w.scheduled_failures()
         if len(failing):
             self.drop(failing, 'scheduled')
+            self.kill_processes(failing)
         self.sensed = s = w.sense()
         if not self.realtime:
             self.commands = {}
@@ -297,6 +299,23 @@ class WorldNode(Node):
                                               ids=ids.astype(np.uint32).tolist(), cause=cause))
         self.get_logger().warning(f'step {self.world.k}: dropped MAPs {ids.tolist()} ({cause})')
         print(f't = {self.world.k * self.s.dt:5.1f} s  dropped MAPs {ids.tolist()} ({cause})', flush=True)
+
+    def kill_processes(self, ids: np.ndarray) -> None:
+        """A scheduled failure is a real one: SIGKILL each agent process whose MAPs have all failed.
+
+        A process that hosts live MAPs too (agents packed K per process) is spared; its failed MAPs fall
+        silent on the failure event instead.
+        """
+        table = self.pids()
+        hosted: dict[int, list[int]] = {}
+        for i, pid in table.items():
+            hosted.setdefault(pid, []).append(i)
+        for pid, maps in hosted.items():
+            if set(ids.tolist()) & set(maps) and not any(self.world.alive[i] for i in maps if i < self.s.maps):
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except (ProcessLookupError, PermissionError):
+                    pass
 
     def pids(self) -> dict[int, int]:
         if self.pid_table is None or not self.pid_table.exists():
