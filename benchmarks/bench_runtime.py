@@ -1,12 +1,15 @@
 """Distributed runs of the paper scenario: wall time, real-time factor, start-up, memory and CPU.
 
-Run: ./uav-flock exec python benchmarks/bench_runtime.py [MAPS:PER_PROCESS[:record] ...]
+Run: ./uav-flock exec python benchmarks/bench_runtime.py [MAPS:PER_PROCESS[:record][:realtime][:dSECONDS] ...]
 (default 90:10 90:45). With ':record' the run also writes its bag (`up --record`); when a configuration
 is given with and without it, the cost of recording is printed as the ratio of the two wall times.
-Each configuration is also checked against the batch simulator (trajectory equal to the byte).
+':realtime' runs `up --sync realtime` (rate 1); ':d20' simulates 20 s instead of the scenario's 60.
+A lockstep run is checked against the batch simulator (trajectory equal to the byte); every run prints
+its final coverage and Fiedler value beside the simulator's.
 """
 from __future__ import annotations
 
+import re
 import resource
 import subprocess
 import sys
@@ -14,6 +17,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Optional
 
 from uav_flock_tools.launcher import read_pid_table
 
@@ -30,14 +34,31 @@ def peak_rss_mb(pids: set[int]) -> dict[int, float]:
     return out
 
 
-def run(maps: int, per_process: int, folder: Path, record: bool) -> dict[str, float]:
+FRESH = re.compile(r'fresh commands (\d+) %')
+
+
+def parse(config: str) -> tuple[int, int, bool, bool, Optional[float]]:
+    maps, per, *flags = config.split(':')
+    duration = next((float(f[1:]) for f in flags if f.startswith('d')), None)
+    return int(maps), int(per), 'record' in flags, 'realtime' in flags, duration
+
+
+def final(metrics: Path) -> tuple[float, float]:
+    last = metrics.read_text().strip().splitlines()[-1].split(',')
+    return float(last[2]), float(last[3])
+
+
+def run(maps: int, per_process: int, folder: Path, record: bool, realtime: bool,
+        duration: Optional[float]) -> dict[str, float]:
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.monotonic()
     proc = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'up', '--maps', str(maps),
                              '--agents-per-process', str(per_process), '--out', str(folder)]
-                            + (['--record'] if record else []),
+                            + (['--record'] if record else []) + (['--sync', 'realtime'] if realtime else [])
+                            + (['--duration', str(duration)] if duration else []),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     first_step = None
+    fresh: list[int] = []
     peaks: dict[int, float] = {}
 
     def sample() -> None:
@@ -55,32 +76,43 @@ def run(maps: int, per_process: int, folder: Path, record: bool) -> dict[str, fl
     for line in proc.stdout:
         if first_step is None and line.startswith('t =   0.0 s'):
             first_step = time.monotonic() - t0
+        if (m := FRESH.search(line)) and not line.startswith('t =   0.0 s'):
+            fresh.append(int(m[1]))
     proc.wait()
     wall = time.monotonic() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     sim_s = float((folder / 'metrics.csv').read_text().strip().splitlines()[-1].split(',')[1])
     return {'wall': wall, 'first': first_step or float('nan'), 'rtf': sim_s / (wall - (first_step or 0)),
             'rss': max(peaks.values()) if peaks else float('nan'), 'processes': len(peaks),
-            'cpu': (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime), 'ok': proc.returncode == 0}
+            'cpu': (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime), 'ok': proc.returncode == 0,
+            'sim_s': sim_s, 'fresh': sum(fresh) / len(fresh) if fresh else float('nan')}
 
 
 def main() -> None:
-    configs = [(int(a.split(':')[0]), int(a.split(':')[1]), a.endswith(':record')) for a in sys.argv[1:]] \
-        or [(90, 10, False), (90, 45, False)]
+    configs = [parse(a) for a in sys.argv[1:]] or [parse('90:10'), parse('90:45')]
     walls: dict[tuple[int, int, bool], float] = {}
     with tempfile.TemporaryDirectory() as tmp:
         ref = Path(tmp) / 'sim'
-        print('MAPs  per-process  record  processes  wall s  start->first step s  real-time factor  '
-              'peak RSS/process MB  CPU s  equal to sim')
-        for maps, per, record in configs:
-            folder = Path(tmp) / f'up_{maps}_{per}_{record}'
-            r = run(maps, per, folder, record)
-            walls[maps, per, record] = r['wall'] - r['first']
-            subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'sim', '--maps', str(maps),
-                            '--out', str(ref / str(maps))], capture_output=True, check=True)
-            same = (folder / 'trajectory.csv').read_bytes() == (ref / str(maps) / 'trajectory.csv').read_bytes()
-            print(f'{maps:4d}  {per:11d}  {"yes" if record else "no":>6}  {r["processes"]:9d}  {r["wall"]:6.1f}  '
-                  f'{r["first"]:19.1f}  {r["rtf"]:16.2f}  {r["rss"]:19.0f}  {r["cpu"]:5.0f}  {same and r["ok"]}', flush=True)
+        print('MAPs  per-process  sync      record  processes  sim s  wall s  start->first step s  real-time factor  '
+              'peak RSS/process MB  CPU s  fresh cmds %  R_c %  (sim)  λ2      (sim)   equal to sim')
+        for maps, per, record, realtime, duration in configs:
+            folder = Path(tmp) / f'up_{maps}_{per}_{record}_{realtime}_{duration}'
+            r = run(maps, per, folder, record, realtime, duration)
+            if not realtime and duration is None:
+                walls[maps, per, record] = r['wall'] - r['first']
+            sim_folder = ref / f'{maps}_{duration}'
+            if not sim_folder.exists():
+                subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'sim', '--maps', str(maps), '--out',
+                                str(sim_folder)] + (['--duration', str(duration)] if duration else []),
+                               capture_output=True, check=True)
+            same = 'n/a' if realtime else str(r['ok'] and (folder / 'trajectory.csv').read_bytes()
+                                                == (sim_folder / 'trajectory.csv').read_bytes())
+            rc, lam2 = final(folder / 'metrics.csv')
+            rc_sim, lam2_sim = final(sim_folder / 'metrics.csv')
+            print(f'{maps:4d}  {per:11d}  {"realtime" if realtime else "lockstep"}  {"yes" if record else "no":>6}  '
+                  f'{r["processes"]:9d}  {r["sim_s"]:5.0f}  {r["wall"]:6.1f}  {r["first"]:19.1f}  {r["rtf"]:16.2f}  '
+                  f'{r["rss"]:19.0f}  {r["cpu"]:5.0f}  {r["fresh"]:12.0f}  {100 * rc:5.1f}  {100 * rc_sim:5.1f}  '
+                  f'{lam2:.4f}  {lam2_sim:.4f}  {same}', flush=True)
         for (maps, per, record), wall in walls.items():
             if record and (maps, per, False) in walls:
                 print(f'recording costs {maps}:{per} a factor {wall / walls[maps, per, False]:.3f} in wall time '

@@ -14,7 +14,7 @@ import yaml
 
 DISCOVERY_S = 1.5  # least time given to discovery before listing
 SETTLED_S = 1.0  # ... and the list must not have grown for this long
-DISCOVERY_MAX_S = 10.0
+DISCOVERY_MAX_S = 20.0
 OWN_TOPICS = {'/rosout', '/parameter_events'}  # every node has them, ours included
 
 
@@ -58,8 +58,22 @@ def message_type(name: str) -> type:
     return getattr(importlib.import_module(f'{pkg}.{kind}'), cls)
 
 
+def expected_topics(run: str) -> set[str]:
+    """What a live run surely has on its graph: the world's metrics and the state of each MAP whose process lives."""
+    from world_sim.world_node import process_alive
+
+    from .launcher import read_pid_table
+    try:
+        table = read_pid_table(Path(run))
+    except (FileNotFoundError, ValueError):
+        return set()
+    return {'/metrics'} | {f'/map_{i}/state' for i, pid in table.items() if process_alive(pid)}
+
+
 def topics(run: Optional[str], domain_id: Optional[int]) -> int:
     use_domain(run, domain_id)
+    # With a run folder we know what to wait for; otherwise the list must stop growing for a while.
+    expected = expected_topics(run) if run is not None else set()
     import rclpy
     rclpy.init()
     try:
@@ -74,7 +88,8 @@ def topics(run: Optional[str], domain_id: Optional[int]) -> int:
                 seen, changed = now_seen, now
             # Our own node's topics are seen at once: settle only once some other participant is known.
             others = any(name not in OWN_TOPICS for name, _ in now_seen)
-            settled = others and now - start >= DISCOVERY_S and now - changed >= SETTLED_S
+            complete = expected <= {name for name, _ in now_seen}
+            settled = others and complete and now - start >= DISCOVERY_S and now - changed >= SETTLED_S
             if settled or now - start >= DISCOVERY_MAX_S:
                 break
         for name, types in sorted(seen):

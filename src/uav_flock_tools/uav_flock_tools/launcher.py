@@ -194,8 +194,11 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     finally:
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)
-        # SIGINT: the world writes its records, the recorder drains and closes the bag
-        stop(agents, signal.SIGTERM, {signal.SIGINT: [p for p in (world, recorder) if p is not None]})
+        # World and agents together (SIGINT: the world writes its records); the recorder once the world
+        # has published its last, then it drains and closes the bag.
+        stop(agents, signal.SIGTERM, {signal.SIGINT: [world] if world is not None else []})
+        if recorder is not None:
+            stop([recorder], signal.SIGINT)
         if server is not None:
             stop([server])
     if interrupted:
