@@ -1,9 +1,10 @@
 """Distributed runs of the paper scenario: wall time, real-time factor, start-up, memory and CPU.
 
-Run: ./uav-flock exec python benchmarks/bench_runtime.py [MAPS:PER_PROCESS[:record][:realtime][:dSECONDS] ...]
+Run: ./uav-flock exec python benchmarks/bench_runtime.py [MAPS:PER_PROCESS[:record][:realtime][:xRATE][:dSECONDS] ...]
 (default 90:10 90:45). With ':record' the run also writes its bag (`up --record`); when a configuration
 is given with and without it, the cost of recording is printed as the ratio of the two wall times.
-':realtime' runs `up --sync realtime` (rate 1); ':d20' simulates 20 s instead of the scenario's 60.
+':realtime' runs `up --sync realtime` (rate 1, or ':x0.5' for half real time); ':d20' simulates 20 s
+instead of the scenario's 60.
 A lockstep run is checked against the batch simulator (trajectory equal to the byte); every run prints
 its final coverage and Fiedler value beside the simulator's.
 """
@@ -17,7 +18,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Optional
+from typing import NamedTuple, Optional
 
 from uav_flock_tools.launcher import read_pid_table
 
@@ -37,10 +38,20 @@ def peak_rss_mb(pids: set[int]) -> dict[int, float]:
 FRESH = re.compile(r'fresh commands (\d+) %')
 
 
-def parse(config: str) -> tuple[int, int, bool, bool, Optional[float]]:
+class Config(NamedTuple):
+    maps: int
+    per: int
+    record: bool
+    realtime: bool
+    rate: float
+    duration: Optional[float]
+
+
+def parse(config: str) -> Config:
     maps, per, *flags = config.split(':')
     duration = next((float(f[1:]) for f in flags if f.startswith('d')), None)
-    return int(maps), int(per), 'record' in flags, 'realtime' in flags, duration
+    rate = next((float(f[1:]) for f in flags if f.startswith('x')), 1.0)
+    return Config(int(maps), int(per), 'record' in flags, 'realtime' in flags, rate, duration)
 
 
 def final(metrics: Path) -> tuple[float, float]:
@@ -48,13 +59,13 @@ def final(metrics: Path) -> tuple[float, float]:
     return float(last[2]), float(last[3])
 
 
-def run(maps: int, per_process: int, folder: Path, record: bool, realtime: bool,
-        duration: Optional[float]) -> dict[str, float]:
+def run(c: Config, folder: Path) -> dict[str, float]:
+    maps, per_process, record, realtime, duration = c.maps, c.per, c.record, c.realtime, c.duration
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.monotonic()
     proc = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'up', '--maps', str(maps),
                              '--agents-per-process', str(per_process), '--out', str(folder)]
-                            + (['--record'] if record else []) + (['--sync', 'realtime'] if realtime else [])
+                            + (['--record'] if record else []) + (['--sync', 'realtime', '--rate', str(c.rate)] if realtime else [])
                             + (['--duration', str(duration)] if duration else []),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     first_step = None
@@ -93,11 +104,12 @@ def main() -> None:
     walls: dict[tuple[int, int, bool], float] = {}
     with tempfile.TemporaryDirectory() as tmp:
         ref = Path(tmp) / 'sim'
-        print('MAPs  per-process  sync      record  processes  sim s  wall s  start->first step s  real-time factor  '
+        print('MAPs  per-process  sync          record  processes  sim s  wall s  start->first step s  real-time factor  '
               'peak RSS/process MB  CPU s  fresh cmds %  R_c %  (sim)  λ2      (sim)   equal to sim')
-        for maps, per, record, realtime, duration in configs:
-            folder = Path(tmp) / f'up_{maps}_{per}_{record}_{realtime}_{duration}'
-            r = run(maps, per, folder, record, realtime, duration)
+        for c in configs:
+            maps, per, record, realtime, duration = c.maps, c.per, c.record, c.realtime, c.duration
+            folder = Path(tmp) / f'up_{maps}_{per}_{record}_{realtime}_{c.rate}_{duration}'
+            r = run(c, folder)
             if not realtime and duration is None:
                 walls[maps, per, record] = r['wall'] - r['first']
             sim_folder = ref / f'{maps}_{duration}'
@@ -109,7 +121,7 @@ def main() -> None:
                                                 == (sim_folder / 'trajectory.csv').read_bytes())
             rc, lam2 = final(folder / 'metrics.csv')
             rc_sim, lam2_sim = final(sim_folder / 'metrics.csv')
-            print(f'{maps:4d}  {per:11d}  {"realtime" if realtime else "lockstep"}  {"yes" if record else "no":>6}  '
+            print(f'{maps:4d}  {per:11d}  {f"realtime x{c.rate:<4g}" if realtime else "lockstep     "}  {"yes" if record else "no":>6}  '
                   f'{r["processes"]:9d}  {r["sim_s"]:5.0f}  {r["wall"]:6.1f}  {r["first"]:19.1f}  {r["rtf"]:16.2f}  '
                   f'{r["rss"]:19.0f}  {r["cpu"]:5.0f}  {r["fresh"]:12.0f}  {100 * rc:5.1f}  {100 * rc_sim:5.1f}  '
                   f'{lam2:.4f}  {lam2_sim:.4f}  {same}', flush=True)

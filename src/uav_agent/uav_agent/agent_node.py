@@ -27,7 +27,7 @@ from .core.agent import Neighbourhood, agent_step
 from .core.modes import NO_GOAL, ClusterMap, Memory
 from .core.params import FlockParams
 from .executors import make_executor
-from .qos import LATCHED_QOS, STATE_QOS, STATE_READ_QOS, STEP_QOS
+from .qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STATE_READ_QOS, STEP_QOS
 
 WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long (after it was seen): it is gone
 SYNC_MODES = ('lockstep', 'realtime')
@@ -82,7 +82,7 @@ class AgentNode(Node):
 
         self.state_pub = self.create_publisher(AgentState, 'state', STATE_QOS)
         self.cmd_pub = self.create_publisher(Command, 'cmd', STEP_QOS)
-        self.create_subscription(Sensing, 'sensing', self.on_sensing, STEP_QOS)
+        self.create_subscription(Sensing, 'sensing', self.on_sensing, LATEST_QOS if self.realtime else STEP_QOS)
         self.create_subscription(Clusters, '/clusters', self.on_clusters, LATCHED_QOS)
         self.create_subscription(FailureEvent, '/events/failure', self.on_failure, STEP_QOS)
         self.create_timer(1.0, self.watch_world)
@@ -170,7 +170,8 @@ class AgentNode(Node):
         if old is not None:
             self.destroy_subscription(old)
         self.neighbour_subs[j] = self.create_subscription(
-            AgentState, f'/map_{j}/state', lambda m, j=j: self.on_state(j, m), STATE_READ_QOS)
+            AgentState, f'/map_{j}/state', lambda m, j=j: self.on_state(j, m),
+            LATEST_STATE_READ_QOS if self.realtime else STATE_READ_QOS)
 
     # ------------------------------------------------------------------ step
     def answer_again(self) -> None:

@@ -5,7 +5,8 @@ Step k: drop failed MAPs, sense at q(k), publish /clock, /association and every 
 mode says when a step ends:
 - lockstep: once each live MAP's /map_<id>/cmd of step k is in (a MAP whose process is gone is dropped);
 - realtime: on a wall-clock timer, every dt / rate, with the latest command each MAP has sent (held from
-  an earlier step if none came for this one; u = 0 before the first), as actuators hold their last input.
+  an earlier step if none came for this one, for at most `command_ttl` steps; u = 0 before the first and
+  after that), as an autopilot holds its last setpoint for a while and then stops acting on it.
 """
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ from uav_flock_msgs.msg import (Association, Clusters, Command, FailureEvent, Me
 from uav_agent import convert
 from uav_agent.core.modes import NO_GOAL
 from uav_agent.executors import spun_node
-from uav_agent.qos import LATCHED_QOS, RECORDER_MAX_LAG_STEPS, STEP_QOS
+from uav_agent.qos import LATCHED_QOS, LATEST_QOS, RECORDER_MAX_LAG_STEPS, STEP_QOS
 
 from .batch import Sensed, World
 from .markers import world_markers
@@ -43,6 +44,7 @@ LIVENESS_PERIOD_S = 0.2  # how often the processes of MAPs we wait for are check
 RECORDER_TIMEOUT_S = 10.0  # a recorder that writes nothing new this long while we wait for it is given up on
 RESEND_AFTER_S = 2.0  # a step stalled this long (every process alive) has its sensing sent again
 SYNC_MODES = ('lockstep', 'realtime')
+START_REPORT_S = 5.0
 
 
 def sim_time(t: float) -> Time:
@@ -64,7 +66,8 @@ class WorldNode(Node):
         super().__init__('world_sim')
         for name, default in (('scenario', ''), ('maps', 0), ('seed', -1), ('duration', 0.0), ('fail_at', -1.0),
                               ('fail_fraction', -1.0), ('out', ''), ('pid_table', ''), ('start_timeout', 60.0),
-                              ('record', False), ('marker_period', 5), ('sync', 'lockstep'), ('rate', 1.0)):
+                              ('record', False), ('marker_period', 5), ('sync', 'lockstep'), ('rate', 1.0),
+                              ('command_ttl', 5)):
             self.declare_parameter(name, default)
         get = lambda n: self.get_parameter(n).value  # noqa: E731
         scenario = load(get('scenario'))
@@ -80,6 +83,9 @@ class WorldNode(Node):
         self.rate = float(get('rate'))  # realtime: simulated seconds per wall second
         if not (0.0 < self.rate < float('inf')):
             raise ValueError(f'parameter rate: expected a positive number, got {self.rate!r}')
+        self.command_ttl = int(get('command_ttl'))  # realtime: steps a command is held at most
+        if self.command_ttl < 1:
+            raise ValueError(f'parameter command_ttl: expected at least 1 step, got {self.command_ttl}')
         self.world = World(scenario)
         self.out = Path(get('out')) if get('out') else None
         self.pid_table = Path(get('pid_table')) if get('pid_table') else None
@@ -106,7 +112,8 @@ class WorldNode(Node):
         self.clusters_pub = self.create_publisher(Clusters, '/clusters', LATCHED_QOS)
         self.sensing_pubs = [self.create_publisher(Sensing, f'/map_{i}/sensing', STEP_QOS) for i in range(n)]
         for i in range(n):
-            self.create_subscription(Command, f'/map_{i}/cmd', lambda m, i=i: self.on_command(i, m), STEP_QOS)
+            self.create_subscription(Command, f'/map_{i}/cmd', lambda m, i=i: self.on_command(i, m),
+                                     LATEST_QOS if self.realtime else STEP_QOS)
         self.publish_fixed()
 
         self.sensed: Optional[Sensed] = None
@@ -117,7 +124,7 @@ class WorldNode(Node):
         self.started = False
         self.finished = False
         self.wall_start = time.monotonic()
-        self.last_report = -1.0
+        self.last_report = time.monotonic()  # of the start-up: a line every START_REPORT_S while we wait
         self.create_timer(LIVENESS_PERIOD_S, self.tick)
 
     # ------------------------------------------------------------------ fixed topics
@@ -162,6 +169,10 @@ class WorldNode(Node):
         elif time.monotonic() - self.wall_start > self.start_timeout:
             self.get_logger().error(f'only {ready} of {self.s.maps} MAPs appeared within {self.start_timeout:g} s')
             self.finish(ok=False)
+        elif time.monotonic() - self.last_report >= START_REPORT_S:
+            self.last_report = time.monotonic()
+            print(f'waiting for the MAPs: {ready} of {self.s.maps} ready after '
+                  f'{time.monotonic() - self.wall_start:.0f} s', flush=True)
 
     def begin_step(self) -> None:
         w = self.world
@@ -224,8 +235,9 @@ class WorldNode(Node):
         """realtime: the step's time is up; each live MAP flies on the latest command it sent."""
         if self.sensed is None or self.finished or self.held:
             return
-        ids = self.sensed.ids.tolist()
-        cmds = [self.commands.get(i) if self.world.alive[i] else None for i in ids]
+        ids, k = self.sensed.ids.tolist(), self.sensed.k
+        cmds = [c if self.world.alive[i] and (c := self.commands.get(i)) is not None and k - c.step < self.command_ttl
+                else None for i in ids]
         self.applied += len(ids)
         self.fresh += sum(1 for c in cmds if c is not None and c.step == self.sensed.k)
         self.end_step(cmds)
