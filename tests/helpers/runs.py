@@ -34,3 +34,26 @@ def wait_for_line(proc: subprocess.Popen[str], needle: str, timeout: float) -> l
         if needle in line:
             return seen
     raise AssertionError(f'{needle!r} not printed within {timeout} s:\n' + ''.join(seen))
+
+
+def dropped_ids(text: str, cause: str = 'killed') -> list[int]:
+    """The MAP ids of world_sim's 'dropped MAPs [..] (cause)' lines."""
+    return sorted(int(i) for line in text.splitlines() if f'({cause})' in line
+                  for i in line.split('[')[1].split(']')[0].split(','))
+
+
+def kill_during(proc: subprocess.Popen[str], run: str, ids: str, after: str) -> tuple[str, str]:
+    """SIGKILL MAP ids of a running `up` once it prints `after`; (what it printed until the drops, all the rest)."""
+    try:
+        wait_for_line(proc, after, 120)
+        killed = cli('kill', '--run', run, '--ids', ids)
+        assert killed.returncode == 0 and f"SIGKILLed MAPs [{ids.replace(',', ', ')}]" in killed.stdout, \
+            killed.stdout + killed.stderr
+        seen = ''.join(wait_for_line(proc, '(killed)', 60))
+        if len(dropped_ids(seen)) < len(ids.split(',')):  # the deaths may be noticed in two liveness checks
+            seen += ''.join(wait_for_line(proc, '(killed)', 60))
+        rest, _ = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    return seen, rest

@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from helpers.runs import cli, up, wait_for_line
+from helpers.runs import cli, dropped_ids, kill_during, up
 from world_sim.core.records import read_csv
 
 PROGRESS = re.compile(r't = +([\d.]+) s .* fresh commands (\d+) %')
@@ -55,18 +55,9 @@ def test_realtime_drops_killed_agents_and_goes_on(tmp_path: Path, ros_env: dict[
     run = tmp_path / 'up'
     proc = up('--maps', '10', '--seed', '1', '--duration', '20', '--sync', 'realtime', '--rate', '2',
               '--out', str(run), env=ros_env)
-    try:
-        wait_for_line(proc, 't =   3.0 s', 120)
-        killed = cli('kill', '--run', str(run), '--ids', '2,5')
-        assert killed.returncode == 0 and 'SIGKILLed MAPs [2, 5]' in killed.stdout, killed.stdout + killed.stderr
-        out, _ = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 0, out
-    dropped = sorted(int(i) for line in out.splitlines() if '(killed)' in line
-                     for i in line.split('[')[1].split(']')[0].split(','))
-    assert dropped == [2, 5], out
+    seen, rest = kill_during(proc, str(run), '2,5', 't =   3.0 s')
+    assert proc.returncode == 0, seen + rest
+    assert dropped_ids(seen) == [2, 5], seen
     m = read_csv(run / 'metrics.csv')
     assert m['t'][-1] == 20.0 and m['alive'][0] == 10 and m['alive'][-1] == 8
     t = read_csv(run / 'trajectory.csv')

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from helpers.runs import cli, dead, up, wait_for_line
+from helpers.runs import cli, dead, dropped_ids, kill_during, up, wait_for_line
 from world_sim.core.records import read_csv
 
 
@@ -40,21 +40,23 @@ def test_packed_agents_give_the_same_run(tmp_path: Path, ros_env: dict[str, str]
 
 
 def test_scheduled_failures_sigkill_the_agent_processes(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    args = ('--maps', '8', '--seed', '2', '--duration', '5', '--fail-at', '2', '--fail-fraction', '0.25')
+    args = ('--maps', '8', '--seed', '2', '--duration', '20', '--fail-at', '2', '--fail-fraction', '0.25')
     run = tmp_path / 'up'
     proc = up(*args, '--out', str(run), env=ros_env)
     try:
         seen = wait_for_line(proc, '(scheduled)', 120)
-        failed = [int(i) for i in seen[-1].split('[')[1].split(']')[0].split(',')]
+        failed = dropped_ids(seen[-1], 'scheduled')
         table = {int(k): v for k, v in json.loads((run / 'pids.json').read_text()).items()}
         t0 = time.monotonic()
         while not all(dead(table[i]) for i in failed) and time.monotonic() - t0 < 5:
             time.sleep(0.05)
         gone = {i for i in table if dead(table[i])}
+        running = proc.poll() is None  # the others are ended at the run's end: judge while it goes on
         out, _ = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
+    assert running, 'the run ended before the processes could be judged'
     assert len(failed) == 2 and gone == set(failed), f'failed {failed}, processes gone {sorted(gone)}'
     assert proc.returncode == 0, out
     assert cli('sim', *args, '--out', str(tmp_path / 'sim')).returncode == 0
@@ -64,21 +66,9 @@ def test_scheduled_failures_sigkill_the_agent_processes(tmp_path: Path, ros_env:
 def test_killed_agents_are_dropped_and_the_run_completes(tmp_path: Path, ros_env: dict[str, str]) -> None:
     run = tmp_path / 'up'
     proc = up('--maps', '12', '--seed', '0', '--duration', '60', '--out', str(run), env=ros_env)
-    try:
-        wait_for_line(proc, 't =   2.0 s', 120)
-        killed = cli('kill', '--run', str(run), '--ids', '3,7')
-        assert killed.returncode == 0 and 'SIGKILLed MAPs [3, 7]' in killed.stdout, killed.stdout + killed.stderr
-        seen = ''.join(wait_for_line(proc, '(killed)', 60))
-        if 'dropped MAPs [3, 7]' not in seen:  # the two deaths may be noticed in two liveness checks
-            seen += ''.join(wait_for_line(proc, '(killed)', 60))
-        out, _ = proc.communicate(timeout=300)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 0, out
-    dropped = sorted(int(i) for line in seen.splitlines() if '(killed)' in line
-                     for i in line.split('[')[1].split(']')[0].split(','))
-    assert dropped == [3, 7], seen
+    seen, rest = kill_during(proc, str(run), '3,7', 't =   2.0 s')
+    assert proc.returncode == 0, seen + rest
+    assert dropped_ids(seen) == [3, 7], seen
     m = read_csv(run / 'metrics.csv')
     assert m['t'][-1] == 60.0, 'the run completes'
     assert m['alive'][0] == 12 and m['alive'][-1] == 10
