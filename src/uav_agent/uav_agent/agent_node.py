@@ -27,10 +27,9 @@ from .core.agent import Neighbourhood, agent_step
 from .core.modes import NO_GOAL, ClusterMap, Memory
 from .core.params import FlockParams
 from .executors import make_executor
-from .qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STATE_READ_QOS, STEP_QOS
+from .qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STATE_READ_QOS, STEP_QOS, is_realtime
 
 WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long (after it was seen): it is gone
-SYNC_MODES = ('lockstep', 'realtime')
 # realtime: a neighbour's state may run ahead of our sensing by a few steps (it was sensed first), no more
 REALTIME_AHEAD_STEPS = 10
 # lockstep: a reader that has heard nothing of a listed neighbour this long after the step's sensing (the
@@ -57,10 +56,7 @@ class AgentNode(Node):
         self.declare_parameter('world_start_timeout', 120.0)
         self.params = FlockParams(**{f.name: self.get_parameter(f.name).value for f in fields(FlockParams)})
         self.hysteresis = float(self.get_parameter('hysteresis').value)
-        self.sync = str(self.get_parameter('sync').value)
-        if self.sync not in SYNC_MODES:
-            raise ValueError(f"parameter sync: expected one of {', '.join(SYNC_MODES)}, got {self.sync!r}")
-        self.realtime = self.sync == 'realtime'
+        self.realtime = is_realtime(str(self.get_parameter('sync').value))
         self.world_start_timeout = float(self.get_parameter('world_start_timeout').value)
         self.world_seen = False
 
@@ -78,7 +74,7 @@ class AgentNode(Node):
         self.last_state: Optional[AgentState] = None
         self.last_cmd: Optional[Command] = None
         self.failed = False  # this MAP failed by the schedule (its process lives on for other MAPs)
-        self.resubscribed = (-1, 0)  # (step, times the unmatched neighbours were subscribed anew in it)
+        self.resubscribed = (-1, 0)  # (step, times its silent neighbours' readers were made anew)
 
         self.state_pub = self.create_publisher(AgentState, 'state', STATE_QOS)
         self.cmd_pub = self.create_publisher(Command, 'cmd', STEP_QOS)
@@ -267,6 +263,7 @@ class AgentNode(Node):
                                       f'{list(silent_writers)}')
 
     def take_waiting(self, j: int) -> int:
+        """Take what sits in neighbour j's reader, as the executor itself would (rclpy's own take call)."""
         sub = self.neighbour_subs[j]
         count = 0
         with sub.handle:

@@ -1,4 +1,4 @@
-"""QoS profiles of uav-flock topics, named once for every node."""
+"""QoS profiles of uav-flock topics, and the sync modes that choose between them, named once for every node."""
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 # Samples every writer keeps: a reader (a neighbour, or the recorder) that is up to this many steps
@@ -19,6 +19,16 @@ STEP_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=HISTORY_DEPTH,
 # Fixed for a run (users, clusters): latched.
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+# lockstep: every step waits for every MAP (deterministic); realtime: the world steps on a wall clock.
+SYNC_MODES = ('lockstep', 'realtime')
+
+
+def is_realtime(sync: str) -> bool:
+    """The `sync` parameter of a node, checked: a wrong value is the user's mistake (ValueError)."""
+    if sync not in SYNC_MODES:
+        raise ValueError(f"parameter sync: expected one of {', '.join(SYNC_MODES)}, got {sync!r}")
+    return sync == 'realtime'
 
 # realtime: a reader that falls behind skips to the newest sample instead of working through old ones,
 # as a flight computer reads the latest fix, not a backlog.

@@ -9,6 +9,7 @@ from typing import Callable, NoReturn, Optional, Sequence
 
 from tqdm import tqdm
 
+from uav_agent.qos import SYNC_MODES
 from world_sim.core.scenario import ScenarioError
 
 EXIT_USAGE = 2
@@ -241,10 +242,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--agents-per-process', type=int, default=1, help='pack K agent nodes into one process')
     p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID to use (default: a fresh one per run)')
     p.add_argument('--discovery', choices=('auto', 'localhost', 'subnet', 'server'), default='auto',
-                   help='LOCALHOST discovery, or a Fast DDS discovery server for the run '
-                        '(auto: the server above 30 processes)')
+                   help='LOCALHOST discovery, SUBNET (multicast) discovery, or a Fast DDS discovery server for '
+                        'the run (auto: the server above 30 processes)')
     p.add_argument('--record', action='store_true', help='record every topic into RUN/bag (rosbag2, MCAP)')
-    p.add_argument('--sync', choices=('lockstep', 'realtime'), default='lockstep',
+    p.add_argument('--sync', choices=SYNC_MODES, default='lockstep',
                    help='lockstep: each step waits for every MAP (deterministic, equal to sim); realtime: steps '
                         'at a fixed pace on /clock, each MAP flying on the latest data it has')
     p.add_argument('--rate', type=positive_float, default=1.0,

@@ -33,7 +33,7 @@ from uav_flock_msgs.msg import (Association, Clusters, Command, FailureEvent, Me
 from uav_agent import convert
 from uav_agent.core.modes import NO_GOAL
 from uav_agent.executors import spun_node
-from uav_agent.qos import LATCHED_QOS, LATEST_QOS, RECORDER_MAX_LAG_STEPS, STEP_QOS
+from uav_agent.qos import LATCHED_QOS, LATEST_QOS, RECORDER_MAX_LAG_STEPS, STEP_QOS, is_realtime
 
 from .batch import Sensed, World
 from .markers import world_markers
@@ -43,7 +43,6 @@ from .core.scenario import ScenarioError, load
 LIVENESS_PERIOD_S = 0.2  # how often the processes of MAPs we wait for are checked
 RECORDER_TIMEOUT_S = 10.0  # a recorder that writes nothing new this long while we wait for it is given up on
 RESEND_AFTER_S = 2.0  # a step stalled this long (every process alive) has its sensing sent again
-SYNC_MODES = ('lockstep', 'realtime')
 START_REPORT_S = 5.0
 
 
@@ -76,10 +75,7 @@ class WorldNode(Node):
             duration=get('duration') or None, fail_at=get('fail_at') if get('fail_at') >= 0 else None,
             fail_fraction=get('fail_fraction') if get('fail_fraction') >= 0 else None)
         self.s = scenario
-        self.sync = str(get('sync'))
-        if self.sync not in SYNC_MODES:
-            raise ValueError(f"parameter sync: expected one of {', '.join(SYNC_MODES)}, got {self.sync!r}")
-        self.realtime = self.sync == 'realtime'
+        self.realtime = is_realtime(str(get('sync')))
         self.rate = float(get('rate'))  # realtime: simulated seconds per wall second
         if not (0.0 < self.rate < float('inf')):
             raise ValueError(f'parameter rate: expected a positive number, got {self.rate!r}')
