@@ -85,6 +85,7 @@ def run(c: Config, folder: Path) -> dict[str, float]:
     sampler.start()
     assert proc.stdout is not None
     for line in proc.stdout:
+        print(f'  [{c.maps}:{c.per}] {line.rstrip()}', file=sys.stderr, flush=True)  # progress of a long run
         if first_step is None and line.startswith('t =   0.0 s'):
             first_step = time.monotonic() - t0
         if (m := FRESH.search(line)) and not line.startswith('t =   0.0 s'):
@@ -92,11 +93,12 @@ def run(c: Config, folder: Path) -> dict[str, float]:
     proc.wait()
     wall = time.monotonic() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    sim_s = float((folder / 'metrics.csv').read_text().strip().splitlines()[-1].split(',')[1])
+    rows = (folder / 'metrics.csv').read_text().strip().splitlines()[1:]
+    sim_s = float(rows[-1].split(',')[1])
     return {'wall': wall, 'first': first_step or float('nan'), 'rtf': sim_s / (wall - (first_step or 0)),
             'rss': max(peaks.values()) if peaks else float('nan'), 'processes': len(peaks),
             'cpu': (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime), 'ok': proc.returncode == 0,
-            'sim_s': sim_s, 'fresh': sum(fresh) / len(fresh) if fresh else float('nan')}
+            'sim_s': sim_s, 'steps': len(rows), 'fresh': sum(fresh) / len(fresh) if fresh else float('nan')}
 
 
 def main() -> None:
@@ -105,7 +107,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         ref = Path(tmp) / 'sim'
         print('MAPs  per-process  sync          record  processes  sim s  wall s  start->first step s  real-time factor  '
-              'peak RSS/process MB  CPU s  fresh cmds %  R_c %  (sim)  λ2      (sim)   equal to sim')
+              'peak RSS/process MB  CPU s  CPU ms/MAP-step  fresh cmds %  R_c %  (sim)  λ2      (sim)   equal to sim')
         for c in configs:
             maps, per, record, realtime, duration = c.maps, c.per, c.record, c.realtime, c.duration
             folder = Path(tmp) / f'up_{maps}_{per}_{record}_{realtime}_{c.rate}_{duration}'
@@ -123,7 +125,7 @@ def main() -> None:
             rc_sim, lam2_sim = final(sim_folder / 'metrics.csv')
             print(f'{maps:4d}  {per:11d}  {f"realtime x{c.rate:<4g}" if realtime else "lockstep     "}  {"yes" if record else "no":>6}  '
                   f'{r["processes"]:9d}  {r["sim_s"]:5.0f}  {r["wall"]:6.1f}  {r["first"]:19.1f}  {r["rtf"]:16.2f}  '
-                  f'{r["rss"]:19.0f}  {r["cpu"]:5.0f}  {r["fresh"]:12.0f}  {100 * rc:5.1f}  {100 * rc_sim:5.1f}  '
+                  f'{r["rss"]:19.0f}  {r["cpu"]:5.0f}  {1000 * r["cpu"] / (maps * r["steps"]):15.1f}  {r["fresh"]:12.0f}  {100 * rc:5.1f}  {100 * rc_sim:5.1f}  '
                   f'{lam2:.4f}  {lam2_sim:.4f}  {same}', flush=True)
         for (maps, per, record), wall in walls.items():
             if record and (maps, per, False) in walls:
