@@ -4,6 +4,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 
 def cli(*args: str, env: dict[str, str] | None = None, timeout: float = 300) -> subprocess.CompletedProcess[str]:
@@ -57,3 +58,11 @@ def kill_during(proc: subprocess.Popen[str], run: str, ids: str, after: str) -> 
         if proc.poll() is None:
             proc.kill()
     return seen, rest
+
+
+def shm_entries(segments_only: bool = False) -> set[str]:
+    """Fast DDS files in /dev/shm: participants' segments and their locks, and (unless segments_only) the
+    port files and semaphores that Fast DDS keeps for reuse when a process that used a port was SIGKILLed."""
+    shm = Path('/dev/shm')
+    names = {p.name for p in shm.iterdir() if 'fastrtps' in p.name or 'fastdds' in p.name} if shm.is_dir() else set()
+    return {n for n in names if 'port' not in n} if segments_only else names

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from helpers.runs import cli, dead, dropped_ids, kill_during, up, wait_for_line
+from helpers.runs import cli, dead, dropped_ids, kill_during, shm_entries, up, wait_for_line
 from world_sim.core.records import read_csv
 
 
@@ -65,9 +65,11 @@ def test_scheduled_failures_sigkill_the_agent_processes(tmp_path: Path, ros_env:
 
 def test_killed_agents_are_dropped_and_the_run_completes(tmp_path: Path, ros_env: dict[str, str]) -> None:
     run = tmp_path / 'up'
+    shm_before = shm_entries(segments_only=True)
     proc = up('--maps', '12', '--seed', '0', '--duration', '60', '--out', str(run), env=ros_env)
     seen, rest = kill_during(proc, str(run), '3,7', 't =   2.0 s')
     assert proc.returncode == 0, seen + rest
+    assert shm_entries(segments_only=True) - shm_before == set(), 'SIGKILLed agents left shared-memory segments'
     assert dropped_ids(seen) == [3, 7], seen
     m = read_csv(run / 'metrics.csv')
     assert m['t'][-1] == 60.0, 'the run completes'
@@ -79,6 +81,7 @@ def test_killed_agents_are_dropped_and_the_run_completes(tmp_path: Path, ros_env
 
 def test_ctrl_c_ends_every_process_and_keeps_the_records(tmp_path: Path, ros_env: dict[str, str]) -> None:
     run = tmp_path / 'up'
+    shm_before = shm_entries()
     proc = up('--maps', '8', '--seed', '0', '--duration', '600', '--out', str(run), env=ros_env)
     wait_for_line(proc, 't =   1.0 s', 120)
     pids = list(json.loads((run / 'pids.json').read_text()).values())
@@ -93,6 +96,7 @@ def test_ctrl_c_ends_every_process_and_keeps_the_records(tmp_path: Path, ros_env
     assert 'interrupted' in out
     m = read_csv(run / 'metrics.csv')
     assert m['t'][-1] >= 1.0
+    assert shm_entries() - shm_before == set(), 'shared-memory debris left in /dev/shm'
 
 
 def test_rogue_state_messages_change_nothing(tmp_path: Path, ros_env: dict[str, str]) -> None:

@@ -1,7 +1,8 @@
 """Start world_sim and the MAP agents as real OS processes, and end them all, whatever happens.
 
 Every run gets its own ROS_DOMAIN_ID, so runs and tests on one host never hear each other. Fast DDS is
-told to use UDP only: a SIGKILLed process then leaves no shared-memory files behind in /dev/shm.
+told to use UDP only, with large socket buffers; rmw_fastrtps overrides that with its own transports
+(loopback UDP and shared memory) when discovery is LOCALHOST (docs/design.md).
 """
 from __future__ import annotations
 
@@ -39,8 +40,9 @@ def executable(package: str, name: str) -> str:
     return os.path.join(get_package_prefix(package), 'lib', package, name)
 
 
-# Socket buffers of every participant of a run. The kernel's default (208 KiB) overflows when a hundred
-# nodes subscribe at once, and reliable DDS then spends its time repairing dropped datagrams.
+# Socket buffers of a run's participants (discovery server or subnet; LOCALHOST discovery keeps rmw's own
+# transports). The kernel's default (208 KiB) overflows when a hundred nodes subscribe at once, and
+# reliable DDS then spends its time repairing dropped datagrams.
 SOCKET_BUFFER_BYTES = 4 * 1024 * 1024
 
 
