@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from dataclasses import fields
 from typing import Optional
 
@@ -19,6 +20,7 @@ import rclpy
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.subscription import Subscription
 from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
 
@@ -29,6 +31,7 @@ from .core.params import FlockParams
 from .executors import make_executor
 from .qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STATE_READ_QOS, STEP_QOS, is_realtime
 
+WATCH_PERIOD_S = 1.0
 WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long (after it was seen): it is gone
 # realtime: a neighbour's state may run ahead of our sensing by a few steps (it was sensed first), no more
 REALTIME_AHEAD_STEPS = 10
@@ -39,13 +42,22 @@ REALTIME_AHEAD_STEPS = 10
 # discovered at once, gets longer.
 RESUBSCRIBE_AFTER_S = 5.0
 RESUBSCRIBE_AFTER_FIRST_S = 20.0
+# lockstep: how often a step that waits looks into its silent neighbours' readers itself. The events
+# executor is not told of some samples that reach readers made in a burst (hundreds at once as MAPs
+# spread); they would otherwise sit there until the 1 s watch found them.
+SWEEP_PERIOD_S = 0.25
 
 
 class AgentNode(Node):
     """MAP <id> in namespace /map_<id>."""
 
     def __init__(self, map_id: int) -> None:
-        super().__init__('agent', namespace=f'map_{map_id}')
+        # No parameter or type-description services: they are 7 readers and 7 writers more per MAP, and Fast
+        # DDS pairs every new neighbour reader with every writer it knows. 200 MAPs in one process made 4
+        # steps in 5 minutes with them and 50 steps in 4 minutes without (docs/benchmarks.md). Parameters
+        # still come from the YAML file; `agent_params.yaml` in the run folder holds them.
+        super().__init__('agent', namespace=f'map_{map_id}', start_parameter_services=False,
+                         parameter_overrides=[Parameter('start_type_description_service', value=False)])
         self.map_id = map_id
         defaults = FlockParams()
         for f in fields(FlockParams):
@@ -69,7 +81,6 @@ class AgentNode(Node):
         self.neighbour_subs: dict[int, Subscription] = {}
         self.dead: set[int] = set()
         self.rejected: dict[str, int] = {}
-        self.last_sensing = self.get_clock().now()
         self.stopped = False
         self.last_state: Optional[AgentState] = None
         self.last_cmd: Optional[Command] = None
@@ -81,7 +92,11 @@ class AgentNode(Node):
         self.create_subscription(Sensing, 'sensing', self.on_sensing, LATEST_QOS if self.realtime else STEP_QOS)
         self.create_subscription(Clusters, '/clusters', self.on_clusters, LATCHED_QOS)
         self.create_subscription(FailureEvent, '/events/failure', self.on_failure, STEP_QOS)
-        self.create_timer(1.0, self.watch_world)
+        self.sensed_at = time.monotonic()  # when the pending step's sensing came in
+        self.next_report = 2.0
+        self.create_timer(WATCH_PERIOD_S, self.watch_world)
+        if not self.realtime:
+            self.create_timer(SWEEP_PERIOD_S, self.sweep)
 
     # ------------------------------------------------------------------ inputs
     def reject(self, source: str, why: str) -> None:
@@ -120,7 +135,8 @@ class AgentNode(Node):
         if msg.step < self.step or (self.realtime and msg.step == self.step):
             self.reject('sensing', f'stale step {msg.step} (now at {self.step})')
             return
-        self.last_sensing = self.get_clock().now()
+        self.sensed_at = time.monotonic()
+        self.next_report = 2.0
         self.world_seen = True
         self.pending = msg
         self.step = msg.step
@@ -216,17 +232,30 @@ class AgentNode(Node):
                                 mode=mem.mode, goal=mem.goal)
         self.cmd_pub.publish(self.last_cmd)
 
+    def sweep(self) -> None:
+        """Take what already sits in the readers of the neighbours a waiting step still misses."""
+        s = self.pending
+        if s is None or time.monotonic() - self.sensed_at < SWEEP_PERIOD_S:
+            return
+        for j in [j for j in s.neighbors.ids if j in self.neighbour_subs and j not in self.dead
+                  and (j not in self.latest or self.latest[j].step != s.step)]:
+            if self.pending is not s or j not in self.neighbour_subs:
+                break  # a taken sample completed the step
+            self.take_waiting(j)
+
     def watch_world(self) -> None:
         """Say what a stuck step waits for; end on our own when the world is gone."""
-        silent = (self.get_clock().now() - self.last_sensing).nanoseconds * 1e-9
+        silent = time.monotonic() - self.sensed_at
         if self.pending is not None and silent > 2.0:
             missing = {j: (self.latest[j].step if j in self.latest else None) for j in self.pending.neighbors.ids
                        if j not in self.dead and (j not in self.latest or self.latest[j].step != self.pending.step)}
             matched = {j: (self.neighbour_subs[j].get_publisher_count(), self.count_publishers(f'/map_{j}/state'))
                        for j in missing if j in self.neighbour_subs}
-            self.get_logger().warning(f'step {self.pending.step}: waiting {silent:.0f} s for neighbours '
-                                      f'(id: last step heard) {missing}, (id: writers matched, listed) {matched}, '
-                                      f'clusters known: {self.clusters is not None}')
+            if silent >= self.next_report:  # 2 s, 4 s, 8 s, ... into the step: a log, not a flood
+                self.next_report = 2 * silent
+                self.get_logger().warning(f'step {self.pending.step}: waiting {silent:.0f} s for neighbours '
+                                          f'(id: last step heard) {missing}, (id: writers matched, listed) '
+                                          f'{matched}, clusters known: {self.clusters is not None}')
             if not self.realtime:
                 self.recover(silent, {j: m for j, (m, listed) in matched.items() if m > 0 or listed > 0})
         world_listed = self.count_publishers(f'/map_{self.map_id}/sensing') > 0

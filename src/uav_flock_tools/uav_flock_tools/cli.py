@@ -243,7 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID to use (default: a fresh one per run)')
     p.add_argument('--discovery', choices=('auto', 'localhost', 'subnet', 'server'), default='auto',
                    help='LOCALHOST discovery, SUBNET (multicast) discovery, or a Fast DDS discovery server for '
-                        'the run (auto: the server above 30 processes)')
+                        'the run (auto: the server above 30 processes or 100 MAPs)')
     p.add_argument('--record', action='store_true', help='record every topic into RUN/bag (rosbag2, MCAP)')
     p.add_argument('--sync', choices=SYNC_MODES, default='lockstep',
                    help='lockstep: each step waits for every MAP (deterministic, equal to sim); realtime: steps '

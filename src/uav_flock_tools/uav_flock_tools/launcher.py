@@ -27,6 +27,9 @@ GRACE_S = 3.0  # after SIGINT/SIGTERM, how long children get before SIGKILL
 # rmw_fastrtps finds no more than about 32 participants on one host with LOCALHOST discovery; beyond
 # this many processes `up` starts a Fast DDS discovery server for the run (--discovery auto).
 LOCALHOST_LIMIT = 30
+# Nor beyond this many MAPs: 200 MAPs in 10 processes stalled at step 1 with LOCALHOST discovery (rmw's
+# shared memory and 208 KiB UDP buffers) and ran with the server (UDP, 4 MB buffers; docs/benchmarks.md).
+LOCALHOST_MAPS_LIMIT = 100
 DISCOVERY_BASE_PORT = 11811
 # How long world_sim waits for every MAP, and each MAP for world_sim, at start: Python processes on two
 # cores come up at about one per 0.6 s of CPU, so the wait grows with their number.
@@ -124,7 +127,8 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     run.mkdir(parents=True, exist_ok=True)
     domain = domain_id if domain_id is not None else fresh_domain_id()
     processes = -(-scenario.maps // agents_per_process) + 1 + int(record)
-    use_server = discovery == 'server' or (discovery == 'auto' and processes > LOCALHOST_LIMIT)
+    use_server = discovery == 'server' or (discovery == 'auto' and (processes > LOCALHOST_LIMIT
+                                                                     or scenario.maps > LOCALHOST_MAPS_LIMIT))
     server_address = f'127.0.0.1:{DISCOVERY_BASE_PORT + domain}' if use_server else None
     discovery_range = 'SUBNET' if discovery == 'subnet' else 'LOCALHOST'
     env = ros_env(domain, server_address, discovery_range)
