@@ -1,7 +1,8 @@
 """Distributed runs of the paper scenario: wall time, real-time factor, start-up, memory and CPU.
 
 Run: ./uav-flock exec python benchmarks/bench_runtime.py [MAPS:PER_PROCESS[:record][:realtime][:xRATE][:dSECONDS] ...]
-(default 90:10 90:45). With ':record' the run also writes its bag (`up --record`); when a configuration
+(default: the runs the distributed runtime is judged by, 300 steps of 90 MAPs with 1, 10 and 45 agents per
+process, and 50 steps of 200 MAPs with 20 per process, about 15 minutes in all). With ':record' the run also writes its bag (`up --record`); when a configuration
 is given with and without it, the cost of recording is printed as the ratio of the two wall times.
 ':realtime' runs `up --sync realtime` (rate 1, or ':x0.5' for half real time); ':d20' simulates 20 s
 instead of the scenario's 60.
@@ -47,11 +48,25 @@ class Config(NamedTuple):
     duration: Optional[float]
 
 
+DEFAULT_CONFIGS = ('90:1:d30', '90:10:d30', '90:45:d30', '200:20:d5')
+
+
 def parse(config: str) -> Config:
-    maps, per, *flags = config.split(':')
-    duration = next((float(f[1:]) for f in flags if f.startswith('d')), None)
-    rate = next((float(f[1:]) for f in flags if f.startswith('x')), 1.0)
-    return Config(int(maps), int(per), 'record' in flags, 'realtime' in flags, rate, duration)
+    """MAPS:PER_PROCESS[:flags]; a malformed one ends the benchmark with a one-line error."""
+    try:
+        maps, per, *flags = config.split(':')
+        unknown = [f for f in flags if f not in ('record', 'realtime') and f[:1] not in ('d', 'x')]
+        if unknown:
+            raise ValueError(f'unknown flag {unknown[0]!r}')
+        duration = next((float(f[1:]) for f in flags if f.startswith('d')), None)
+        rate = next((float(f[1:]) for f in flags if f.startswith('x')), 1.0)
+        c = Config(int(maps), int(per), 'record' in flags, 'realtime' in flags, rate, duration)
+    except ValueError as exc:
+        sys.exit(f'bench_runtime: error: {config!r}: expected MAPS:PER_PROCESS[:record][:realtime][:xRATE]'
+                 f'[:dSECONDS] ({exc})')
+    if c.maps < 1 or c.per < 1 or c.rate <= 0 or (c.duration is not None and c.duration <= 0):
+        sys.exit(f'bench_runtime: error: {config!r}: MAPS, PER_PROCESS, RATE and SECONDS must be positive')
+    return c
 
 
 def final(metrics: Path) -> tuple[float, float]:
@@ -102,7 +117,7 @@ def run(c: Config, folder: Path) -> dict[str, float]:
 
 
 def main() -> None:
-    configs = [parse(a) for a in sys.argv[1:]] or [parse('90:10'), parse('90:45')]
+    configs = [parse(a) for a in sys.argv[1:] or DEFAULT_CONFIGS]
     walls: dict[tuple[int, int, bool], float] = {}
     with tempfile.TemporaryDirectory() as tmp:
         ref = Path(tmp) / 'sim'
