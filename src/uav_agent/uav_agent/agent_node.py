@@ -209,7 +209,7 @@ class AgentNode(Node):
         needed = [j for j in s.neighbors.ids if j not in self.dead]
         if self.realtime:
             heard = [self.latest[j] for j in needed if j in self.latest]  # whatever came in, of any step
-        elif any(j not in self.latest or self.latest[j].step != s.step for j in needed):
+        elif self.unheard(s):
             return
         else:
             heard = [self.latest[j] for j in needed]  # ascending id, as the world lists them
@@ -232,13 +232,16 @@ class AgentNode(Node):
                                 mode=mem.mode, goal=mem.goal)
         self.cmd_pub.publish(self.last_cmd)
 
+    def unheard(self, s: Sensing) -> list[int]:
+        """The live neighbours listed for step s whose state of that step has not come in."""
+        return [j for j in s.neighbors.ids if j not in self.dead and (j not in self.latest or self.latest[j].step != s.step)]
+
     def sweep(self) -> None:
         """Take what already sits in the readers of the neighbours a waiting step still misses."""
         s = self.pending
         if s is None or time.monotonic() - self.sensed_at < SWEEP_PERIOD_S:
             return
-        for j in [j for j in s.neighbors.ids if j in self.neighbour_subs and j not in self.dead
-                  and (j not in self.latest or self.latest[j].step != s.step)]:
+        for j in [j for j in self.unheard(s) if j in self.neighbour_subs]:
             if self.pending is not s or j not in self.neighbour_subs:
                 break  # a taken sample completed the step
             self.take_waiting(j)
@@ -247,8 +250,7 @@ class AgentNode(Node):
         """Say what a stuck step waits for; end on our own when the world is gone."""
         silent = time.monotonic() - self.sensed_at
         if self.pending is not None and silent > 2.0:
-            missing = {j: (self.latest[j].step if j in self.latest else None) for j in self.pending.neighbors.ids
-                       if j not in self.dead and (j not in self.latest or self.latest[j].step != self.pending.step)}
+            missing = {j: (self.latest[j].step if j in self.latest else None) for j in self.unheard(self.pending)}
             matched = {j: (self.neighbour_subs[j].get_publisher_count(), self.count_publishers(f'/map_{j}/state'))
                        for j in missing if j in self.neighbour_subs}
             if silent >= self.next_report:  # 2 s, 4 s, 8 s, ... into the step: a log, not a flood
