@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import NamedTuple, Optional
 
 from uav_flock_tools.launcher import read_pid_table
+from world_sim.core import records
 
 
 def peak_rss_mb(pids: set[int]) -> dict[int, float]:
@@ -70,8 +71,9 @@ def parse(config: str) -> Config:
 
 
 def final(metrics: Path) -> tuple[float, float]:
-    last = metrics.read_text().strip().splitlines()[-1].split(',')
-    return float(last[2]), float(last[3])
+    """Coverage and Fiedler value at the run's last step."""
+    m = records.read_csv(metrics)
+    return float(m['coverage_ratio'][-1]), float(m['fiedler'][-1])
 
 
 def run(c: Config, folder: Path) -> dict[str, float]:
@@ -108,12 +110,12 @@ def run(c: Config, folder: Path) -> dict[str, float]:
     proc.wait()
     wall = time.monotonic() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    rows = (folder / 'metrics.csv').read_text().strip().splitlines()[1:]
-    sim_s = float(rows[-1].split(',')[1])
+    t = records.read_csv(folder / 'metrics.csv')['t']
+    sim_s = float(t[-1])
     return {'wall': wall, 'first': first_step or float('nan'), 'rtf': sim_s / (wall - (first_step or 0)),
             'rss': max(peaks.values()) if peaks else float('nan'), 'processes': len(peaks),
             'cpu': (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime), 'ok': proc.returncode == 0,
-            'sim_s': sim_s, 'steps': len(rows), 'fresh': sum(fresh) / len(fresh) if fresh else float('nan')}
+            'sim_s': sim_s, 'steps': len(t), 'fresh': sum(fresh) / len(fresh) if fresh else float('nan')}
 
 
 def main() -> None:
