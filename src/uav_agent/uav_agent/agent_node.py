@@ -341,6 +341,10 @@ def main(argv: Optional[list[str]] = None) -> int:
         if rclpy.ok():  # only a shutdown by signal (SIGINT/SIGTERM) invalidates the context mid-spin
             raise
     finally:
+        # The executor first: the events executor holds the nodes' entities, and only once they are all
+        # released is the DDS participant deleted (with its shared memory), even if this process then ends
+        # by os._exit, past the interpreter's teardown.
+        executor.shutdown()
         for n in nodes:
             n.destroy_node()
         rclpy.try_shutdown()

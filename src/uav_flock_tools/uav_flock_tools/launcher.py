@@ -7,6 +7,7 @@ told to use UDP only, with large socket buffers; rmw_fastrtps overrides that wit
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import random
 import signal
@@ -14,7 +15,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Sequence, Union
 
 import numpy as np
 import yaml
@@ -81,33 +82,92 @@ def read_pid_table(run: Path) -> dict[int, int]:
     return {int(k): int(v) for k, v in json.loads(path.read_text()).items()}
 
 
-def stop(procs: list[subprocess.Popen], first: int = signal.SIGTERM,
+# Agent processes are forked from a template process that has imported rclpy, numpy, scipy and the agent
+# once (multiprocessing's forkserver), not started afresh: a fresh Python process spends 0.8 CPU-s on those
+# imports, which is 36 s of a two-core machine for 90 MAPs (docs/benchmarks.md). Each fork is a process of
+# its own (own pid, own session, own DDS participant) that really dies when killed.
+AGENT_TEMPLATE_MODULES = ['uav_flock_tools.agent_template', 'uav_flock_tools.launcher']
+
+
+def agent_process(argv: list[str], env: dict[str, str], log: str) -> None:
+    """Body of a forked agent process: its own session, log file and run environment, then the agent's main."""
+    os.setsid()  # a process group of its own, as start_new_session gives a Popen child
+    fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+    os.environ.clear()
+    os.environ.update(env)  # before rclpy.init: the domain, discovery and transports of this run
+    from uav_agent.agent_node import main
+    sys.exit(main(argv))
+
+
+class ForkedAgent:
+    """An agent process forked by the template, with the part of Popen's interface that `stop` uses."""
+
+    def __init__(self, proc: multiprocessing.process.BaseProcess) -> None:
+        self.proc = proc
+        self.pid = proc.pid
+
+    def poll(self) -> Optional[int]:
+        return self.proc.exitcode
+
+    def wait(self, timeout: Optional[float] = None) -> int:
+        self.proc.join(timeout)
+        if self.proc.exitcode is None:
+            raise subprocess.TimeoutExpired(f'agent process {self.pid}', timeout or 0.0)
+        return self.proc.exitcode
+
+
+def start_agents(id_groups: list[list[int]], params: Path, env: dict[str, str], logs: Path) -> list[ForkedAgent]:
+    """Fork one agent process per group of MAP ids from the template process."""
+    ctx = multiprocessing.get_context('forkserver')
+    ctx.set_forkserver_preload(AGENT_TEMPLATE_MODULES)
+    agents = []
+    for ids in id_groups:
+        argv = ['uav_agent_node', '--ids', ','.join(map(str, ids)), '--ros-args', '--params-file', str(params)]
+        proc = ctx.Process(target=agent_process, args=(argv, env, str(logs / f'agents_{ids[0]}.log')),
+                           name=f'agents_{ids[0]}')
+        proc.start()
+        agents.append(ForkedAgent(proc))
+    return agents
+
+
+Stoppable = Union[subprocess.Popen, ForkedAgent]
+
+
+def _signal(p: Stoppable, sig: int) -> None:
+    """Signal p's process group, or p alone while it has none yet (a fork that has not reached setsid)."""
+    try:
+        os.killpg(p.pid, sig)
+    except ProcessLookupError:
+        try:
+            os.kill(p.pid, sig)
+        except ProcessLookupError:
+            pass
+
+
+def stop(procs: Sequence[Stoppable], first: int = signal.SIGTERM,
          also: Optional[dict[int, list[subprocess.Popen]]] = None) -> None:
     """Signal (`also` maps other signals to other processes), wait up to GRACE_S, then SIGKILL and reap.
 
     All are signalled at once, so that a run of a hundred processes still ends within one grace period.
     """
-    groups = {first: list(procs), **(also or {})}
-    procs = [p for group in groups.values() for p in group]
+    groups: dict[int, Sequence[Stoppable]] = {first: list(procs), **(also or {})}
+    every = [p for group in groups.values() for p in group]
     for sig, group in groups.items():
         for p in group:
             if p.poll() is None:
-                try:
-                    os.killpg(p.pid, sig)
-                except ProcessLookupError:
-                    pass
+                _signal(p, sig)
     deadline = time.monotonic() + GRACE_S
-    for p in procs:
+    for p in every:
         try:
             p.wait(timeout=max(0.0, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
             pass
-    for p in procs:
+    for p in every:
         if p.poll() is None:
-            try:
-                os.killpg(p.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+            _signal(p, signal.SIGKILL)
             p.wait()
 
 
@@ -149,9 +209,8 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     print(f'uav-flock up: {scenario.maps} MAPs in {processes - 1 - int(record)} processes, {pace}, '
           f'ROS_DOMAIN_ID={domain}, discovery {"server " + server_address if server_address else discovery_range}, run folder {run}', flush=True)
 
-    agent_exe, world_exe = executable('uav_agent', 'uav_agent_node'), executable('world_sim', 'world_sim_node')
-    agents: list[subprocess.Popen] = []
-    table: dict[int, int] = {}
+    world_exe = executable('world_sim', 'world_sim_node')
+    agents: list[ForkedAgent] = []
     world: Optional[subprocess.Popen] = None
     recorder: Optional[subprocess.Popen] = None
     interrupted = False
@@ -177,15 +236,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
             recorder = subprocess.Popen(
                 [executable('uav_flock_tools', 'uav_flock_recorder'), '--ros-args', '--params-file', str(rec_params)],
                 env=env, stdout=open(logs / 'recorder.log', 'w'), stderr=subprocess.STDOUT, start_new_session=True)
-        for first in range(0, scenario.maps, agents_per_process):
-            ids = list(range(first, min(first + agents_per_process, scenario.maps)))
-            with open(logs / f'agents_{first}.log', 'w') as log:
-                p = subprocess.Popen([agent_exe, '--ids', ','.join(map(str, ids)), '--ros-args',
-                                      '--params-file', str(params)], env=env, stdout=log, stderr=subprocess.STDOUT,
-                                     start_new_session=True)
-            agents.append(p)
-            table.update({i: p.pid for i in ids})
-        write_pid_table(run / 'pids.json', table)
+        # The world first, so that its start-up is not starved by the agents'; it waits for them.
         s = scenario
         world_args = [world_exe, '--ros-args', '-p', f'scenario:={scenario_path}', '-p', f'maps:={s.maps}',
                       '-p', f'seed:={s.seed}', '-p', f'duration:={float(s.duration)}', '-p', f'out:={run}',
@@ -197,6 +248,11 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
             world_args += ['-p', f'fail_at:={float(s.fail_at)}', '-p', f'fail_fraction:={float(s.fail_fraction)}']
         world = subprocess.Popen(world_args, env=env, stdout=subprocess.PIPE, stderr=open(logs / 'world.log', 'w'),
                                  text=True, start_new_session=True)
+        groups = [list(range(first, min(first + agents_per_process, scenario.maps)))
+                  for first in range(0, scenario.maps, agents_per_process)]
+        agents = start_agents(groups, params, env, logs)
+        table = {i: a.pid for ids, a in zip(groups, agents) for i in ids}
+        write_pid_table(run / 'pids.json', table)
         assert world.stdout is not None
         for line in world.stdout:
             print(line.rstrip(), flush=True)
