@@ -11,6 +11,8 @@ its final coverage and Fiedler value beside the simulator's.
 """
 from __future__ import annotations
 
+import ctypes
+import os
 import re
 import resource
 import subprocess
@@ -25,16 +27,29 @@ from uav_flock_tools.launcher import read_pid_table
 from world_sim.core import records
 
 
-def peak_rss_mb(pids: set[int]) -> dict[int, float]:
+def memory_mb(pids: set[int]) -> dict[int, tuple[float, float]]:
+    """(peak RSS, PSS now) of each process. Forked agents share the template's pages, which RSS counts in
+    full for every process and PSS divides among those that share them."""
     out = {}
     for pid in pids:
         try:
-            for line in Path(f'/proc/{pid}/status').read_text().splitlines():
-                if line.startswith('VmHWM:'):
-                    out[pid] = int(line.split()[1]) / 1024
-        except OSError:
-            pass
+            hwm = next(int(line.split()[1]) for line in Path(f'/proc/{pid}/status').read_text().splitlines()
+                       if line.startswith('VmHWM:'))
+            pss = next(int(line.split()[1]) for line in Path(f'/proc/{pid}/smaps_rollup').read_text().splitlines()
+                       if line.startswith('Pss:'))
+        except (OSError, StopIteration):
+            continue
+        out[pid] = (hwm / 1024, pss / 1024)
     return out
+
+
+def reap_orphans() -> None:
+    """Wait for the descendants that were reparented to us (see main), so that their CPU time is counted."""
+    while True:
+        try:
+            os.waitpid(-1, 0)
+        except ChildProcessError:
+            return
 
 
 FRESH = re.compile(r'fresh commands (\d+) %')
@@ -88,12 +103,15 @@ def run(c: Config, folder: Path) -> dict[str, float]:
     first_step = None
     fresh: list[int] = []
     peaks: dict[int, float] = {}
+    pss: dict[int, float] = {}
 
     def sample() -> None:
         while proc.poll() is None:
             if (folder / 'pids.json').exists():
                 try:
-                    peaks.update(peak_rss_mb(set(read_pid_table(folder).values())))
+                    for pid, (hwm, now) in memory_mb(set(read_pid_table(folder).values())).items():
+                        peaks[pid] = max(peaks.get(pid, 0.0), hwm)
+                        pss[pid] = max(pss.get(pid, 0.0), now)
                 except ValueError:
                     pass
             time.sleep(1.0)
@@ -109,22 +127,28 @@ def run(c: Config, folder: Path) -> dict[str, float]:
             fresh.append(int(m[1]))
     proc.wait()
     wall = time.monotonic() - t0
+    reap_orphans()
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = records.read_csv(folder / 'metrics.csv')['t']
     sim_s = float(t[-1])
     return {'wall': wall, 'first': first_step or float('nan'), 'rtf': sim_s / (wall - (first_step or 0)),
-            'rss': max(peaks.values()) if peaks else float('nan'), 'processes': len(peaks),
+            'rss': max(peaks.values()) if peaks else float('nan'),
+            'pss': max(pss.values()) if pss else float('nan'), 'processes': len(peaks),
             'cpu': (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime), 'ok': proc.returncode == 0,
             'sim_s': sim_s, 'steps': len(t), 'fresh': sum(fresh) / len(fresh) if fresh else float('nan')}
 
 
 def main() -> None:
     configs = [parse(a) for a in sys.argv[1:] or DEFAULT_CONFIGS]
+    # `up` forks its agents from a forkserver process that it does not wait for; as a subreaper we inherit it
+    # when `up` ends, and waiting for it adds its agents' CPU time to ours (RUSAGE_CHILDREN).
+    PR_SET_CHILD_SUBREAPER = 36
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0)
     walls: dict[tuple[int, int, bool], float] = {}
     with tempfile.TemporaryDirectory() as tmp:
         ref = Path(tmp) / 'sim'
         print('MAPs  per-process  sync          record  processes  sim s  wall s  start->first step s  real-time factor  '
-              'peak RSS/process MB  CPU s  CPU ms/MAP-step  fresh cmds %  R_c %  (sim)  λ2      (sim)   equal to sim')
+              'peak RSS/process MB  peak PSS/process MB  CPU s  CPU ms/MAP-step  fresh cmds %  R_c %  (sim)  λ2      (sim)   equal to sim')
         for c in configs:
             maps, per, record, realtime, duration = c.maps, c.per, c.record, c.realtime, c.duration
             folder = Path(tmp) / f'up_{maps}_{per}_{record}_{realtime}_{c.rate}_{duration}'
@@ -142,7 +166,7 @@ def main() -> None:
             rc_sim, lam2_sim = final(sim_folder / 'metrics.csv')
             print(f'{maps:4d}  {per:11d}  {f"realtime x{c.rate:<4g}" if realtime else "lockstep     "}  {"yes" if record else "no":>6}  '
                   f'{r["processes"]:9d}  {r["sim_s"]:5.0f}  {r["wall"]:6.1f}  {r["first"]:19.1f}  {r["rtf"]:16.2f}  '
-                  f'{r["rss"]:19.0f}  {r["cpu"]:5.0f}  {1000 * r["cpu"] / (maps * r["steps"]):15.1f}  {r["fresh"]:12.0f}  {100 * rc:5.1f}  {100 * rc_sim:5.1f}  '
+                  f'{r["rss"]:19.0f}  {r["pss"]:19.0f}  {r["cpu"]:5.0f}  {1000 * r["cpu"] / (maps * r["steps"]):15.1f}  {r["fresh"]:12.0f}  {100 * rc:5.1f}  {100 * rc_sim:5.1f}  '
                   f'{lam2:.4f}  {lam2_sim:.4f}  {same}', flush=True)
         for (maps, per, record), wall in walls.items():
             if record and (maps, per, False) in walls:

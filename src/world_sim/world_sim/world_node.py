@@ -42,7 +42,10 @@ from .core.scenario import ScenarioError, load
 
 LIVENESS_PERIOD_S = 0.2  # how often the processes of MAPs we wait for are checked
 RECORDER_TIMEOUT_S = 10.0  # a recorder that writes nothing new this long while we wait for it is given up on
-RESEND_AFTER_S = 2.0  # a step stalled this long (every process alive) has its sensing sent again
+# A step stalled this long (every process alive) has its sensing sent again, then after twice as long, and
+# so on: step 0 of 90 processes spends ten seconds or more in discovery, and every repeat makes each MAP
+# it reaches publish its state once more, which is CPU the discovery needs.
+RESEND_AFTER_S = 2.0
 START_REPORT_S = 5.0
 
 
@@ -94,6 +97,7 @@ class WorldNode(Node):
         self.held = False
         self.step_started = time.monotonic()
         self.resent = 0
+        self.step_resends = 0  # repeats of the current step's sensing
         if self.record:
             self.create_subscription(Int64, '/recorder/progress', self.on_recorder, LATCHED_QOS)
         n = scenario.maps
@@ -180,6 +184,7 @@ class WorldNode(Node):
         if not self.realtime:
             self.commands = {}
         self.step_started = time.monotonic()
+        self.step_resends = 0
         hdr = self.header()
         self.clock_pub.publish(Clock(clock=hdr.stamp))
         self.assoc_pub.publish(Association(
@@ -188,9 +193,12 @@ class WorldNode(Node):
             coverage_ratio=s.coverage_ratio))
         self.publish_sensing(hdr)
 
-    def publish_sensing(self, hdr: Header) -> None:
+    def publish_sensing(self, hdr: Header, only: Optional[set[int]] = None) -> None:
+        """The step's sensing to every flying MAP, or to the MAPs in `only`."""
         s, w = self.sensed, self.world
         for row, i in enumerate(s.ids.tolist()):
+            if only is not None and i not in only:
+                continue
             nbr = s.neighbours(row)
             goal = int(w.goal[i])
             self.sensing_pubs[i].publish(Sensing(
@@ -349,15 +357,23 @@ class WorldNode(Node):
             self.drop(np.array(gone), 'killed')
             if not self.realtime:
                 self.maybe_advance()
-        elif not self.realtime and time.monotonic() - self.step_started > RESEND_AFTER_S:
+        elif not self.realtime and time.monotonic() - self.step_started > RESEND_AFTER_S * 2 ** self.step_resends:
             # Every process lives, yet the step stalls: a first sample after discovery can go missing.
             # Sending the step's sensing again is harmless: each MAP answers a repeat with its state and
-            # (if it already has one) its command of the step once more.
+            # (if it already has one) its command of the step once more. It goes to the MAPs we wait for
+            # and to their neighbours, whose states they may be missing.
             self.resent += 1
-            self.get_logger().warning(f'step {s.k} stalled {RESEND_AFTER_S:g} s waiting for MAPs {waiting}: '
-                                      f'sensing sent again (time {self.resent})')
+            self.step_resends += 1
+            stalled = set(waiting)
+            again = set(stalled)
+            for row, i in enumerate(s.ids.tolist()):
+                if i in stalled:
+                    again.update(s.ids[s.neighbours(row)].tolist())
+            self.get_logger().warning(f'step {s.k} stalled {time.monotonic() - self.step_started:.0f} s waiting for '
+                                      f'MAPs {waiting}: sensing sent again to them and their neighbours '
+                                      f'(time {self.resent})')
             self.step_started = time.monotonic()
-            self.publish_sensing(self.header())
+            self.publish_sensing(self.header(), again)
 
     # ------------------------------------------------------------------ end
     def done(self) -> bool:
