@@ -19,6 +19,7 @@ from typing import Optional, Sequence, Union
 
 import numpy as np
 import yaml
+from setproctitle import setproctitle
 
 from world_sim.batch import RunResult, World
 from world_sim.core import records
@@ -92,6 +93,7 @@ AGENT_TEMPLATE_MODULES = ['uav_flock_tools.agent_template', 'uav_flock_tools.lau
 def agent_process(argv: list[str], env: dict[str, str], log: str) -> None:
     """Body of a forked agent process: its own session, log file and run environment, then the agent's main."""
     os.setsid()  # a process group of its own, as start_new_session gives a Popen child
+    setproctitle(' '.join(argv))  # what `ps` and `pkill -f` see: the command line of the console script
     fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     os.dup2(fd, 1)
     os.dup2(fd, 2)
