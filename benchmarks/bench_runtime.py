@@ -2,7 +2,7 @@
 
 Run: ./uav-flock exec python benchmarks/bench_runtime.py [MAPS:PER_PROCESS[:record][:realtime][:xRATE][:dSECONDS] ...]
 (default: the runs the distributed runtime is judged by, 300 steps of 90 MAPs with 1, 10 and 45 agents per
-process, and 50 steps of 200 MAPs with 20 per process, about 15 minutes in all). With ':record' the run also writes its bag (`up --record`); when a configuration
+process, and 50 steps of 200 MAPs with 20 per process, about 10 minutes in all). With ':record' the run also writes its bag (`up --record`); when a configuration
 is given with and without it, the cost of recording is printed as the ratio of the two wall times.
 ':realtime' runs `up --sync realtime` (rate 1, or ':x0.5' for half real time); ':d20' simulates 20 s
 instead of the scenario's 60.
