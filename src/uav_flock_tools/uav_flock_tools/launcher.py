@@ -173,6 +173,20 @@ def stop(procs: Sequence[Stoppable], first: int = signal.SIGTERM,
             p.wait()
 
 
+def clean_shared_memory(env: dict[str, str]) -> None:
+    """Remove the shared-memory files of participants that died without removing them (SIGKILL).
+
+    With LOCALHOST discovery the participants talk over /dev/shm. A SIGKILLed one cannot remove its
+    segment, and its peers do not always do it for it. Fast DDS's own tool removes every segment and port
+    file whose lock no living process holds; it leaves those of running participants alone.
+    """
+    try:
+        subprocess.run(['fastdds', 'shm', 'clean'], env=env, capture_output=True, timeout=30)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        print(f'uav-flock up: could not clean shared memory ({exc}); `fastdds shm clean` does it by hand',
+              file=sys.stderr)
+
+
 def scenario_summary(path: Path, s: Scenario) -> dict[str, object]:
     """What a bag says about the run it holds, beside the agents' parameters."""
     return {'scenario': Path(path).name, 'maps': s.maps, 'seed': s.seed, 'dt': s.dt, 'duration': s.duration,
@@ -271,6 +285,8 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
             stop([recorder], signal.SIGINT)
         if server is not None:
             stop([server])
+        if not server_address and any(a.poll() == -signal.SIGKILL for a in agents):
+            clean_shared_memory(env)
     if interrupted:
         print(f'uav-flock up: interrupted; every process ended, records so far in {run}', file=sys.stderr)
     result = read_result(run, scenario)
