@@ -66,6 +66,19 @@ def ros_env(domain_id: int, discovery_server: Optional[str] = None, discovery_ra
     return env
 
 
+def discovery_server_address(domain_id: int) -> str:
+    """One port per domain, so that runs in different domains each have their own server."""
+    return f'127.0.0.1:{DISCOVERY_BASE_PORT + domain_id}'
+
+
+def start_discovery_server(address: str, env: dict[str, str], log: Path) -> subprocess.Popen:
+    """The Fast DDS discovery server the wheels ship, on 127.0.0.1:<port of address>, in its own session."""
+    port = address.rsplit(':', 1)[1]
+    with open(log, 'w') as out:
+        return subprocess.Popen(['fast-discovery-server', '-i', '0', '-l', '127.0.0.1', '-p', port],
+                                env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+
+
 def fresh_domain_id() -> int:
     return random.SystemRandom().randint(1, 101)
 
@@ -205,7 +218,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     processes = -(-scenario.maps // agents_per_process) + 1 + int(record)
     use_server = discovery == 'server' or (discovery == 'auto' and (processes > LOCALHOST_LIMIT
                                                                      or scenario.maps > LOCALHOST_MAPS_LIMIT))
-    server_address = f'127.0.0.1:{DISCOVERY_BASE_PORT + domain}' if use_server else None
+    server_address = discovery_server_address(domain) if use_server else None
     discovery_range = 'SUBNET' if discovery == 'subnet' else 'LOCALHOST'
     env = ros_env(domain, server_address, discovery_range)
     start_timeout = max(START_TIMEOUT_MIN_S, START_TIMEOUT_PER_PROCESS_S * processes)
@@ -240,10 +253,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     server: Optional[subprocess.Popen] = None
     try:
         if server_address:
-            port = server_address.rsplit(':', 1)[1]
-            with open(logs / 'discovery_server.log', 'w') as log:
-                server = subprocess.Popen(['fast-discovery-server', '-i', '0', '-l', '127.0.0.1', '-p', port],
-                                          env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+            server = start_discovery_server(server_address, env, logs / 'discovery_server.log')
         if record:
             rec_params = run / 'recorder_params.yaml'
             rec_params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {
