@@ -17,7 +17,6 @@ import os
 import resource
 import statistics
 import sys
-import tempfile
 import time
 from multiprocessing.synchronize import Event
 from pathlib import Path
@@ -75,8 +74,7 @@ def measure(mode: str, n: int, timeout: float) -> dict[str, float]:
     env = mode_env(mode, domain)
     server = None
     if mode == 'server':
-        server = start_discovery_server(discovery_server_address(domain), env,
-                                        Path(tempfile.gettempdir()) / f'bench_discovery_server_{domain}.log')
+        server = start_discovery_server(discovery_server_address(domain), env, Path(os.devnull))
     ctx = multiprocessing.get_context('fork')  # this process has not initialised rclpy, so a plain fork is clean
     results: multiprocessing.Queue = ctx.Queue()
     everyone_done = ctx.Event()
