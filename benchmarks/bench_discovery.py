@@ -15,6 +15,7 @@ import argparse
 import multiprocessing
 import os
 import resource
+import signal
 import statistics
 import sys
 import time
@@ -23,6 +24,7 @@ from pathlib import Path
 from typing import Optional
 
 import rclpy  # imported once here, before the forks, as `up`'s agent template does: discovery is timed, not imports
+from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Int64
 from uav_flock_tools.launcher import (clean_shared_memory, discovery_server_address, fresh_domain_id, ros_env,
                                       start_discovery_server, stop)
@@ -50,9 +52,10 @@ def participant(index: int, n: int, env: dict[str, str], start: float, deadline:
 
     It stays until every process has reported: one that left early would be missing from the late ones' graphs.
     """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it ends every process
     os.environ.clear()
     os.environ.update(env)
-    rclpy.init()
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node(f'probe_{index}')
     node.create_publisher(Int64, f'probe_{index}', 10)
     seen: Optional[float] = None
