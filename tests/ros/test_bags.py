@@ -201,6 +201,7 @@ def test_replay_notices_a_changed_behaviour() -> None:
 
 def test_bag_tools_reject_bad_input_in_one_line(tmp_path: Path) -> None:
     for args in (('report', str(tmp_path / 'missing')), ('report', str(GOLDEN / 'scenario.yaml')),
+                 ('report', str(tmp_path)), ('replay', str(tmp_path), '--agent', '3'),  # a folder, no bag in it
                  ('replay', str(GOLDEN / 'bag'), '--agent', '99')):
         done = cli(*args)
         assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr

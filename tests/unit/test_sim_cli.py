@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from world_sim.core.records import METRICS_COLUMNS, TRAJECTORY_COLUMNS, read_csv
 
@@ -42,3 +43,26 @@ def test_same_seed_same_run(tmp_path: Path) -> None:
     for name in ('a', 'b'):
         assert sim('--maps', '8', '--duration', '2', '--out', str(tmp_path / name)).returncode == 0
     assert (tmp_path / 'a' / 'trajectory.csv').read_bytes() == (tmp_path / 'b' / 'trajectory.csv').read_bytes()
+
+
+@pytest.mark.parametrize('args, says', [
+    (('sim', '--out', '{file}', '--duration', '1'), 'exists and is not a folder'),
+    (('sim', '--out', '{file}/run', '--duration', '1'), 'cannot create'),
+    (('up', '--out', '{file}/run', '--duration', '1'), 'cannot create'),
+    (('paper', '--out', '{folder}/figures', '--docs', '{file}/results.md'), 'exists and is not a folder'),
+    (('sim', '--scenario', '{folder}'), 'cannot read the scenario'),
+    (('sim', '--scenario', sys.executable), 'not a text file'),
+    (('up', '--domain-id', '233'), 'expected an integer from 0 to 232'),
+    (('topics', '--domain-id', '-1'), 'expected an integer from 0 to 232'),
+    (('echo', 'map 3/state'), 'not a valid topic name'),
+    (('echo', '/a//b'), 'not a valid topic name'),
+])
+def test_a_user_mistake_is_one_line_and_exit_2(tmp_path: Path, args: tuple[str, ...], says: str) -> None:
+    """Caught before any work starts: a bad --out found only at the end would lose the run."""
+    (tmp_path / 'plain').write_text('not a folder')
+    filled = [a.format(file=tmp_path / 'plain', folder=tmp_path) for a in args]
+    proc = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', *filled], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and says in proc.stderr, proc.stderr
+    assert list(tmp_path.iterdir()) == [tmp_path / 'plain'], 'nothing written'

@@ -112,7 +112,7 @@ def load(path: Path) -> BagRun:
     try:
         with AnyReader([path], default_typestore=typestore()) as reader:
             return _read(path, reader)
-    except (AnyReaderError, ReaderError) as exc:
+    except (AnyReaderError, ReaderError, OSError) as exc:  # OSError: a folder without metadata.yaml
         raise BagError(f'{path}: not a readable rosbag2 bag ({exc})') from None
 
 
@@ -250,7 +250,7 @@ def replay_inputs(path: Path, agent: int) -> ReplayInputs:
                     clusters = raw
                 else:
                     failures.append((int(msg.step), str(msg.cause), raw))
-    except (AnyReaderError, ReaderError) as exc:
+    except (AnyReaderError, ReaderError, OSError) as exc:  # OSError: a folder without metadata.yaml
         raise BagError(f'{path}: not a readable rosbag2 bag ({exc})') from None
     if not sensing:
         raise BagError(f'{path}: no /map_{agent}/sensing messages: MAP {agent} is not in this bag')

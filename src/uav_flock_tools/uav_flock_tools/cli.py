@@ -65,8 +65,33 @@ def fraction(text: str) -> float:
     return _float_in(text, 0.0, 1.0, False, 'a number in [0, 1]')
 
 
+# Fast DDS derives its ports from the domain: above 232 they pass 65535 (the DDS spec's port mapping).
+MAX_DOMAIN_ID = 232
+
+
+def domain_id(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        v = -1
+    if not 0 <= v <= MAX_DOMAIN_ID:
+        raise argparse.ArgumentTypeError(f'expected an integer from 0 to {MAX_DOMAIN_ID}, got {text!r}')
+    return v
+
+
 def default_out(kind: str) -> Path:
     return Path('runs') / f'{kind}-{time.strftime("%Y%m%d-%H%M%S")}'
+
+
+def make_folder(path: Path, what: str) -> Path:
+    """Create an output folder before any work, so that a bad --out is a one-line error, not a lost run."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise UsageError(f'{what}: {path} exists and is not a folder') from None
+    except OSError as exc:
+        raise UsageError(f'{what}: cannot create {path} ({exc.strerror})') from None
+    return path
 
 
 def add_scenario_options(p: argparse.ArgumentParser) -> None:
@@ -87,7 +112,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     seeds = args.seed or [base.seed]
     if 0 in maps:
         raise UsageError('sim: --maps must be at least 1')
-    out = Path(args.out) if args.out else default_out('sim')
+    out = make_folder(Path(args.out) if args.out else default_out('sim'), 'sim: --out')
     runs = simrun.grid(base, maps, seeds, duration=args.duration, fail_at=args.fail_at,
                        fail_fraction=args.fail_fraction)
     several = len(runs) > 1
@@ -153,7 +178,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         raise UsageError('up: --agents-per-process must be at least 1')
     if args.rate != 1.0 and args.sync != 'realtime':
         raise UsageError('up: --rate sets the pace of --sync realtime; lockstep runs as fast as it can')
-    out = Path(args.out) if args.out else default_out('up')
+    out = make_folder(Path(args.out) if args.out else default_out('up'), 'up: --out')
     try:
         code, result = launcher.up(path.resolve(), s, out.resolve(), args.agents_per_process, args.domain_id,
                                    args.discovery, args.record, args.sync, args.rate)
@@ -184,8 +209,8 @@ def cmd_echo(args: argparse.Namespace) -> int:
     from . import echo
     try:
         return echo.echo(args.topic, args.once, args.timeout, args.run, args.domain_id)
-    except FileNotFoundError as exc:
-        raise UsageError(str(exc)) from None
+    except (FileNotFoundError, echo.EchoError) as exc:
+        raise UsageError(f'echo: {exc}') from None
 
 
 def cmd_topics(args: argparse.Namespace) -> int:
@@ -221,6 +246,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 def cmd_paper(args: argparse.Namespace) -> int:
     from . import paper
+    make_folder(Path(args.docs).parent, 'paper: --docs')
+    make_folder(Path(args.out), 'paper: --out')
     return paper.main(seeds=args.seeds, out=Path(args.out), docs=Path(args.docs), scenario=args.scenario,
                       ablation=not args.no_ablation)
 
@@ -240,7 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser('up', help='run a scenario distributed: world_sim and one process per MAP')
     add_scenario_options(p)
     p.add_argument('--agents-per-process', type=int, default=1, help='pack K agent nodes into one process')
-    p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID to use (default: a fresh one per run)')
+    p.add_argument('--domain-id', type=domain_id, help='ROS_DOMAIN_ID to use (default: a fresh one per run)')
     p.add_argument('--discovery', choices=('auto', 'localhost', 'subnet', 'server'), default='auto',
                    help='LOCALHOST discovery, SUBNET (multicast) discovery, or a Fast DDS discovery server for '
                         'the run (auto: the server above 30 processes or 100 MAPs)')
@@ -262,11 +289,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--once', action='store_true', help='print one message and exit')
     p.add_argument('--timeout', type=positive_float, default=10.0, help='wait this long for a publisher (s)')
     p.add_argument('--run', help='a run folder of `up`: use its ROS_DOMAIN_ID')
-    p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID to listen on (default: the environment)')
+    p.add_argument('--domain-id', type=domain_id, help='ROS_DOMAIN_ID to listen on (default: the environment)')
     p.set_defaults(func=cmd_echo)
     p = sub.add_parser('topics', help='list topics with their types, as `ros2 topic list -t` does')
     p.add_argument('--run', help='a run folder of `up`: use its ROS_DOMAIN_ID')
-    p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID to look at (default: the environment)')
+    p.add_argument('--domain-id', type=domain_id, help='ROS_DOMAIN_ID to look at (default: the environment)')
     p.set_defaults(func=cmd_topics)
     p = sub.add_parser('report', help="plots and a summary table from a run's bag (ours or ros2 bag record's)")
     p.add_argument('bag', help='the bag folder (RUN/bag for `up --record`)')

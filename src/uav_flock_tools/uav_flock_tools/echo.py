@@ -18,6 +18,10 @@ DISCOVERY_MAX_S = 20.0
 OWN_TOPICS = {'/rosout', '/parameter_events'}  # every node has them, ours included
 
 
+class EchoError(Exception):
+    """A topic that cannot be echoed here: a bad name, or a type this install lacks."""
+
+
 def use_domain(run: Optional[str], domain_id: Optional[int]) -> None:
     """Point this process at a run's domain (from its run.json) or an explicit one."""
     if run is not None:
@@ -55,7 +59,10 @@ def to_yaml(msg: Any) -> str:
 def message_type(name: str) -> type:
     """'uav_flock_msgs/msg/AgentState' -> the class."""
     pkg, kind, cls = name.split('/')
-    return getattr(importlib.import_module(f'{pkg}.{kind}'), cls)
+    try:
+        return getattr(importlib.import_module(f'{pkg}.{kind}'), cls)
+    except (ImportError, AttributeError):
+        raise EchoError(f'its type {name} is not installed in this environment') from None
 
 
 def expected_topics(run: str) -> set[str]:
@@ -100,8 +107,22 @@ def topics(run: Optional[str], domain_id: Optional[int]) -> int:
     return 0
 
 
+def full_topic_name(topic: str) -> str:
+    """The absolute name `ros2 topic echo` would use ('map_3/state' -> '/map_3/state'), or EchoError."""
+    from rclpy.exceptions import InvalidTopicNameException
+    from rclpy.expand_topic_name import expand_topic_name
+    from rclpy.validate_full_topic_name import validate_full_topic_name
+    try:
+        name = expand_topic_name(topic, 'uav_flock_echo', '/')
+        validate_full_topic_name(name)
+    except (InvalidTopicNameException, ValueError) as exc:
+        raise EchoError(f'{topic!r} is not a valid topic name ({str(exc).splitlines()[0].split(", at ")[0].rstrip(":")})') from None
+    return name
+
+
 def echo(topic: str, once: bool, timeout: float, run: Optional[str], domain_id: Optional[int]) -> int:
     use_domain(run, domain_id)
+    topic = full_topic_name(topic)
     import rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     rclpy.init()

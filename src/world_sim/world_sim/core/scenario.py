@@ -197,6 +197,9 @@ def load(path: str | Path) -> Scenario:
         doc = yaml.safe_load(path.read_text())
     except FileNotFoundError:
         raise ScenarioError(f'{path}: no such scenario file') from None
+    except (OSError, UnicodeDecodeError) as exc:  # a folder, no permission, a binary file
+        why = exc.strerror if isinstance(exc, OSError) else 'not a text file'
+        raise ScenarioError(f'{path}: cannot read the scenario ({why})') from None
     except yaml.YAMLError as exc:
         raise ScenarioError(f'{path}: not valid YAML ({str(exc).splitlines()[0]})') from None
     return parse(doc)
