@@ -1,6 +1,7 @@
 """./uav-flock sim writes the documented files, one folder per run when there are several."""
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -66,3 +67,13 @@ def test_a_user_mistake_is_one_line_and_exit_2(tmp_path: Path, args: tuple[str, 
     assert proc.returncode == 2, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and says in proc.stderr, proc.stderr
     assert list(tmp_path.iterdir()) == [tmp_path / 'plain'], 'nothing written'
+
+
+def test_the_wrapper_help_names_every_command() -> None:
+    """README sends users to `./uav-flock --help` for every command: it must not fall behind the CLI."""
+    from uav_flock_tools.cli import build_parser
+    wrapper = Path(__file__).resolve().parents[2] / 'uav-flock'
+    shown = subprocess.run([str(wrapper), '--help'], capture_output=True, text=True, timeout=30).stdout
+    sub = next(a for a in build_parser()._actions if a.dest == 'command')
+    missing = [c for c in sub.choices if not re.search(rf'(^|[\s,]){c}\b', shown)]
+    assert not missing, f'./uav-flock --help does not name {missing}'
