@@ -1,9 +1,12 @@
-"""./uav-flock sim writes the documented files, one folder per run when there are several."""
+"""The command line: the files `sim` writes, one folder per run when there are several; user mistakes and Ctrl-C."""
 from __future__ import annotations
 
+import os
 import re
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -77,3 +80,27 @@ def test_the_wrapper_help_names_every_command() -> None:
     sub = next(a for a in build_parser()._actions if a.dest == 'command')
     missing = [c for c in sub.choices if not re.search(rf'(^|[\s,]){c}\b', shown)]
     assert not missing, f'./uav-flock --help does not name {missing}'
+
+
+def test_ctrl_c_ends_the_paper_sweep_without_running_the_rest(tmp_path: Path) -> None:
+    """Ctrl-C reaches the whole process group, as in a terminal. The sweep's 205 runs take minutes on two cores:
+    the runs not yet started must be dropped, not run to the end before the exit."""
+    log = tmp_path / 'stderr.txt'
+    with open(log, 'w') as err:
+        proc = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'paper', '--out', str(tmp_path / 'fig'),
+                                 '--docs', str(tmp_path / 'results.md')], stdout=subprocess.DEVNULL, stderr=err,
+                                start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not re.search(r'paper runs:.* [1-9]\d*/205', log.read_text()):
+            assert time.monotonic() < deadline and proc.poll() is None, f'the sweep never started: {log.read_text()}'
+            time.sleep(0.2)
+        os.killpg(proc.pid, signal.SIGINT)
+        proc.wait(timeout=60)  # the runs left would take minutes
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130, log.read_text()
+    assert log.read_text().strip().splitlines()[-1].endswith('uav-flock: interrupted')
+    assert not (tmp_path / 'results.md').exists()

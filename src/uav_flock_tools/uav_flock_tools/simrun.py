@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import signal
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Callable, Iterable, Optional
@@ -72,12 +73,19 @@ def sweep(scenarios: list[Scenario], on_done: Callable[[], None], workers: int |
             out.append(metrics_only(s))
             on_done()
         return out
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    # The workers leave Ctrl-C to this process. Here it cancels the runs not yet started; a worker would
+    # otherwise report its run as interrupted and go on with the next, and the pool would wait for them all.
+    with ProcessPoolExecutor(max_workers=workers, initializer=signal.signal,
+                             initargs=(signal.SIGINT, signal.SIG_IGN)) as pool:
         futures = [pool.submit(metrics_only, s) for s in scenarios]
         results = []
-        for f in futures:
-            results.append(f.result())
-            on_done()
+        try:
+            for f in futures:
+                results.append(f.result())
+                on_done()
+        except BaseException:
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
         return results
 
 
