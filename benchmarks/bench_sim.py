@@ -4,7 +4,9 @@ Run: ./uav-flock exec python benchmarks/bench_sim.py
 """
 from __future__ import annotations
 
+import argparse
 import dataclasses
+import sys
 import time
 
 import numpy as np
@@ -31,18 +33,24 @@ def timed(s: Scenario, steps: int, repeat: int = 3) -> float:
     return best
 
 
-def main() -> None:
+def main() -> int:
+    argparse.ArgumentParser(prog='bench_sim', description=__doc__.split('\n')[0]).parse_args()  # no options
     base = load_scenario('paper')
     ref = timed(with_users(base.with_overrides(maps=100), 2000), 300)
-    print(f'100 MAPs x 2000 MSDs x 300 steps: {ref:.3f} s  (target <= 1 s)')
+    print(f'100 MAPs x 2000 MSDs x 300 steps: {ref:.3f} s  (target <= 1 s)', flush=True)
     big = timed(with_users(base.with_overrides(maps=500), 10000), 300, repeat=1)
-    print(f'500 MAPs x 10000 MSDs x 300 steps: {big:.3f} s')
+    print(f'500 MAPs x 10000 MSDs x 300 steps: {big:.3f} s', flush=True)
     print('growth with MAP count (2000 MSDs, 300 steps):')
     print('  MAPs   wall s   ratio to 100 MAPs')
     for n in (50, 100, 200, 400, 800):
         t = ref if n == 100 else timed(with_users(base.with_overrides(maps=n), 2000), 300, repeat=1 if n > 200 else 3)
-        print(f'  {n:4d}   {t:6.3f}   {t / ref:5.2f}')
+        print(f'  {n:4d}   {t:6.3f}   {t / ref:5.2f}', flush=True)
+    return 0
 
 
 if __name__ == '__main__':
-    main()
+    try:
+        sys.exit(main())
+    except KeyboardInterrupt:
+        print('bench_sim: interrupted', file=sys.stderr)
+        sys.exit(130)
