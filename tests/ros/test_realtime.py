@@ -70,9 +70,11 @@ def agent(ids: str, env: dict[str, str], *ros_args: str) -> subprocess.Popen[str
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
-def test_agents_wait_for_a_world_that_comes_late(tmp_path: Path, ros_env: dict[str, str],
-                                                 paper_scenario_path: str) -> None:
-    """Agents started by hand before world_sim wait for it (many processes on few cores start slowly)."""
+def test_agents_wait_for_a_world_that_comes_late(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """Agents started by hand before world_sim wait for it (many processes on few cores start slowly).
+
+    The world is started the plain ROS way, without a scenario parameter: it runs the shipped paper scenario.
+    """
     waiting = agent('0,1', ros_env)
     impatient = agent('5', {**ros_env, 'ROS_DOMAIN_ID': str((int(ros_env['ROS_DOMAIN_ID']) + 50) % 101 + 1)},
                       '-p', 'world_start_timeout:=2.0')
@@ -82,9 +84,9 @@ def test_agents_wait_for_a_world_that_comes_late(tmp_path: Path, ros_env: dict[s
         time.sleep(12.0)  # longer than an agent waits for a world it has already seen
         assert waiting.poll() is None, 'an agent must keep waiting for a world that has not appeared yet'
         from uav_flock_tools.launcher import executable
-        world = subprocess.run([executable('world_sim', 'world_sim_node'), '--ros-args', '-p',
-                                f'scenario:={paper_scenario_path}', '-p', 'maps:=2', '-p', 'duration:=1.0',
-                                '-p', f'out:={tmp_path}'], env=ros_env, capture_output=True, text=True, timeout=120)
+        world = subprocess.run([executable('world_sim', 'world_sim_node'), '--ros-args', '-p', 'maps:=2',
+                                '-p', 'duration:=1.0', '-p', f'out:={tmp_path}'], env=ros_env, capture_output=True,
+                               text=True, timeout=120)
         assert world.returncode == 0, world.stdout + world.stderr
         assert read_csv(tmp_path / 'metrics.csv')['t'][-1] == 1.0
     finally:
@@ -98,6 +100,14 @@ def test_bad_sync_options_are_one_line_errors(ros_env: dict[str, str]) -> None:
     bad = agent('0', ros_env, '-p', 'sync:=warp')
     said, _ = bad.communicate(timeout=60)
     assert bad.returncode == 2 and said.strip().count('\n') == 0 and "parameter sync" in said, said
+    from uav_flock_tools.launcher import executable
+    for node, args in (('uav_agent_node', ['--ids', '0', '--ros-args', '-p', 'r:=far']),  # r is a float
+                       ('world_sim_node', ['--ros-args', '-p', 'maps:=many']),
+                       ('world_sim_node', ['--ros-args', '-p', 'scenario:=no_such_scenario'])):
+        pkg = 'uav_agent' if node == 'uav_agent_node' else 'world_sim'
+        done = subprocess.run([executable(pkg, node), *args], env=ros_env, capture_output=True, text=True, timeout=60)
+        said = (done.stdout + done.stderr).strip()
+        assert done.returncode == 2 and said.count('\n') == 0 and 'error:' in said, said
     rate = cli('up', '--maps', '2', '--rate', '2')
     assert rate.returncode == 2 and '--rate' in rate.stderr and 'Traceback' not in rate.stderr, rate.stderr
     sync = cli('up', '--maps', '2', '--sync', 'warp')

@@ -28,7 +28,7 @@ from . import convert
 from .core.agent import Neighbourhood, agent_step
 from .core.modes import NO_GOAL, ClusterMap, Memory
 from .core.params import FlockParams
-from .executors import make_executor
+from .executors import PARAMETER_ERRORS, make_executor
 from .qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STATE_READ_QOS, STEP_QOS, is_realtime
 
 WATCH_PERIOD_S = 1.0
@@ -326,7 +326,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     executor = make_executor()
     try:
         nodes = [AgentNode(i) for i in ids]
-    except ValueError as exc:  # a bad parameter value: the user's mistake
+    except PARAMETER_ERRORS as exc:  # a bad parameter value: the user's mistake
         print(f'uav_agent_node: error: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2

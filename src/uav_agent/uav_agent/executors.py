@@ -10,10 +10,13 @@ import sys
 from typing import Callable, Optional, TypeVar
 
 import rclpy
+from rclpy.exceptions import ParameterException
 from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
 
 N = TypeVar('N', bound=Node)
+# A parameter of the wrong type (`-p r:=abc` where r is a float) is the user's mistake in any node.
+PARAMETER_ERRORS = (ParameterException, ValueError)
 
 
 def make_executor() -> Executor:
@@ -29,7 +32,7 @@ def spun_node(program: str, factory: Callable[[], N], user_errors: tuple[type[Ex
     """The node on its executor; a user mistake in its parameters is one line on stderr and (None, None)."""
     try:
         node = factory()
-    except user_errors as exc:
+    except (*PARAMETER_ERRORS, *user_errors) as exc:
         print(f'{program}: error: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
         return None, None

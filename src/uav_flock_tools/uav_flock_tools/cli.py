@@ -165,8 +165,10 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def cmd_up(args: argparse.Namespace) -> int:
     """world_sim and one process per MAP (or K per process), in lockstep or in real time."""
+    from world_sim.scenarios import resolve
+
     from . import launcher, simrun
-    path = simrun.resolve_scenario(args.scenario)
+    path = resolve(args.scenario)
     base = simrun.load_scenario(args.scenario)
     if args.maps and len(args.maps) > 1 or args.seed and len(args.seed) > 1:
         raise UsageError('up: one MAP count and one seed per run')

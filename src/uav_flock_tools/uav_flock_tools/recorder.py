@@ -148,7 +148,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     rclpy.init(args=sys.argv if argv is None else argv, signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
-    node, executor = spun_node('uav_flock_recorder', Recorder, (ValueError, WriterError))
+    node, executor = spun_node('uav_flock_recorder', Recorder, (WriterError,))
     if node is None or executor is None:
         return 2
     try:

@@ -11,27 +11,14 @@ import numpy as np
 
 from world_sim.batch import BatchSimulator, RunResult
 from world_sim.core import records
-from world_sim.core.scenario import Scenario, ScenarioError, load
+from world_sim.core.scenario import Scenario, load
+from world_sim.scenarios import resolve
 
 from . import plots
 
 
-def resolve_scenario(name_or_path: str) -> Path:
-    """A scenario file path, or the name of one shipped in world_sim's share/config (e.g. 'paper')."""
-    path = Path(name_or_path)
-    if path.suffix in ('.yaml', '.yml') or path.exists():
-        return path
-    from ament_index_python.packages import get_package_share_directory
-    shipped = Path(get_package_share_directory('world_sim')) / 'config' / f'{name_or_path}.yaml'
-    if not shipped.exists():
-        choices = sorted(p.stem for p in shipped.parent.glob('*.yaml'))
-        raise ScenarioError(f'--scenario: no file {name_or_path!r} and no shipped scenario of that name '
-                            f'(shipped: {", ".join(choices)})')
-    return shipped
-
-
 def load_scenario(name_or_path: str) -> Scenario:
-    return load(resolve_scenario(name_or_path))
+    return load(resolve(name_or_path))
 
 
 def trajectory_columns(result: RunResult) -> dict[str, np.ndarray]:

@@ -39,6 +39,7 @@ from .batch import Sensed, World
 from .markers import world_markers
 from .core import records
 from .core.scenario import ScenarioError, load
+from .scenarios import DEFAULT, resolve
 
 LIVENESS_PERIOD_S = 0.2  # how often the processes of MAPs we wait for are checked
 RECORDER_TIMEOUT_S = 10.0  # a recorder that writes nothing new this long while we wait for it is given up on
@@ -72,7 +73,7 @@ class WorldNode(Node):
                               ('command_ttl', 5)):
             self.declare_parameter(name, default)
         get = lambda n: self.get_parameter(n).value  # noqa: E731
-        scenario = load(get('scenario'))
+        scenario = load(resolve(get('scenario') or DEFAULT))
         scenario = scenario.with_overrides(
             maps=get('maps') or None, seed=get('seed') if get('seed') >= 0 else None,
             duration=get('duration') or None, fail_at=get('fail_at') if get('fail_at') >= 0 else None,
@@ -405,7 +406,7 @@ def _interrupt(signum: int, frame: object) -> None:
 def main(argv: Optional[list[str]] = None) -> int:
     rclpy.init(args=sys.argv if argv is None else argv)
     signal.signal(signal.SIGTERM, _interrupt)
-    node, executor = spun_node('world_sim', WorldNode, (ScenarioError, ValueError))
+    node, executor = spun_node('world_sim', WorldNode, (ScenarioError,))
     if node is None or executor is None:
         return 2
     try:
