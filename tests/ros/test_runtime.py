@@ -63,6 +63,18 @@ def test_scheduled_failures_sigkill_the_agent_processes(tmp_path: Path, ros_env:
     assert (run / 'trajectory.csv').read_bytes() == (tmp_path / 'sim' / 'trajectory.csv').read_bytes()
 
 
+def test_a_run_whose_maps_all_fail_goes_on_to_its_end(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """Lockstep with no live MAP left has no command to wait for: the world steps on alone, as `sim` does."""
+    args = ('--maps', '3', '--seed', '1', '--duration', '2', '--fail-at', '0.5', '--fail-fraction', '1')
+    run = cli('up', *args, '--out', str(tmp_path / 'up'), env=ros_env, timeout=120)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert cli('sim', *args, '--out', str(tmp_path / 'sim')).returncode == 0
+    for name in ('metrics.csv', 'trajectory.csv'):
+        assert (tmp_path / 'up' / name).read_bytes() == (tmp_path / 'sim' / name).read_bytes(), name
+    m = read_csv(tmp_path / 'up' / 'metrics.csv')
+    assert m['t'][-1] == 2.0 and m['alive'][-1] == 0
+
+
 def test_killed_agents_are_dropped_and_the_run_completes(tmp_path: Path, ros_env: dict[str, str]) -> None:
     run = tmp_path / 'up'
     shm_before = shm_entries(segments_only=True)

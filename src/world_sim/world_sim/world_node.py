@@ -124,6 +124,7 @@ class WorldNode(Node):
         self.rejected = 0
         self.started = False
         self.finished = False
+        self.advancing = False  # lockstep: inside maybe_advance's loop
         self.wall_start = time.monotonic()
         self.last_report = time.monotonic()  # of the start-up: a line every START_REPORT_S while we wait
         self.create_timer(LIVENESS_PERIOD_S, self.tick)
@@ -193,6 +194,8 @@ class WorldNode(Node):
             user_counts=s.n_users.astype(np.uint32).tolist(), cluster_coverage=s.cluster_coverage.tolist(),
             coverage_ratio=s.coverage_ratio))
         self.publish_sensing(hdr)
+        if not self.realtime:
+            self.maybe_advance()  # no live MAP left to wait for: no command will ever come
 
     def publish_sensing(self, hdr: Header, only: Optional[set[int]] = None) -> None:
         """The step's sensing to every flying MAP, or to the MAPs in `only`."""
@@ -229,12 +232,23 @@ class WorldNode(Node):
         if not self.realtime:
             self.maybe_advance()
 
+    def waiting_for_commands(self) -> bool:
+        return any(self.world.alive[i] and i not in self.commands for i in self.sensed.ids.tolist())
+
     def maybe_advance(self) -> None:
-        """lockstep: end the step once every live MAP's command of it is in."""
-        s = self.sensed
-        if any(self.world.alive[i] and i not in self.commands for i in s.ids.tolist()):
+        """lockstep: end the step once every live MAP's command of it is in.
+
+        A step with no live MAP ends at once, and so does the next. The loop, not recursion through
+        begin_step, carries a run whose MAPs have all failed through its remaining steps, as `sim` does.
+        """
+        if self.advancing:
             return
-        self.end_step([self.commands.get(i) for i in s.ids.tolist()])
+        self.advancing = True
+        try:
+            while not (self.finished or self.held or self.sensed is None or self.waiting_for_commands()):
+                self.end_step([self.commands.get(i) for i in self.sensed.ids.tolist()])
+        finally:
+            self.advancing = False
 
     def end_step_realtime(self) -> None:
         """realtime: the step's time is up; each live MAP flies on the latest command it sent."""
