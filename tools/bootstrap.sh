@@ -13,6 +13,9 @@ QUIET=0
 [ "${1:-}" = "--quiet" ] && QUIET=1
 
 die() { printf 'uav-flock: error: %s\n' "$*" >&2; exit 1; }
+# Ctrl-C: say so and stop, rather than read the interrupted step's failure as a broken setup. The next
+# call finishes what this one began.
+trap 'printf "uav-flock: interrupted; the next command finishes the set-up\n" >&2; exit 130' INT TERM
 say() { [ "$QUIET" = 1 ] || printf 'uav-flock: %s\n' "$*" >&2; }
 sha() { sha256sum | cut -c1-16; }
 

@@ -7,11 +7,6 @@ import time
 from pathlib import Path
 from typing import Callable, NoReturn, Optional, Sequence
 
-from tqdm import tqdm
-
-from uav_agent.qos import SYNC_MODES
-from world_sim.core.scenario import ScenarioError
-
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 
@@ -104,6 +99,8 @@ def add_scenario_options(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
     from . import plots, simrun
     base = simrun.load_scenario(args.scenario)
     if args.fail_fraction and args.fail_at is None and base.fail_at is None:
@@ -255,6 +252,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from uav_agent.qos import SYNC_MODES
     parser = _Parser(prog='uav-flock', description=__doc__)
     sub = parser.add_subparsers(dest='command', required=True, parser_class=_Parser)
     p = sub.add_parser('sim', help='run a scenario in-process for one or more MAP counts and seeds')
@@ -319,7 +317,8 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
+def _main(argv: Optional[Sequence[str]]) -> int:
+    from world_sim.core.scenario import ScenarioError
     try:
         args = build_parser().parse_args(argv)
         func: Callable[[argparse.Namespace], int] = args.func
@@ -327,6 +326,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except (UsageError, ScenarioError) as exc:
         print(f'uav-flock: error: {exc}', file=sys.stderr)
         return EXIT_USAGE
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    # Only the standard library is imported above: Ctrl-C while numpy, rclpy and the rest load is caught here too.
+    try:
+        return _main(argv)
     except KeyboardInterrupt:
         print('uav-flock: interrupted', file=sys.stderr)
         return EXIT_INTERRUPTED
