@@ -111,6 +111,23 @@ def test_ctrl_c_ends_every_process_and_keeps_the_records(tmp_path: Path, ros_env
     assert shm_entries() - shm_before == set(), 'shared-memory debris left in /dev/shm'
 
 
+def test_ctrl_c_twice_during_start_up_still_ends_cleanly(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """An impatient user: Ctrl-C while the MAPs are still discovering each other, and again while `up` stops them."""
+    run = tmp_path / 'up'
+    shm_before = shm_entries()
+    proc = up('--maps', '12', '--seed', '0', '--duration', '600', '--out', str(run), env=ros_env)
+    wait_for_line(proc, 'run folder', 120)
+    time.sleep(1.5)  # agents forked and starting
+    proc.send_signal(signal.SIGINT)
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=60)
+    assert 'uav-flock up: interrupted; every process ended' in out and 'Traceback' not in out, out
+    pids = list(json.loads((run / 'pids.json').read_text()).values()) if (run / 'pids.json').exists() else []
+    assert all(dead(pid) for pid in pids), 'agent processes outlived up'
+    assert shm_entries() - shm_before == set(), 'shared-memory debris left in /dev/shm'
+
+
 def test_rogue_state_messages_change_nothing(tmp_path: Path, ros_env: dict[str, str]) -> None:
     """NaN, a wrong sender id and stale steps on /map_3/state from another process: every agent ignores them."""
     args = ('--maps', '10', '--seed', '2', '--duration', '5')

@@ -15,7 +15,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Optional, Sequence, Union
+from typing import Callable, Optional, Sequence, Union
 
 import numpy as np
 import yaml
@@ -134,18 +134,23 @@ class ForkedAgent:
         return self.proc.exitcode
 
 
-def start_agents(id_groups: list[list[int]], params: Path, env: dict[str, str], logs: Path) -> list[ForkedAgent]:
-    """Fork one agent process per group of MAP ids from the template process."""
+def start_agents(id_groups: list[list[int]], params: Path, env: dict[str, str], logs: Path,
+                 into: list[ForkedAgent], stop_if: Callable[[], bool]) -> None:
+    """Fork one agent process per group of MAP ids from the template process, into `into` as each starts.
+
+    `stop_if` is asked before each fork: a Ctrl-C is acted on between forks, never inside one, where the
+    new process would escape the list that `up` stops.
+    """
     ctx = multiprocessing.get_context('forkserver')
     ctx.set_forkserver_preload(AGENT_TEMPLATE_MODULES)
-    agents = []
     for ids in id_groups:
+        if stop_if():
+            return
         argv = ['uav_agent_node', '--ids', ','.join(map(str, ids)), '--ros-args', '--params-file', str(params)]
         proc = ctx.Process(target=agent_process, args=(argv, env, str(logs / f'agents_{ids[0]}.log')),
                            name=f'agents_{ids[0]}')
         proc.start()
-        agents.append(ForkedAgent(proc))
-    return agents
+        into.append(ForkedAgent(proc))
 
 
 Stoppable = Union[subprocess.Popen, ForkedAgent]
@@ -186,18 +191,56 @@ def stop(procs: Sequence[Stoppable], first: int = signal.SIGTERM,
             p.wait()
 
 
-def clean_shared_memory(env: dict[str, str]) -> None:
-    """Remove the shared-memory files of participants that died without removing them (SIGKILL).
+SHM_DIR = Path('/dev/shm')
+
+
+def clean_shared_memory(env: dict[str, str], since: Optional[float] = None) -> None:
+    """Remove the shared-memory files of participants that ended without removing them.
 
     With LOCALHOST discovery the participants talk over /dev/shm. A SIGKILLed one cannot remove its
     segment, and its peers do not always do it for it. Fast DDS's own tool removes every segment and port
     file whose lock no living process holds; it leaves those of running participants alone.
+
+    It knows only ports that a listener locked, though. A sender makes the file of the port it writes to,
+    and when the run is stopped during discovery (Ctrl-C at start-up) some of those have no listener yet
+    and stay. With `since`, such lockless port files made since then that no process has mapped go too.
     """
     try:
         subprocess.run(['fastdds', 'shm', 'clean'], env=env, capture_output=True, timeout=30)
     except (OSError, subprocess.TimeoutExpired) as exc:
         print(f'uav-flock up: could not clean shared memory ({exc}); `fastdds shm clean` does it by hand',
               file=sys.stderr)
+    if since is not None:
+        for port in _orphan_ports(since):
+            for path in (SHM_DIR / port, SHM_DIR / f'sem.{port}_mutex'):
+                path.unlink(missing_ok=True)
+
+
+def _orphan_ports(since: float) -> list[str]:
+    """Port files (fastrtps_port<N>) with no lock file, made since `since`, that no living process maps."""
+    try:
+        names = set(os.listdir(SHM_DIR))
+    except OSError:
+        return []
+    candidates = []
+    for name in names:
+        if (name.startswith('fastrtps_port') and name[len('fastrtps_port'):].isdigit()
+                and f'{name}_el' not in names and f'{name}_sl' not in names):
+            try:
+                if (SHM_DIR / name).stat().st_mtime >= since:
+                    candidates.append(name)
+            except OSError:
+                pass
+    if not candidates:
+        return []
+    mapped: set[str] = set()
+    for pid in filter(str.isdigit, os.listdir('/proc')):
+        try:
+            with open(f'/proc/{pid}/maps') as maps:
+                mapped.update(line.rsplit('/', 1)[-1].strip() for line in maps if '/dev/shm/fastrtps_port' in line)
+        except OSError:  # gone meanwhile, or not ours to read
+            pass
+    return [c for c in candidates if c not in mapped]
 
 
 def scenario_summary(path: Path, s: Scenario) -> dict[str, object]:
@@ -242,18 +285,28 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     agents: list[ForkedAgent] = []
     world: Optional[subprocess.Popen] = None
     recorder: Optional[subprocess.Popen] = None
-    interrupted = False
+    interrupted = starting = stopping = False
 
     def on_signal(signum: int, frame: object) -> None:
         nonlocal interrupted
+        if interrupted or stopping:  # a second Ctrl-C, or one while the run is being stopped: the stop goes on
+            return
         interrupted = True
-        raise KeyboardInterrupt
+        if not starting:  # while a process is started, the interrupt waits until it is in hand (go_on)
+            raise KeyboardInterrupt
 
+    def go_on() -> None:
+        if interrupted:
+            raise KeyboardInterrupt
+
+    started = time.time()  # wall clock, as file times are
     old_int, old_term = signal.signal(signal.SIGINT, on_signal), signal.signal(signal.SIGTERM, on_signal)
     server: Optional[subprocess.Popen] = None
     try:
+        starting = True
         if server_address:
             server = start_discovery_server(server_address, env, logs / 'discovery_server.log')
+        go_on()
         if record:
             rec_params = run / 'recorder_params.yaml'
             rec_params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {
@@ -262,6 +315,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
             recorder = subprocess.Popen(
                 [executable('uav_flock_tools', 'uav_flock_recorder'), '--ros-args', '--params-file', str(rec_params)],
                 env=env, stdout=open(logs / 'recorder.log', 'w'), stderr=subprocess.STDOUT, start_new_session=True)
+            go_on()
         # The world first, so that its start-up is not starved by the agents'; it waits for them.
         s = scenario
         world_args = [world_exe, '--ros-args', '-p', f'scenario:={scenario_path}', '-p', f'maps:={s.maps}',
@@ -274,9 +328,12 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
             world_args += ['-p', f'fail_at:={float(s.fail_at)}', '-p', f'fail_fraction:={float(s.fail_fraction)}']
         world = subprocess.Popen(world_args, env=env, stdout=subprocess.PIPE, stderr=open(logs / 'world.log', 'w'),
                                  text=True, start_new_session=True)
+        go_on()
         groups = [list(range(first, min(first + agents_per_process, scenario.maps)))
                   for first in range(0, scenario.maps, agents_per_process)]
-        agents = start_agents(groups, params, env, logs)
+        start_agents(groups, params, env, logs, agents, lambda: interrupted)
+        go_on()
+        starting = False
         table = {i: a.pid for ids, a in zip(groups, agents) for i in ids}
         write_pid_table(run / 'pids.json', table)
         assert world.stdout is not None
@@ -286,8 +343,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     except KeyboardInterrupt:
         code = 130
     finally:
-        signal.signal(signal.SIGINT, old_int)
-        signal.signal(signal.SIGTERM, old_term)
+        stopping = True
         # World and agents together (SIGINT: the world writes its records); the recorder once the world
         # has published its last, then it drains and closes the bag.
         stop(agents, signal.SIGTERM, {signal.SIGINT: [world] if world is not None else []})
@@ -295,8 +351,12 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
             stop([recorder], signal.SIGINT)
         if server is not None:
             stop([server])
-        if not server_address and any(a.poll() == -signal.SIGKILL for a in agents):
-            clean_shared_memory(env)
+        # A SIGKILLed agent cannot remove its files, nor can one stopped while its participant was still
+        # being made (Ctrl-C during start-up left some behind).
+        if not server_address and (interrupted or any(a.poll() == -signal.SIGKILL for a in agents)):
+            clean_shared_memory(env, since=started if interrupted else None)
+        signal.signal(signal.SIGINT, old_int)
+        signal.signal(signal.SIGTERM, old_term)
     if interrupted:
         print(f'uav-flock up: interrupted; every process ended, records so far in {run}', file=sys.stderr)
     result = read_result(run, scenario)
