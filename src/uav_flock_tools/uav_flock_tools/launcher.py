@@ -299,7 +299,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
         if interrupted:
             raise KeyboardInterrupt
 
-    started = time.time()  # wall clock, as file times are
+    began_at = time.time()  # wall clock, as file times are
     old_int, old_term = signal.signal(signal.SIGINT, on_signal), signal.signal(signal.SIGTERM, on_signal)
     server: Optional[subprocess.Popen] = None
     try:
@@ -354,7 +354,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
         # A SIGKILLed agent cannot remove its files, nor can one stopped while its participant was still
         # being made (Ctrl-C during start-up left some behind).
         if not server_address and (interrupted or any(a.poll() == -signal.SIGKILL for a in agents)):
-            clean_shared_memory(env, since=started if interrupted else None)
+            clean_shared_memory(env, since=began_at if interrupted else None)
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)
     if interrupted:
