@@ -116,7 +116,8 @@ def full_topic_name(topic: str) -> str:
         name = expand_topic_name(topic, 'uav_flock_echo', '/')
         validate_full_topic_name(name)
     except (InvalidTopicNameException, ValueError) as exc:
-        raise EchoError(f'{topic!r} is not a valid topic name ({str(exc).splitlines()[0].split(", at ")[0].rstrip(":")})') from None
+        why = str(exc).splitlines()[0].split(', at ')[0].rstrip(':')  # rcl appends the C source line
+        raise EchoError(f'{topic!r} is not a valid topic name ({why})') from None
     return name
 
 

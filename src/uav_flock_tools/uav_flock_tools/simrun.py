@@ -11,14 +11,10 @@ import numpy as np
 
 from world_sim.batch import BatchSimulator, RunResult
 from world_sim.core import records
-from world_sim.core.scenario import Scenario, load
-from world_sim.scenarios import resolve
+from world_sim.core.scenario import Scenario
+from world_sim.scenarios import load_scenario  # noqa: F401 (the CLI, paper and benchmarks read it here)
 
 from . import plots
-
-
-def load_scenario(name_or_path: str) -> Scenario:
-    return load(resolve(name_or_path))
 
 
 def trajectory_columns(result: RunResult) -> dict[str, np.ndarray]:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from world_sim.core.scenario import ScenarioError
+from world_sim.core.scenario import Scenario, ScenarioError, load
 
 DEFAULT = 'paper'  # the paper's scenario, what a world started without one runs
 
@@ -20,3 +20,8 @@ def resolve(name_or_path: str) -> Path:
         raise ScenarioError(f'no scenario file {name_or_path!r} and no shipped scenario of that name '
                             f'(shipped: {", ".join(choices)})')
     return shipped
+
+
+def load_scenario(name_or_path: str) -> Scenario:
+    """Read and check a scenario given by path or shipped name: what `sim`, `up` and world_sim all take."""
+    return load(resolve(name_or_path))

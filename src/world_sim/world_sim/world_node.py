@@ -38,8 +38,8 @@ from uav_agent.qos import LATCHED_QOS, LATEST_QOS, RECORDER_MAX_LAG_STEPS, STEP_
 from .batch import Sensed, World
 from .markers import world_markers
 from .core import records
-from .core.scenario import ScenarioError, load
-from .scenarios import DEFAULT, resolve
+from .core.scenario import ScenarioError
+from .scenarios import DEFAULT, load_scenario
 
 LIVENESS_PERIOD_S = 0.2  # how often the processes of MAPs we wait for are checked
 RECORDER_TIMEOUT_S = 10.0  # a recorder that writes nothing new this long while we wait for it is given up on
@@ -73,7 +73,7 @@ class WorldNode(Node):
                               ('command_ttl', 5)):
             self.declare_parameter(name, default)
         get = lambda n: self.get_parameter(n).value  # noqa: E731
-        scenario = load(resolve(get('scenario') or DEFAULT))
+        scenario = load_scenario(get('scenario') or DEFAULT)
         scenario = scenario.with_overrides(
             maps=get('maps') or None, seed=get('seed') if get('seed') >= 0 else None,
             duration=get('duration') or None, fail_at=get('fail_at') if get('fail_at') >= 0 else None,
