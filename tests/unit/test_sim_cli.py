@@ -60,6 +60,14 @@ def test_same_seed_same_run(tmp_path: Path) -> None:
     (('topics', '--domain-id', '-1'), 'expected an integer from 0 to 232'),
     (('echo', 'map 3/state'), 'not a valid topic name'),
     (('echo', '/a//b'), 'not a valid topic name'),
+    (('sim', '--fail-at', '5', '--out', '{folder}/run'), '--fail-at needs --fail-fraction'),
+    (('up', '--fail-at', '5', '--out', '{folder}/run'), '--fail-at needs --fail-fraction'),
+    (('sim', '--duration', '10', '--fail-at', '18', '--fail-fraction', '0.3', '--out', '{folder}/run'),
+     'is not before the end of the run (10 s)'),
+    (('paper', '--seeds', '0', '--out', '{folder}/figures'), 'expected a positive integer'),
+    (('up', '--agents-per-process', '0', '--out', '{folder}/run'), 'expected a positive integer'),
+    (('replay', '{folder}', '--agent', '-1'), 'expected a non-negative integer'),
+    (('replay', '{folder}', '--agent', '3', '--tolerance', '-0.5'), 'expected a non-negative finite number'),
 ])
 def test_a_user_mistake_is_one_line_and_exit_2(tmp_path: Path, args: tuple[str, ...], says: str) -> None:
     """Caught before any work starts: a bad --out found only at the end would lose the run."""

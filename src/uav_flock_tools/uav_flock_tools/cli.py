@@ -5,7 +5,10 @@ import argparse
 import sys
 import time
 from pathlib import Path
-from typing import Callable, NoReturn, Optional, Sequence
+from typing import TYPE_CHECKING, Callable, NoReturn, Optional, Sequence
+
+if TYPE_CHECKING:
+    from world_sim.core.scenario import Scenario
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
@@ -56,6 +59,28 @@ def positive_float(text: str) -> float:
     return _float_in(text, 0.0, 1e300, True, 'a positive finite number')
 
 
+def non_negative_float(text: str) -> float:
+    return _float_in(text, 0.0, 1e300, False, 'a non-negative finite number')
+
+
+def _int_in(text: str, low: int, high: Optional[int], what: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        v = low - 1
+    if v < low or high is not None and v > high:
+        raise argparse.ArgumentTypeError(f'expected {what}, got {text!r}')
+    return v
+
+
+def positive_int(text: str) -> int:
+    return _int_in(text, 1, None, 'a positive integer')
+
+
+def non_negative_int(text: str) -> int:
+    return _int_in(text, 0, None, 'a non-negative integer')
+
+
 def fraction(text: str) -> float:
     return _float_in(text, 0.0, 1.0, False, 'a number in [0, 1]')
 
@@ -65,13 +90,7 @@ MAX_DOMAIN_ID = 232
 
 
 def domain_id(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        v = -1
-    if not 0 <= v <= MAX_DOMAIN_ID:
-        raise argparse.ArgumentTypeError(f'expected an integer from 0 to {MAX_DOMAIN_ID}, got {text!r}')
-    return v
+    return _int_in(text, 0, MAX_DOMAIN_ID, f'an integer from 0 to {MAX_DOMAIN_ID}')
 
 
 def default_out(kind: str) -> Path:
@@ -98,13 +117,25 @@ def add_scenario_options(p: argparse.ArgumentParser) -> None:
     p.add_argument('--fail-fraction', type=fraction, help='fraction of MAPs failing at --fail-at')
 
 
+def check_failure(cmd: str, base: 'Scenario', args: argparse.Namespace) -> None:
+    """A failure option that would do nothing is a mistake: say so rather than run without the failure."""
+    if args.fail_fraction and args.fail_at is None and base.fail_at is None:
+        raise UsageError(f'{cmd}: --fail-fraction needs --fail-at (or failure.at in the scenario)')
+    if args.fail_at is None:
+        return
+    if args.fail_fraction is None and not base.fail_fraction:
+        raise UsageError(f'{cmd}: --fail-at needs --fail-fraction (or failure.fraction in the scenario)')
+    duration = args.duration or base.duration
+    if args.fail_at >= duration:
+        raise UsageError(f'{cmd}: --fail-at {args.fail_at:g} s is not before the end of the run ({duration:g} s)')
+
+
 def cmd_sim(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from . import plots, simrun
     base = simrun.load_scenario(args.scenario)
-    if args.fail_fraction and args.fail_at is None and base.fail_at is None:
-        raise UsageError('sim: --fail-fraction needs --fail-at (or failure.at in the scenario)')
+    check_failure('sim', base, args)
     maps = args.maps or [base.maps]
     seeds = args.seed or [base.seed]
     if 0 in maps:
@@ -169,12 +200,9 @@ def cmd_up(args: argparse.Namespace) -> int:
     base = simrun.load_scenario(args.scenario)
     if args.maps and len(args.maps) > 1 or args.seed and len(args.seed) > 1:
         raise UsageError('up: one MAP count and one seed per run')
-    if args.fail_fraction and args.fail_at is None and base.fail_at is None:
-        raise UsageError('up: --fail-fraction needs --fail-at (or failure.at in the scenario)')
+    check_failure('up', base, args)
     s = base.with_overrides(maps=args.maps[0] if args.maps else None, seed=args.seed[0] if args.seed else None,
                             duration=args.duration, fail_at=args.fail_at, fail_fraction=args.fail_fraction)
-    if args.agents_per_process < 1:
-        raise UsageError('up: --agents-per-process must be at least 1')
     if args.rate != 1.0 and args.sync != 'realtime':
         raise UsageError('up: --rate sets the pace of --sync realtime; lockstep runs as fast as it can')
     out = make_folder(Path(args.out) if args.out else default_out('up'), 'up: --out')
@@ -266,7 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_run)
     p = sub.add_parser('up', help='run a scenario distributed: world_sim and one process per MAP')
     add_scenario_options(p)
-    p.add_argument('--agents-per-process', type=int, default=1, help='pack K agent nodes into one process')
+    p.add_argument('--agents-per-process', type=positive_int, default=1, help='pack K agent nodes into one process')
     p.add_argument('--domain-id', type=domain_id, help='ROS_DOMAIN_ID to use (default: a fresh one per run)')
     p.add_argument('--discovery', choices=('auto', 'localhost', 'subnet', 'server'), default='auto',
                    help='LOCALHOST discovery, SUBNET (multicast) discovery, or a Fast DDS discovery server for '
@@ -301,15 +329,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_report)
     p = sub.add_parser('replay', help="feed one MAP's recorded inputs to a fresh agent node, compare commands")
     p.add_argument('bag', help='the bag folder (RUN/bag for `up --record`)')
-    p.add_argument('--agent', type=int, required=True, help='the MAP id to replay')
-    p.add_argument('--tolerance', type=float, default=1e-9, help='largest |Δu| accepted (m/s^2, default 1e-9)')
+    p.add_argument('--agent', type=non_negative_int, required=True, help='the MAP id to replay')
+    p.add_argument('--tolerance', type=non_negative_float, default=1e-9, help='largest |Δu| accepted (m/s^2, default 1e-9)')
     p.add_argument('--timeout', type=positive_float, default=20.0, help='wait this long for a command (s)')
     p.add_argument('--set', type=key_value, action='append', metavar='KEY=VALUE',
                    help='replay with an agent parameter changed, e.g. --set c1=0.4 (repeatable)')
     p.set_defaults(func=cmd_replay)
     p = sub.add_parser('paper', help="regenerate the paper's figures over several seeds and docs/results.md")
-    p.add_argument('--scenario', default='paper')
-    p.add_argument('--seeds', type=int, default=5, help='seeds per configuration (default: 5)')
+    p.add_argument('--scenario', default='paper', help="scenario YAML file, or a shipped name (default: paper)")
+    p.add_argument('--seeds', type=positive_int, default=5, help='seeds per configuration (default: 5)')
     p.add_argument('--out', default='docs/figures', help='figure folder (default: docs/figures)')
     p.add_argument('--docs', default='docs/results.md', help='results page to write (default: docs/results.md)')
     p.add_argument('--no-ablation', action='store_true', help="skip measuring the effect of each open choice")
