@@ -194,17 +194,23 @@ def test_golden_bag_replays_exactly_for_every_map() -> None:
 
 
 def test_replay_notices_a_changed_behaviour() -> None:
-    done = cli('replay', str(GOLDEN / 'bag'), '--agent', '2', '--set', 'c1=0.35')
-    assert done.returncode == 1, done.stdout + done.stderr
-    assert 'behaviour differs from the recording' in done.stdout
+    for value in ('c1=0.35', 'c1=1'):  # `c1=1` reads as an integer: the agent's double parameter still takes it
+        done = cli('replay', str(GOLDEN / 'bag'), '--agent', '2', '--set', value)
+        assert done.returncode == 1, done.stdout + done.stderr
+        assert 'behaviour differs from the recording' in done.stdout
 
 
 def test_bag_tools_reject_bad_input_in_one_line(tmp_path: Path) -> None:
     for args in (('report', str(tmp_path / 'missing')), ('report', str(GOLDEN / 'scenario.yaml')),
                  ('report', str(tmp_path)), ('replay', str(tmp_path), '--agent', '3'),  # a folder, no bag in it
-                 ('replay', str(GOLDEN / 'bag'), '--agent', '99')):
+                 ('replay', str(GOLDEN / 'bag'), '--agent', '99'),
+                 ('report', str(GOLDEN / 'bag'), '--out', str(GOLDEN / 'scenario.yaml'))):
         done = cli(*args)
         assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    # A value the agent refuses ends the replay with the agent's own reason, not a wait for a node that is gone.
+    for value, says in (('r=-1', 'parameter r: must be positive'), ('zero_users=sometimes', 'parameter zero_users')):
+        done = cli('replay', str(GOLDEN / 'bag'), '--agent', '3', '--set', value)
+        assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1 and says in done.stderr, done.stderr
     shutil.copytree(GOLDEN / 'bag', tmp_path / 'bag')
     again = cli('up', '--scenario', SCENARIO, '--record', '--out', str(tmp_path))
     assert again.returncode == 2 and 'exists already' in again.stderr  # a bag is never overwritten

@@ -10,6 +10,7 @@ its /map_<id>/state for step k. Then, by sync mode:
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from dataclasses import fields
@@ -27,7 +28,7 @@ from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sens
 from . import convert
 from .core.agent import Neighbourhood, agent_step
 from .core.modes import NO_GOAL, ClusterMap, Memory
-from .core.params import FlockParams
+from .core.params import FlockParams, check as check_params
 from .executors import PARAMETER_ERRORS, make_executor
 from .qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STATE_READ_QOS, STEP_QOS, is_realtime
 
@@ -67,9 +68,15 @@ class AgentNode(Node):
         # Many processes starting on few cores take a while to bring the world up: wait this long for it.
         self.declare_parameter('world_start_timeout', 120.0)
         self.params = FlockParams(**{f.name: self.get_parameter(f.name).value for f in fields(FlockParams)})
+        check_params(self.params, lambda name: f'parameter {name}')
         self.hysteresis = float(self.get_parameter('hysteresis').value)
+        if not 0.0 <= self.hysteresis < math.inf:
+            raise ValueError(f'parameter hysteresis: must be non-negative and finite, got {self.hysteresis}')
         self.realtime = is_realtime(str(self.get_parameter('sync').value))
         self.world_start_timeout = float(self.get_parameter('world_start_timeout').value)
+        if not 0.0 < self.world_start_timeout < math.inf:
+            raise ValueError('parameter world_start_timeout: must be positive and finite, '
+                             f'got {self.world_start_timeout}')
         self.world_seen = False
 
         self.memory = Memory()

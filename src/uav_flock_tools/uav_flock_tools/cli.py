@@ -252,6 +252,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     from . import bag, report
     path = Path(args.bag)
     out = Path(args.out) if args.out else (path.parent / 'report' if path.name == 'bag' else path / 'report')
+    if args.out:
+        make_folder(out, 'report: --out')
     try:
         summary, files = report.report(path, out)
     except bag.BagError as exc:

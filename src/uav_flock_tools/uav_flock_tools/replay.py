@@ -14,7 +14,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 import yaml
@@ -70,7 +70,10 @@ def replay(path: Path, agent: int, tolerance: float = 1e-9, timeout: float = 20.
         unknown = sorted(set(overrides) - {f.name for f in fields(FlockParams)})
         if unknown:
             raise ReplayError(f'--set: no agent parameter {unknown[0]!r}')
-        inputs.params = {**inputs.params, **overrides}
+        # `--set c1=1` reads as an integer; ROS parameters are typed, and the agent declares c1 a double.
+        floats = {f.name for f in fields(FlockParams) if isinstance(f.default, float)}
+        inputs.params = {**inputs.params, **{k: float(v) if k in floats and type(v) is int else v
+                                            for k, v in overrides.items()}}
     domain = launcher.fresh_domain_id()
     env = launcher.ros_env(domain)
     with tempfile.TemporaryDirectory(prefix='uav-flock-replay-') as tmp:
@@ -82,8 +85,17 @@ def replay(path: Path, agent: int, tolerance: float = 1e-9, timeout: float = 20.
                                 env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         saved = {k: os.environ.get(k) for k in env}
         os.environ.update(env)
+
+        def agent_exit() -> Optional[str]:
+            """Why the agent ended, if it did: a parameter it rejects ends it at once, not after a timeout."""
+            if proc.poll() is None:
+                return None
+            log.flush()
+            last = (Path(log.name).read_text(errors='replace').strip().splitlines() or [''])[-1]
+            return f'the agent node of MAP {agent} exited with code {proc.returncode}' + (f': {last}' if last else '')
+
         try:
-            _drive(inputs, outcome, timeout)
+            _drive(inputs, outcome, timeout, agent_exit)
         finally:
             launcher.stop([proc])
             log.close()
@@ -95,7 +107,8 @@ def replay(path: Path, agent: int, tolerance: float = 1e-9, timeout: float = 20.
     return outcome
 
 
-def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float) -> None:
+def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
+           agent_exit: Callable[[], Optional[str]]) -> None:
     import rclpy
     from rclpy.node import Node
     from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
@@ -120,6 +133,8 @@ def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float) -> None:
 
         deadline = time.monotonic() + READY_TIMEOUT_S
         while sensing.get_subscription_count() == 0 or node.count_publishers(f'/map_{i}/cmd') == 0:
+            if (why := agent_exit()) is not None:
+                raise ReplayError(why)
             if time.monotonic() > deadline:
                 raise ReplayError(f'the agent node of MAP {i} did not appear within {READY_TIMEOUT_S:g} s')
             executor.spin_once(timeout_sec=0.05)
@@ -141,6 +156,8 @@ def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float) -> None:
             until = time.monotonic() + timeout
             while k not in answers and time.monotonic() < until:
                 executor.spin_once(timeout_sec=0.01)
+                if k not in answers and (why := agent_exit()) is not None:
+                    raise ReplayError(f'at step {k}, {why}')
             if k not in answers:
                 outcome.stuck_at = k
                 return

@@ -1,8 +1,9 @@
 """Parameters of the control law and mode switch (paper Section V), plus the choices the paper leaves open."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import Any, Callable
 
 # Names of the choices where the paper is ambiguous, with their allowed values; docs/choices.md explains them.
 POLICY_VALUES: dict[str, tuple[str, ...]] = {
@@ -47,3 +48,31 @@ class FlockParams:
 
     def as_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def check(p: FlockParams, where: Callable[[str], str] = str) -> None:
+    """Raise ValueError for values no run can use, naming the parameter as `where(name)` does.
+
+    The scenario loader and the agent node both call this: an agent started by hand with `-p r:=-1` is
+    refused as a scenario with `flock.r: -1` is.
+    """
+    for f in fields(p):
+        v = getattr(p, f.name)
+        if f.name in POLICY_VALUES:
+            if v not in POLICY_VALUES[f.name]:
+                raise ValueError(f'{where(f.name)}: must be one of {", ".join(POLICY_VALUES[f.name])}, got {v!r}')
+        elif isinstance(f.default, int):
+            if v < 0:
+                raise ValueError(f'{where(f.name)}: must be an integer >= 0, got {v!r}')
+        elif not math.isfinite(v) or v <= 0:
+            raise ValueError(f'{where(f.name)}: must be positive and finite, got {v!r}')
+    if p.d >= p.r:
+        raise ValueError(f'{where("d")}: must be below {where("r")} ({p.r}), got {p.d}')
+    if p.a > p.b:
+        raise ValueError(f'{where("a")}: must not exceed {where("b")} ({p.b}) or phi(0) != 0, got {p.a}')
+    if p.gamma >= 1.0:
+        raise ValueError(f'{where("gamma")}: must be below 1, got {p.gamma}')
+    if p.n0 > p.n1:
+        raise ValueError(f'{where("n0")}: must not exceed {where("n1")} ({p.n1}), got {p.n0}')
+    if p.r0 > 1.0:
+        raise ValueError(f'{where("r0")}: a coverage ratio, must be at most 1, got {p.r0}')

@@ -8,7 +8,7 @@ from typing import Any
 
 import yaml
 
-from uav_agent.core.params import POLICY_VALUES, FlockParams
+from uav_agent.core.params import POLICY_VALUES, FlockParams, check as check_flock
 
 
 class ScenarioError(ValueError):
@@ -118,12 +118,8 @@ def parse(doc: Any) -> Scenario:
             continue
         raw = _need(flock_doc, 'flock', f.name)
         flock_vals[f.name] = (_int(f'flock.{f.name}', raw, minimum=0) if f.type in ('int', int)
-                              else _num(f'flock.{f.name}', raw))
-    policies = _section(doc, 'policies', set(POLICY_VALUES), required=False)
-    for key, value in policies.items():
-        if value not in POLICY_VALUES[key]:
-            raise ScenarioError(f'policies.{key}: must be one of {", ".join(POLICY_VALUES[key])}, got {value!r}')
-        flock_vals[key] = value
+                              else _num(f'flock.{f.name}', raw, positive=False))
+    flock_vals.update(_section(doc, 'policies', set(POLICY_VALUES), required=False))
     flock = FlockParams(**flock_vals)
 
     radio = _section(doc, 'radio', _RADIO)
@@ -172,16 +168,10 @@ def parse(doc: Any) -> Scenario:
 
 def _check(s: Scenario) -> None:
     """Relations between keys that each looked fine alone."""
-    if s.flock.d >= s.flock.r:
-        raise ScenarioError(f'flock.d: must be below flock.r ({s.flock.r}), got {s.flock.d}')
-    if s.flock.a > s.flock.b:
-        raise ScenarioError(f'flock.a: must not exceed flock.b ({s.flock.b}) or phi(0) != 0, got {s.flock.a}')
-    if s.flock.gamma >= 1.0:
-        raise ScenarioError(f'flock.gamma: must be below 1, got {s.flock.gamma}')
-    if not s.flock.n0 <= s.flock.n1:
-        raise ScenarioError(f'flock.n0: must not exceed flock.n1 ({s.flock.n1}), got {s.flock.n0}')
-    if s.flock.r0 > 1.0:
-        raise ScenarioError(f'flock.r0: a coverage ratio, must be at most 1, got {s.flock.r0}')
+    try:
+        check_flock(s.flock, lambda name: f'{"policies" if name in POLICY_VALUES else "flock"}.{name}')
+    except ValueError as exc:
+        raise ScenarioError(str(exc)) from None
     if s.fail_fraction > 1.0:
         raise ScenarioError(f'failure.fraction: must be at most 1, got {s.fail_fraction}')
     if s.maps < 1:
