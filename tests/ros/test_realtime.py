@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from helpers.runs import cli, dropped_ids, kill_during, up
+from helpers.runs import cli, dropped_ids, kill_during, up, wait_for_line
 from world_sim.core.records import read_csv
 
 PROGRESS = re.compile(r't = +([\d.]+) s .* fresh commands (\d+) %')
@@ -96,12 +96,16 @@ def test_agents_wait_for_a_world_that_comes_late(tmp_path: Path, ros_env: dict[s
                 p.communicate(timeout=30)
 
 
-def test_bad_sync_options_are_one_line_errors(ros_env: dict[str, str]) -> None:
+def test_bad_node_parameters_and_sync_options_are_one_line_errors(ros_env: dict[str, str]) -> None:
     bad = agent('0', ros_env, '-p', 'sync:=warp')
     said, _ = bad.communicate(timeout=60)
     assert bad.returncode == 2 and said.strip().count('\n') == 0 and "parameter sync" in said, said
     from uav_flock_tools.launcher import executable
     for node, args in (('uav_agent_node', ['--ids', '0', '--ros-args', '-p', 'r:=far']),  # r is a float
+                       ('uav_agent_node', ['--ids', '0', '--ros-args', '-p', 'r:=-24.0']),
+                       ('uav_agent_node', ['--ids', '0', '--ros-args', '-p', 'n0:=20']),  # above n1
+                       ('uav_agent_node', ['--ids', '0', '--ros-args', '-p', 'edge_choice:=random']),
+                       ('uav_agent_node', ['--ids', '0', '--ros-args', '-p', 'hysteresis:=-1.0']),
                        ('world_sim_node', ['--ros-args', '-p', 'maps:=many']),
                        ('world_sim_node', ['--ros-args', '-p', 'scenario:=no_such_scenario'])):
         pkg = 'uav_agent' if node == 'uav_agent_node' else 'world_sim'
@@ -112,3 +116,27 @@ def test_bad_sync_options_are_one_line_errors(ros_env: dict[str, str]) -> None:
     assert rate.returncode == 2 and '--rate' in rate.stderr and 'Traceback' not in rate.stderr, rate.stderr
     sync = cli('up', '--maps', '2', '--sync', 'warp')
     assert sync.returncode == 2 and 'Traceback' not in sync.stderr, sync.stderr
+
+
+
+def test_sigterm_ends_a_stepping_world_in_order(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """`kill PID` on world_sim mid-run: records written, no fatal callback error from a signal raised inside one."""
+    from uav_flock_tools.launcher import executable
+    for attempt in range(3):  # steps run back to back: the signal lands inside a callback most of the time
+        out = tmp_path / str(attempt)
+        maps = agent('0,1,2', ros_env)
+        world = subprocess.Popen([executable('world_sim', 'world_sim_node'), '--ros-args', '-p', 'maps:=3',
+                                  '-p', 'duration:=600.0', '-p', f'out:={out}'], env=ros_env,
+                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        try:
+            seen = wait_for_line(world, 't =   2.0 s', 120)
+            world.terminate()
+            said = ''.join(seen) + world.communicate(timeout=30)[0]
+            assert world.returncode == 1, said  # interrupted, not finished
+            assert 'FATAL' not in said and 'Traceback' not in said, said
+            assert read_csv(out / 'metrics.csv')['t'][-1] >= 2.0
+        finally:
+            for p in (world, maps):
+                if p.poll() is None:
+                    p.kill()
+                p.communicate(timeout=30)

@@ -6,7 +6,9 @@ dispatches each callback directly.
 """
 from __future__ import annotations
 
+import signal
 import sys
+from types import FrameType
 from typing import Callable, Optional, TypeVar
 
 import rclpy
@@ -17,6 +19,22 @@ from rclpy.node import Node
 N = TypeVar('N', bound=Node)
 # A parameter of the wrong type (`-p r:=abc` where r is a float) is the user's mistake in any node.
 PARAMETER_ERRORS = (ParameterException, ValueError)
+
+
+class StopSignals:
+    """SIGINT and SIGTERM set a flag that the spin loop reads, so the process can end its run in order.
+
+    An exception raised by a signal handler lands in whatever callback runs, and the events executor logs it
+    as a fatal callback error. Pair with `rclpy.init(signal_handler_options=SignalHandlerOptions.NO)`.
+    """
+
+    def __init__(self) -> None:
+        self.received = False
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, self._on_signal)
+
+    def _on_signal(self, signum: int, frame: Optional[FrameType]) -> None:
+        self.received = True
 
 
 def make_executor() -> Executor:

@@ -10,7 +10,6 @@ SIGINT/SIGTERM drain what is still in flight and close the bag, so an interrupte
 from __future__ import annotations
 
 import json
-import signal
 import sys
 import time
 from pathlib import Path
@@ -27,7 +26,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from std_msgs.msg import Int64
 from uav_flock_msgs.msg import Metrics
 
-from uav_agent.executors import spun_node
+from uav_agent.executors import StopSignals, spun_node
 from uav_agent.qos import LATCHED_QOS
 
 from . import bag
@@ -136,23 +135,14 @@ class Recorder(Node):
         self.writer.close()
 
 
-_stop = False
-
-
-def _on_signal(signum: int, frame: object) -> None:
-    global _stop
-    _stop = True
-
-
 def main(argv: Optional[list[str]] = None) -> int:
     rclpy.init(args=sys.argv if argv is None else argv, signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGINT, _on_signal)
-    signal.signal(signal.SIGTERM, _on_signal)
+    stop = StopSignals()
     node, executor = spun_node('uav_flock_recorder', Recorder, (WriterError,))
     if node is None or executor is None:
         return 2
     try:
-        while not _stop:
+        while not stop.received:
             executor.spin_once(timeout_sec=0.1)
         # Drain what is already on its way, then close: the bag is complete and readable.
         start = time.monotonic()

@@ -21,9 +21,9 @@ from typing import Optional
 import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
+from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header, Int64
 from visualization_msgs.msg import MarkerArray
@@ -32,7 +32,7 @@ from uav_flock_msgs.msg import (Association, Clusters, Command, FailureEvent, Me
 
 from uav_agent import convert
 from uav_agent.core.modes import NO_GOAL
-from uav_agent.executors import spun_node
+from uav_agent.executors import StopSignals, spun_node
 from uav_agent.qos import LATCHED_QOS, LATEST_QOS, RECORDER_MAX_LAG_STEPS, STEP_QOS, is_realtime
 
 from .batch import Sensed, World
@@ -412,21 +412,15 @@ class WorldNode(Node):
             records.write_trajectory(self.out / 'trajectory.csv', result.trajectory)
 
 
-def _interrupt(signum: int, frame: object) -> None:
-    """SIGTERM ends the run like Ctrl-C: records are written before exit."""
-    raise KeyboardInterrupt
-
-
 def main(argv: Optional[list[str]] = None) -> int:
-    rclpy.init(args=sys.argv if argv is None else argv)
-    signal.signal(signal.SIGTERM, _interrupt)
+    rclpy.init(args=sys.argv if argv is None else argv, signal_handler_options=SignalHandlerOptions.NO)
+    stop = StopSignals()  # SIGINT or SIGTERM: the records are written before exit
     node, executor = spun_node('world_sim', WorldNode, (ScenarioError,))
     if node is None or executor is None:
         return 2
     try:
-        while rclpy.ok() and not node.done():
+        while not stop.received and not node.done():
             executor.spin_once(timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
         if not node.finished:
             node.finish(ok=False)  # keep what was simulated
     finally:
