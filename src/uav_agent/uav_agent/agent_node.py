@@ -18,10 +18,9 @@ from typing import Optional
 
 import numpy as np
 import rclpy
-from rclpy._rclpy_pybind11 import RCLError
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
 from rclpy.subscription import Subscription
 from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
 
@@ -29,7 +28,7 @@ from . import convert
 from .core.agent import Neighbourhood, agent_step
 from .core.modes import NO_GOAL, ClusterMap, Memory
 from .core.params import FlockParams, check as check_params
-from .executors import PARAMETER_ERRORS, make_executor
+from .executors import PARAMETER_ERRORS, StopSignals, make_executor
 from .qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STATE_READ_QOS, STEP_QOS, is_realtime
 
 WATCH_PERIOD_S = 1.0
@@ -329,7 +328,10 @@ def parse_ids(argv: list[str]) -> list[int]:
 def main(argv: Optional[list[str]] = None) -> int:
     argv = sys.argv if argv is None else argv
     ids = parse_ids(rclpy.utilities.remove_ros_args(argv)[1:])
-    rclpy.init(args=argv)
+    # No rclpy signal handlers: theirs shut the context down under a running callback, whose publish then
+    # fails and is logged as a fatal callback error. The loop ends on the flag instead, between callbacks.
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    stop = StopSignals()
     executor = make_executor()
     try:
         nodes = [AgentNode(i) for i in ids]
@@ -340,13 +342,8 @@ def main(argv: Optional[list[str]] = None) -> int:
     for n in nodes:
         executor.add_node(n)
     try:
-        while rclpy.ok() and not all(n.stopped for n in nodes):
+        while not stop.received and not all(n.stopped for n in nodes):
             executor.spin_once(timeout_sec=0.5)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RCLError:
-        if rclpy.ok():  # only a shutdown by signal (SIGINT/SIGTERM) invalidates the context mid-spin
-            raise
     finally:
         # The executor first: the events executor holds the nodes' entities, and only once they are all
         # released is the DDS participant deleted (with its shared memory), even if this process then ends

@@ -344,9 +344,10 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
         code = 130
     finally:
         stopping = True
-        # World and agents together (SIGINT: the world writes its records); the recorder once the world
-        # has published its last, then it drains and closes the bag.
-        stop(agents, signal.SIGTERM, {signal.SIGINT: [world] if world is not None else []})
+        # World and agents together, the world signalled first (SIGINT: it writes its records, and takes the
+        # agents' ends for the stop, not for failures); the recorder once the world has published its last,
+        # then it drains and closes the bag.
+        stop([world] if world is not None else [], signal.SIGINT, {signal.SIGTERM: agents})
         if recorder is not None:
             stop([recorder], signal.SIGINT)
         if server is not None:

@@ -16,7 +16,7 @@ import signal
 import sys
 import time
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 import rclpy
@@ -65,8 +65,11 @@ def process_alive(pid: int) -> bool:
 
 
 class WorldNode(Node):
-    def __init__(self) -> None:
+    def __init__(self, stopping: Callable[[], bool] = lambda: False) -> None:
         super().__init__('world_sim')
+        # Told to stop (Ctrl-C on `up`, which stops the agents too): their deaths are not failures, and a
+        # lockstep run must not go on to its end without them.
+        self.stopping = stopping
         for name, default in (('scenario', ''), ('maps', 0), ('seed', -1), ('duration', 0.0), ('fail_at', -1.0),
                               ('fail_fraction', -1.0), ('out', ''), ('pid_table', ''), ('start_timeout', 60.0),
                               ('record', False), ('marker_period', 5), ('sync', 'lockstep'), ('rate', 1.0),
@@ -148,7 +151,7 @@ class WorldNode(Node):
         elif self.held and self.recorder_gone():
             self.held = False
             self.begin_step()
-        elif not self.finished:
+        elif not self.finished and not self.stopping():
             self.check_liveness()
 
     def try_start(self) -> None:
@@ -245,7 +248,8 @@ class WorldNode(Node):
             return
         self.advancing = True
         try:
-            while not (self.finished or self.held or self.sensed is None or self.waiting_for_commands()):
+            while not (self.finished or self.held or self.sensed is None or self.stopping()
+                       or self.waiting_for_commands()):
                 self.end_step([self.commands.get(i) for i in self.sensed.ids.tolist()])
         finally:
             self.advancing = False
@@ -415,7 +419,7 @@ class WorldNode(Node):
 def main(argv: Optional[list[str]] = None) -> int:
     rclpy.init(args=sys.argv if argv is None else argv, signal_handler_options=SignalHandlerOptions.NO)
     stop = StopSignals()  # SIGINT or SIGTERM: the records are written before exit
-    node, executor = spun_node('world_sim', WorldNode, (ScenarioError,))
+    node, executor = spun_node('world_sim', lambda: WorldNode(lambda: stop.received), (ScenarioError,))
     if node is None or executor is None:
         return 2
     try:
