@@ -191,6 +191,18 @@ def test_echo_and_topics_show_a_live_run(tmp_path: Path, ros_env: dict[str, str]
         wait_for_line(proc, 't =   1.0 s', 120)
         echoed = cli('echo', '/metrics', '--once', '--run', str(run), timeout=60)
         listed = cli('topics', '--run', str(run), timeout=60)
+        # `kill PID` ends an echo as Ctrl-C does: quietly once it prints, "interrupted" (130) while it waits.
+        for topic, code in (('/metrics', 0), ('/no_such_topic', 130)):
+            streaming = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'echo', topic, '--run',
+                                          str(run), '--timeout', '100'], stdout=subprocess.PIPE,
+                                         stderr=subprocess.PIPE, text=True)
+            if code == 0:
+                wait_for_line(streaming, '---', 60)
+            else:
+                time.sleep(3.0)
+            streaming.terminate()
+            _, said = streaming.communicate(timeout=30)
+            assert streaming.returncode == code and 'Traceback' not in said, said
     finally:
         proc.send_signal(signal.SIGINT)
         proc.communicate(timeout=30)

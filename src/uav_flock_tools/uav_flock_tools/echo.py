@@ -5,12 +5,14 @@ import importlib
 import json
 import math
 import os
-import sys
 import time
 from pathlib import Path
-from typing import Any, Optional
+from typing import TYPE_CHECKING, Any, Optional
 
 import yaml
+
+if TYPE_CHECKING:
+    from uav_agent.executors import StopSignals
 
 DISCOVERY_S = 1.5  # least time given to discovery before listing
 SETTLED_S = 1.0  # ... and the list must not have grown for this long
@@ -77,17 +79,26 @@ def expected_topics(run: str) -> set[str]:
     return {'/metrics'} | {f'/map_{i}/state' for i, pid in table.items() if process_alive(pid)}
 
 
+def _init_rclpy() -> 'StopSignals':
+    """rclpy without its signal handlers: theirs end a spin with ExternalShutdownException and a traceback."""
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+    from uav_agent.executors import StopSignals
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    return StopSignals()
+
+
 def topics(run: Optional[str], domain_id: Optional[int]) -> int:
     use_domain(run, domain_id)
     # With a run folder we know what to wait for; otherwise the list must stop growing for a while.
     expected = expected_topics(run) if run is not None else set()
     import rclpy
-    rclpy.init()
+    stop = _init_rclpy()
     try:
         node = rclpy.create_node('uav_flock_topics')
         start = changed = time.monotonic()
         seen: list = []
-        while True:
+        while not stop.received:
             rclpy.spin_once(node, timeout_sec=0.1)
             now_seen = node.get_topic_names_and_types()
             now = time.monotonic()
@@ -99,11 +110,13 @@ def topics(run: Optional[str], domain_id: Optional[int]) -> int:
             settled = others and complete and now - start >= DISCOVERY_S and now - changed >= SETTLED_S
             if settled or now - start >= DISCOVERY_MAX_S:
                 break
-        for name, types in sorted(seen):
-            print(f'{name} [{", ".join(types)}]')
         node.destroy_node()
     finally:
         rclpy.try_shutdown()
+    if stop.received:
+        raise KeyboardInterrupt  # before the list was complete: the CLI says it was interrupted
+    for name, types in sorted(seen):
+        print(f'{name} [{", ".join(types)}]')
     return 0
 
 
@@ -126,18 +139,19 @@ def echo(topic: str, once: bool, timeout: float, run: Optional[str], domain_id: 
     topic = full_topic_name(topic)
     import rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-    rclpy.init()
+    stop = _init_rclpy()
     try:
         node = rclpy.create_node('uav_flock_echo')
         end = time.monotonic() + timeout
         infos = []
-        while time.monotonic() < end and not infos:
+        while time.monotonic() < end and not infos and not stop.received:
             infos = node.get_publishers_info_by_topic(topic)
             rclpy.spin_once(node, timeout_sec=0.1)
+        if stop.received:
+            raise KeyboardInterrupt  # while still waiting for a publisher
         if not infos:
-            print(f'uav-flock: error: no publisher of {topic} appeared within {timeout:g} s '
-                  f'(ROS_DOMAIN_ID={os.environ.get("ROS_DOMAIN_ID", "0")})', file=sys.stderr)
-            return 2
+            raise EchoError(f'no publisher of {topic} appeared within {timeout:g} s '
+                            f'(ROS_DOMAIN_ID={os.environ.get("ROS_DOMAIN_ID", "0")})')
         # Like ros2cli: ask for what every publisher offers, so that no QoS mismatch hides the data.
         latched = all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
         reliable = all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
@@ -152,11 +166,9 @@ def echo(topic: str, once: bool, timeout: float, run: Optional[str], domain_id: 
             done = once
 
         node.create_subscription(message_type(infos[0].topic_type), topic, show, qos)
-        while not done:
+        while not done and not stop.received:  # Ctrl-C is the usual way to end an echo: exit 0, as ros2 does
             rclpy.spin_once(node, timeout_sec=0.2)
         node.destroy_node()
-    except KeyboardInterrupt:
-        pass
     finally:
         rclpy.try_shutdown()
     return 0
