@@ -4,12 +4,15 @@ from __future__ import annotations
 import json
 import shutil
 import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
-from helpers.runs import cli, up, wait_for_line
+from helpers.runs import cli, dead, up, wait_for_line
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
@@ -198,6 +201,24 @@ def test_replay_notices_a_changed_behaviour() -> None:
         done = cli('replay', str(GOLDEN / 'bag'), '--agent', '2', '--set', value)
         assert done.returncode == 1, done.stdout + done.stderr
         assert 'behaviour differs from the recording' in done.stdout
+
+
+def children(pid: int) -> list[int]:
+    return [int(c) for t in Path(f'/proc/{pid}/task').iterdir() for c in (t / 'children').read_text().split()]
+
+
+def test_kill_pid_on_replay_stops_its_agent(tmp_path: Path) -> None:
+    """SIGTERM, as `kill PID` sends: the replay's own agent process must not outlive it."""
+    replaying = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'replay', str(GOLDEN / 'bag'),
+                                  '--agent', '3'], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not (agents := children(replaying.pid)) and replaying.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert agents, 'replay started no agent process'
+    replaying.terminate()
+    _, said = replaying.communicate(timeout=30)
+    assert replaying.returncode == 130 and said.strip() == 'uav-flock: interrupted', said
+    assert all(dead(pid) for pid in agents), 'the agent outlived the replay'
 
 
 def test_bag_tools_reject_bad_input_in_one_line(tmp_path: Path) -> None:

@@ -2,9 +2,11 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import time
 from pathlib import Path
+from types import FrameType
 from typing import TYPE_CHECKING, Callable, NoReturn, Optional, Sequence
 
 if TYPE_CHECKING:
@@ -358,8 +360,14 @@ def _main(argv: Optional[Sequence[str]]) -> int:
         return EXIT_USAGE
 
 
+def _terminate(signum: int, frame: Optional[FrameType]) -> None:
+    raise KeyboardInterrupt
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     # Only the standard library is imported above: Ctrl-C while numpy, rclpy and the rest load is caught here too.
+    # `kill PID` stops a command as Ctrl-C does, so its clean-up (children stopped, partial records) runs too.
+    signal.signal(signal.SIGTERM, _terminate)
     try:
         return _main(argv)
     except KeyboardInterrupt:

@@ -111,13 +111,16 @@ def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
            agent_exit: Callable[[], Optional[str]]) -> None:
     import rclpy
     from rclpy.node import Node
+    from rclpy.signals import SignalHandlerOptions
     from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
 
     from uav_agent.qos import LATCHED_QOS, STATE_QOS, STEP_QOS
 
     i = inputs.agent
     context = rclpy.Context()
-    rclpy.init(context=context)
+    # rclpy's signal handlers would turn Ctrl-C into a shutdown of the context and a traceback; without them
+    # it is a KeyboardInterrupt, and replay's clean-up stops the agent before the CLI says "interrupted".
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = Node('replay', context=context)
         executor = rclpy.executors.SingleThreadedExecutor(context=context)
