@@ -140,3 +140,11 @@ def test_sigterm_ends_a_stepping_world_in_order(tmp_path: Path, ros_env: dict[st
                 if p.poll() is None:
                     p.kill()
                 p.communicate(timeout=30)
+
+
+def test_a_pace_the_machine_cannot_keep_is_reported_once(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    done = cli('up', '--maps', '3', '--duration', '4', '--sync', 'realtime', '--rate', '200', '--out', str(tmp_path),
+               env=ros_env)
+    assert done.returncode == 0, done.stdout + done.stderr
+    said = [line for line in done.stdout.splitlines() if 'the run goes slower than asked' in line]
+    assert len(said) == 1 and 'asks for 2000 steps/s' in said[0], done.stdout

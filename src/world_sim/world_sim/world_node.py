@@ -48,6 +48,9 @@ RECORDER_TIMEOUT_S = 10.0  # a recorder that writes nothing new this long while 
 # it reaches publish its state once more, which is CPU the discovery needs.
 RESEND_AFTER_S = 2.0
 START_REPORT_S = 5.0
+# realtime: after this much simulated time, a pace below this fraction of the one asked for is reported once.
+SLOW_AFTER_S = 2.0
+SLOW_FRACTION = 0.9
 
 
 def sim_time(t: float) -> Time:
@@ -128,6 +131,7 @@ class WorldNode(Node):
         self.started = False
         self.finished = False
         self.advancing = False  # lockstep: inside maybe_advance's loop
+        self.slow_said = False  # realtime: told the user once that the pace asked for is not kept
         self.wall_start = time.monotonic()
         self.last_report = time.monotonic()  # of the start-up: a line every START_REPORT_S while we wait
         self.create_timer(LIVENESS_PERIOD_S, self.tick)
@@ -321,8 +325,14 @@ class WorldNode(Node):
             if self.realtime and self.applied:
                 fresh = f'  fresh commands {100 * self.fresh / self.applied:.0f} %'
                 self.fresh = self.applied = 0
+            pace = (k + 1) / max(wall, 1e-9)
             print(f't = {t:5.1f} s  R_c = {100 * rc:5.1f} %  λ2 = {lam2:.4f}  alive = {int(alive)}  '
-                  f'modes = {int(m0)}/{int(m1)}/{int(m2)}  {(k + 1) / max(wall, 1e-9):.1f} steps/s{fresh}', flush=True)
+                  f'modes = {int(m0)}/{int(m1)}/{int(m2)}  {pace:.1f} steps/s{fresh}', flush=True)
+            asked = self.rate / self.s.dt
+            if self.realtime and not self.slow_said and t >= SLOW_AFTER_S and pace < SLOW_FRACTION * asked:
+                self.slow_said = True
+                print(f'realtime x{self.rate:g} asks for {asked:g} steps/s and this machine keeps {pace:.0f}: '
+                      f'the run goes slower than asked (a lower --rate keeps the pace)', flush=True)
 
     # ------------------------------------------------------------------ failures
     def drop(self, ids: np.ndarray, cause: str) -> None:
