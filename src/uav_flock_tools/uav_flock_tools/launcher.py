@@ -388,7 +388,8 @@ def read_result(run: Path, scenario: Scenario) -> Optional[RunResult]:
 def kill(run: Path, ids: Optional[list[int]], fraction: Optional[float]) -> list[int]:
     """SIGKILL agent processes of a running `up`: by MAP id, or a random fraction of the live ones."""
     table = read_pid_table(run)
-    live = sorted(i for i, pid in table.items() if _alive(pid))
+    params = run.resolve() / 'agent_params.yaml'
+    live = sorted(i for i, pid in table.items() if agent_of_run(pid, params))
     if ids is None:
         count = int(round((fraction or 0.0) * len(live)))
         ids = sorted(random.SystemRandom().sample(live, count))
@@ -397,17 +398,21 @@ def kill(run: Path, ids: Optional[list[int]], fraction: Optional[float]) -> list
         raise ValueError(f'--ids: no MAP {unknown[0]} in this run (ids 0-{max(table)})')
     killed = []
     for i in ids:
-        if _alive(table[i]):
+        if i in live:
             os.kill(table[i], signal.SIGKILL)
             killed.append(i)
     return killed
 
 
-def _alive(pid: int) -> bool:
+def agent_of_run(pid: int, params: Path) -> bool:
+    """A living agent process of the run whose parameter file this is.
+
+    After a run has ended its pids may belong to other processes: `kill --run` on an old run must not
+    SIGKILL them. Every agent's command line names its run's agent_params.yaml.
+    """
+    from world_sim.world_node import process_alive
     try:
-        os.kill(pid, 0)
-        return True
-    except ProcessLookupError:
+        line = Path(f'/proc/{pid}/cmdline').read_bytes().replace(b'\0', b' ').decode(errors='replace')
+    except OSError:
         return False
-    except PermissionError:
-        return True
+    return 'uav_agent_node' in line and f'--params-file {params}' in line and process_alive(pid)
