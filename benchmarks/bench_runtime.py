@@ -21,7 +21,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import NamedTuple, Optional
+from typing import NamedTuple, NoReturn, Optional
 
 from uav_flock_tools.launcher import read_pid_table
 from world_sim.core import records
@@ -78,11 +78,16 @@ def parse(config: str) -> Config:
         rate = next((float(f[1:]) for f in flags if f.startswith('x')), 1.0)
         c = Config(int(maps), int(per), 'record' in flags, 'realtime' in flags, rate, duration)
     except ValueError as exc:
-        sys.exit(f'bench_runtime: error: {config!r}: expected MAPS:PER_PROCESS[:record][:realtime][:xRATE]'
-                 f'[:dSECONDS] ({exc})')
+        usage_error(f'{config!r}: expected MAPS:PER_PROCESS[:record][:realtime][:xRATE][:dSECONDS] ({exc})')
     if c.maps < 1 or c.per < 1 or c.rate <= 0 or (c.duration is not None and c.duration <= 0):
-        sys.exit(f'bench_runtime: error: {config!r}: MAPS, PER_PROCESS, RATE and SECONDS must be positive')
+        usage_error(f'{config!r}: MAPS, PER_PROCESS, RATE and SECONDS must be positive')
     return c
+
+
+def usage_error(message: str) -> NoReturn:
+    """One line and exit code 2, as the uav-flock commands do."""
+    print(f'bench_runtime: error: {message}', file=sys.stderr)
+    sys.exit(2)
 
 
 def final(metrics: Path) -> tuple[float, float]:
@@ -139,6 +144,9 @@ def run(c: Config, folder: Path) -> dict[str, float]:
 
 
 def main() -> None:
+    if {'-h', '--help'} & set(sys.argv[1:]):
+        print(__doc__)
+        return
     configs = [parse(a) for a in sys.argv[1:] or DEFAULT_CONFIGS]
     # `up` forks its agents from a forkserver process that it does not wait for; as a subreaper we inherit it
     # when `up` ends, and waiting for it adds its agents' CPU time to ours (RUSAGE_CHILDREN).
