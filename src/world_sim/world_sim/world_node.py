@@ -328,7 +328,7 @@ class WorldNode(Node):
             pace = (k + 1) / max(wall, 1e-9)
             print(f't = {t:5.1f} s  R_c = {100 * rc:5.1f} %  λ2 = {lam2:.4f}  alive = {int(alive)}  '
                   f'modes = {int(m0)}/{int(m1)}/{int(m2)}  {pace:.1f} steps/s{fresh}', flush=True)
-            asked = self.rate / self.s.dt
+            asked = self.rate / self.s.dt  # realtime's steps per wall second
             if self.realtime and not self.slow_said and t >= SLOW_AFTER_S and pace < SLOW_FRACTION * asked:
                 self.slow_said = True
                 print(f'realtime x{self.rate:g} asks for {asked:g} steps/s and this machine keeps {pace:.0f}: '

@@ -167,7 +167,7 @@ def parse(doc: Any) -> Scenario:
 
 
 def _check(s: Scenario) -> None:
-    """Relations between keys that each looked fine alone."""
+    """Relations between keys that each looked fine alone, and the flock parameters as the agent node checks them."""
     try:
         check_flock(s.flock, lambda name: f'{"policies" if name in POLICY_VALUES else "flock"}.{name}')
     except ValueError as exc:
