@@ -60,9 +60,7 @@ def kill_during(proc: subprocess.Popen[str], run: str, ids: str, after: str) -> 
     return seen, rest
 
 
-def shm_entries(segments_only: bool = False) -> set[str]:
-    """Fast DDS files in /dev/shm: participants' segments and their locks, and (unless segments_only) the
-    port files and semaphores that Fast DDS keeps for reuse when a process that used a port was SIGKILLed."""
+def shm_entries() -> set[str]:
+    """Fast DDS files in /dev/shm: participants' segments and their locks, port files and their semaphores."""
     shm = Path('/dev/shm')
-    names = {p.name for p in shm.iterdir() if 'fastrtps' in p.name or 'fastdds' in p.name} if shm.is_dir() else set()
-    return {n for n in names if 'port' not in n} if segments_only else names
+    return {p.name for p in shm.iterdir() if 'fastrtps' in p.name or 'fastdds' in p.name} if shm.is_dir() else set()

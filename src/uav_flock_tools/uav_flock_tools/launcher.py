@@ -202,8 +202,8 @@ def clean_shared_memory(env: dict[str, str], since: Optional[float] = None) -> N
     file whose lock no living process holds; it leaves those of running participants alone.
 
     It knows only ports that a listener locked, though. A sender makes the file of the port it writes to,
-    and when the run is stopped during discovery (Ctrl-C at start-up) some of those have no listener yet
-    and stay. With `since`, such lockless port files made since then that no process has mapped go too.
+    and when that listener was SIGKILLed, or never came up (Ctrl-C at start-up), the file stays without a
+    lock. With `since`, such lockless port files made since then that no process has mapped go too.
     """
     try:
         subprocess.run(['fastdds', 'shm', 'clean'], env=env, capture_output=True, timeout=30)
@@ -355,7 +355,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
         # A SIGKILLed agent cannot remove its files, nor can one stopped while its participant was still
         # being made (Ctrl-C during start-up left some behind).
         if not server_address and (interrupted or any(a.poll() == -signal.SIGKILL for a in agents)):
-            clean_shared_memory(env, since=began_at if interrupted else None)
+            clean_shared_memory(env, since=began_at)
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)
     if interrupted:
