@@ -138,7 +138,7 @@ def test_sigterm_ends_a_stepping_world_in_order(tmp_path: Path, ros_env: dict[st
         finally:
             for p in (world, maps):
                 if p.poll() is None:
-                    p.kill()
+                    p.terminate()  # not SIGKILL: a killed participant leaves its files in /dev/shm
                 p.communicate(timeout=30)
 
 
