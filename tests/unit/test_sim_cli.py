@@ -65,6 +65,7 @@ def test_same_seed_same_run(tmp_path: Path) -> None:
     (('sim', '--duration', '10', '--fail-at', '18', '--fail-fraction', '0.3', '--out', '{folder}/run'),
      'is not before the end of the run (10 s)'),
     (('paper', '--seeds', '0', '--out', '{folder}/figures'), 'expected a positive integer'),
+    (('sim', '--maps', '40,0', '--out', '{folder}/run'), 'expected positive integers'),
     (('up', '--agents-per-process', '0', '--out', '{folder}/run'), 'expected a positive integer'),
     (('replay', '{folder}', '--agent', '-1'), 'expected a non-negative integer'),
     (('replay', '{folder}', '--agent', '3', '--tolerance', '-0.5'), 'expected a non-negative finite number'),

@@ -25,14 +25,22 @@ class _Parser(argparse.ArgumentParser):
         raise UsageError(f'{self.prog}: {message} (see --help)')
 
 
-def int_list(text: str) -> list[int]:
+def _ints_from(text: str, low: int, what: str) -> list[int]:
     try:
         values = [int(v) for v in text.split(',') if v.strip()]
     except ValueError:
         raise argparse.ArgumentTypeError(f'expected integers separated by commas, got {text!r}') from None
-    if not values or any(v < 0 for v in values):
-        raise argparse.ArgumentTypeError(f'expected non-negative integers separated by commas, got {text!r}')
+    if not values or any(v < low for v in values):
+        raise argparse.ArgumentTypeError(f'expected {what} separated by commas, got {text!r}')
     return values
+
+
+def int_list(text: str) -> list[int]:
+    return _ints_from(text, 0, 'non-negative integers')
+
+
+def count_list(text: str) -> list[int]:
+    return _ints_from(text, 1, 'positive integers')
 
 
 def key_value(text: str) -> tuple[str, object]:
@@ -112,7 +120,7 @@ def make_folder(path: Path, what: str) -> Path:
 
 def add_scenario_options(p: argparse.ArgumentParser) -> None:
     p.add_argument('--scenario', default='paper', help="scenario YAML file, or a shipped name (default: paper)")
-    p.add_argument('--maps', type=int_list, help='MAP count(s), e.g. 90 or 40,60,80,100 (default: scenario)')
+    p.add_argument('--maps', type=count_list, help='MAP count(s), e.g. 90 or 40,60,80,100 (default: scenario)')
     p.add_argument('--seed', type=int_list, help='seed(s), e.g. 0 or 0,1,2 (default: scenario)')
     p.add_argument('--duration', type=positive_float, help='simulated time in s (default: scenario)')
     p.add_argument('--fail-at', type=positive_float, help='time of the random failure in s')
@@ -140,8 +148,6 @@ def cmd_sim(args: argparse.Namespace) -> int:
     check_failure('sim', base, args)
     maps = args.maps or [base.maps]
     seeds = args.seed or [base.seed]
-    if 0 in maps:
-        raise UsageError('sim: --maps must be at least 1')
     out = make_folder(Path(args.out) if args.out else default_out('sim'), 'sim: --out')
     runs = simrun.grid(base, maps, seeds, duration=args.duration, fail_at=args.fail_at,
                        fail_fraction=args.fail_fraction)
