@@ -89,6 +89,10 @@ def test_agents_wait_for_a_world_that_comes_late(tmp_path: Path, ros_env: dict[s
                                text=True, timeout=120)
         assert world.returncode == 0, world.stdout + world.stderr
         assert read_csv(tmp_path / 'metrics.csv')['t'][-1] == 1.0
+        # The run's normal end reaches the agents: they stop on it, exit 0, and log no error.
+        said, _ = waiting.communicate(timeout=30)
+        assert waiting.returncode == 0 and 'world_sim finished the run after 10 steps' in said, said
+        assert '[ERROR]' not in said, said
     finally:
         for p in (waiting, impatient):
             if p.poll() is None:

@@ -22,6 +22,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 from rclpy.subscription import Subscription
+from std_msgs.msg import Int64
 from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
 
 from . import convert
@@ -88,6 +89,7 @@ class AgentNode(Node):
         self.dead: set[int] = set()
         self.rejected: dict[str, int] = {}
         self.stopped = False
+        self.run_finished = False  # stopped because world_sim ended the run normally
         self.last_state: Optional[AgentState] = None
         self.last_cmd: Optional[Command] = None
         self.failed = False  # this MAP failed by the schedule (its process lives on for other MAPs)
@@ -98,6 +100,7 @@ class AgentNode(Node):
         self.create_subscription(Sensing, 'sensing', self.on_sensing, LATEST_QOS if self.realtime else STEP_QOS)
         self.create_subscription(Clusters, '/clusters', self.on_clusters, LATCHED_QOS)
         self.create_subscription(FailureEvent, '/events/failure', self.on_failure, STEP_QOS)
+        self.create_subscription(Int64, '/events/finished', self.on_finished, LATCHED_QOS)
         self.sensed_at = time.monotonic()  # when the pending step's sensing came in
         self.next_report = 2.0
         self.create_timer(WATCH_PERIOD_S, self.watch_world)
@@ -118,6 +121,10 @@ class AgentNode(Node):
             return
         self.clusters = ClusterMap(xy, self.params.height)
         self.try_step()
+
+    def on_finished(self, msg: Int64) -> None:
+        self.get_logger().info(f'world_sim finished the run after {msg.data} steps: stopping MAP {self.map_id}')
+        self.run_finished = self.stopped = True
 
     def on_failure(self, msg: FailureEvent) -> None:
         self.dead.update(int(i) for i in msg.ids)
@@ -352,7 +359,7 @@ def main(argv: Optional[list[str]] = None) -> int:
         for n in nodes:
             n.destroy_node()
         rclpy.try_shutdown()
-    return 0 if not any(n.stopped for n in nodes) else 1
+    return 1 if any(n.stopped and not n.run_finished for n in nodes) else 0
 
 
 if __name__ == '__main__':

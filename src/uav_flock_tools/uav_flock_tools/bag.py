@@ -27,7 +27,8 @@ PARAMS_KEY = 'uav_flock.params'      # custom_data key: the run's FlockParams as
 SCENARIO_KEY = 'uav_flock.scenario'  # custom_data key: scenario summary (maps, seed, dt, duration) as JSON
 
 # Fixed topics of a run; per-MAP topics are /map_<id>/{sensing,state,cmd}.
-GLOBAL_TOPICS = ('/clock', '/users', '/clusters', '/association', '/metrics', '/events/failure', '/markers')
+GLOBAL_TOPICS = ('/clock', '/users', '/clusters', '/association', '/metrics', '/events/failure', '/events/finished',
+                 '/markers')
 MAP_TOPICS = ('sensing', 'state', 'cmd')
 
 

@@ -21,6 +21,7 @@ from typing import Callable, Optional
 import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.signals import SignalHandlerOptions
@@ -48,6 +49,7 @@ RECORDER_TIMEOUT_S = 10.0  # a recorder that writes nothing new this long while 
 # it reaches publish its state once more, which is CPU the discovery needs.
 RESEND_AFTER_S = 2.0
 START_REPORT_S = 5.0
+FINISHED_ACK_S = 2.0  # at most this long for every agent to acknowledge /events/finished before exit
 # realtime: after this much simulated time, a pace below this fraction of the one asked for is reported once.
 SLOW_AFTER_S = 2.0
 SLOW_FRACTION = 0.9
@@ -110,6 +112,8 @@ class WorldNode(Node):
         n = scenario.maps
 
         self.clock_pub = self.create_publisher(Clock, '/clock', QoSProfile(depth=10))
+        # The run's normal end (data: steps simulated): agents started by hand end with it, not with an error.
+        self.finished_pub = self.create_publisher(Int64, '/events/finished', LATCHED_QOS)
         self.assoc_pub = self.create_publisher(Association, '/association', STEP_QOS)
         self.metrics_pub = self.create_publisher(Metrics, '/metrics', STEP_QOS)
         self.failure_pub = self.create_publisher(FailureEvent, '/events/failure', STEP_QOS)
@@ -416,6 +420,8 @@ class WorldNode(Node):
     def finish(self, ok: bool) -> None:
         self.finished = True
         self.ok = ok
+        if ok:
+            self.finished_pub.publish(Int64(data=int(self.world.k)))
         self.recorder_moved = time.monotonic()
         if self.out is None:
             return
@@ -437,6 +443,8 @@ def main(argv: Optional[list[str]] = None) -> int:
             executor.spin_once(timeout_sec=0.1)
         if not node.finished:
             node.finish(ok=False)  # keep what was simulated
+        elif node.ok:  # the agents learn of the end before the writer is gone
+            node.finished_pub.wait_for_all_acked(Duration(seconds=FINISHED_ACK_S))
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
