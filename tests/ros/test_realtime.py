@@ -122,7 +122,6 @@ def test_bad_node_parameters_and_sync_options_are_one_line_errors(ros_env: dict[
     assert sync.returncode == 2 and 'Traceback' not in sync.stderr, sync.stderr
 
 
-
 def test_sigterm_ends_a_stepping_world_in_order(tmp_path: Path, ros_env: dict[str, str]) -> None:
     """`kill PID` on world_sim mid-run: records written, no fatal callback error from a signal raised inside one."""
     from uav_flock_tools.launcher import executable

@@ -118,8 +118,11 @@ def make_folder(path: Path, what: str) -> Path:
     return path
 
 
+SCENARIO_HELP = 'scenario YAML file, or a shipped name (default: paper)'
+
+
 def add_scenario_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument('--scenario', default='paper', help="scenario YAML file, or a shipped name (default: paper)")
+    p.add_argument('--scenario', default='paper', help=SCENARIO_HELP)
     p.add_argument('--maps', type=count_list, help='MAP count(s), e.g. 90 or 40,60,80,100 (default: scenario)')
     p.add_argument('--seed', type=int_list, help='seed(s), e.g. 0 or 0,1,2 (default: scenario)')
     p.add_argument('--duration', type=positive_float, help='simulated time in s (default: scenario)')
@@ -340,13 +343,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser('replay', help="feed one MAP's recorded inputs to a fresh agent node, compare commands")
     p.add_argument('bag', help='the bag folder (RUN/bag for `up --record`)')
     p.add_argument('--agent', type=non_negative_int, required=True, help='the MAP id to replay')
-    p.add_argument('--tolerance', type=non_negative_float, default=1e-9, help='largest |Δu| accepted (m/s^2, default 1e-9)')
+    p.add_argument('--tolerance', type=non_negative_float, default=1e-9,
+                   help='largest |Δu| accepted (m/s^2, default 1e-9)')
     p.add_argument('--timeout', type=positive_float, default=20.0, help='wait this long for a command (s)')
     p.add_argument('--set', type=key_value, action='append', metavar='KEY=VALUE',
                    help='replay with an agent parameter changed, e.g. --set c1=0.4 (repeatable)')
     p.set_defaults(func=cmd_replay)
     p = sub.add_parser('paper', help="regenerate the paper's figures over several seeds and docs/results.md")
-    p.add_argument('--scenario', default='paper', help="scenario YAML file, or a shipped name (default: paper)")
+    p.add_argument('--scenario', default='paper', help=SCENARIO_HELP)
     p.add_argument('--seeds', type=positive_int, default=5, help='seeds per configuration (default: 5)')
     p.add_argument('--out', default='docs/figures', help='figure folder (default: docs/figures)')
     p.add_argument('--docs', default='docs/results.md', help='results page to write (default: docs/results.md)')
