@@ -67,6 +67,8 @@ def test_same_seed_same_run(tmp_path: Path) -> None:
     (('paper', '--seeds', '0', '--out', '{folder}/figures'), 'expected a positive integer'),
     (('sim', '--maps', '40,0', '--out', '{folder}/run'), 'expected positive integers'),
     (('up', '--agents-per-process', '0', '--out', '{folder}/run'), 'expected a positive integer'),
+    (('up', '--maps', '40,60', '--out', '{folder}/run'), 'argument --maps: expected a positive integer'),
+    (('up', '--seed', '0,1', '--out', '{folder}/run'), 'argument --seed: expected a non-negative integer'),
     (('replay', '{folder}', '--agent', '-1'), 'expected a non-negative integer'),
     (('replay', '{folder}', '--agent', '3', '--tolerance', '-0.5'), 'expected a non-negative finite number'),
 ])

@@ -121,10 +121,15 @@ def make_folder(path: Path, what: str) -> Path:
 SCENARIO_HELP = 'scenario YAML file, or a shipped name (default: paper)'
 
 
-def add_scenario_options(p: argparse.ArgumentParser) -> None:
+def add_scenario_options(p: argparse.ArgumentParser, grid: bool) -> None:
+    """grid: lists of MAP counts and seeds (a batch sweep); else one of each (a single distributed run)."""
     p.add_argument('--scenario', default='paper', help=SCENARIO_HELP)
-    p.add_argument('--maps', type=count_list, help='MAP count(s), e.g. 90 or 40,60,80,100 (default: scenario)')
-    p.add_argument('--seed', type=int_list, help='seed(s), e.g. 0 or 0,1,2 (default: scenario)')
+    if grid:
+        p.add_argument('--maps', type=count_list, help='MAP count(s), e.g. 90 or 40,60,80,100 (default: scenario)')
+        p.add_argument('--seed', type=int_list, help='seed(s), e.g. 0 or 0,1,2 (default: scenario)')
+    else:
+        p.add_argument('--maps', type=positive_int, help='MAP count, e.g. 90 (default: scenario)')
+        p.add_argument('--seed', type=non_negative_int, help='seed, e.g. 3 (default: scenario)')
     p.add_argument('--duration', type=positive_float, help='simulated time in s (default: scenario)')
     p.add_argument('--fail-at', type=positive_float, help='time of the random failure in s')
     p.add_argument('--fail-fraction', type=fraction, help='fraction of MAPs failing at --fail-at')
@@ -193,8 +198,8 @@ def cmd_run(args: argparse.Namespace) -> int:
                             fail_fraction=None, out=args.out or str(default_out('run')))
     if args.batch:
         return cmd_sim(ns)
-    ns.__dict__.update(agents_per_process=RUN_AGENTS_PER_PROCESS, domain_id=None, discovery='auto', record=True,
-                       sync='lockstep', rate=1.0)
+    ns.__dict__.update(maps=90, agents_per_process=RUN_AGENTS_PER_PROCESS, domain_id=None, discovery='auto',
+                       record=True, sync='lockstep', rate=1.0)
     code = cmd_up(ns)
     bag_path = Path(ns.out) / 'bag'
     if (bag_path / 'metadata.yaml').exists():
@@ -209,11 +214,8 @@ def cmd_up(args: argparse.Namespace) -> int:
     from . import launcher, simrun
     path = resolve(args.scenario)
     base = simrun.load_scenario(args.scenario)
-    if args.maps and len(args.maps) > 1 or args.seed and len(args.seed) > 1:
-        raise UsageError('up: one MAP count and one seed per run')
     check_failure('up', base, args)
-    s = base.with_overrides(maps=args.maps[0] if args.maps else None, seed=args.seed[0] if args.seed else None,
-                            duration=args.duration, fail_at=args.fail_at, fail_fraction=args.fail_fraction)
+    s = base.with_overrides(maps=args.maps, seed=args.seed, duration=args.duration, fail_at=args.fail_at, fail_fraction=args.fail_fraction)
     if args.rate != 1.0 and args.sync != 'realtime':
         raise UsageError('up: --rate sets the pace of --sync realtime; lockstep runs as fast as it can')
     out = make_folder(Path(args.out) if args.out else default_out('up'), 'up: --out')
@@ -297,7 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog='uav-flock', description=__doc__)
     sub = parser.add_subparsers(dest='command', required=True, parser_class=_Parser)
     p = sub.add_parser('sim', help='run a scenario in-process for one or more MAP counts and seeds')
-    add_scenario_options(p)
+    add_scenario_options(p, grid=True)
     p.add_argument('--out', help='output folder (default: runs/sim-<time>)')
     p.set_defaults(func=cmd_sim)
     p = sub.add_parser('run', help='the main job: the paper scenario with 90 MAPs, distributed and recorded, '
@@ -306,7 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--out', help='output folder (default: runs/run-<time>)')
     p.set_defaults(func=cmd_run)
     p = sub.add_parser('up', help='run a scenario distributed: world_sim and one process per MAP')
-    add_scenario_options(p)
+    add_scenario_options(p, grid=False)
     p.add_argument('--agents-per-process', type=positive_int, default=1, help='pack K agent nodes into one process')
     p.add_argument('--domain-id', type=domain_id, help='ROS_DOMAIN_ID to use (default: a fresh one per run)')
     p.add_argument('--discovery', choices=('auto', 'localhost', 'subnet', 'server'), default='auto',
