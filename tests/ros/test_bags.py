@@ -171,6 +171,19 @@ def test_report_plots_and_summarises_a_bag(tmp_path: Path) -> None:
     assert 'final coverage R_c' in done.stdout and '1 MAPs at t = 6.0 s (scheduled)' in done.stdout
 
 
+def test_bag_tools_take_the_run_folder_or_a_file_of_the_bag(tmp_path: Path) -> None:
+    """Users name whatever they have at hand: the run folder `up` printed, or the bag's storage file."""
+    shutil.copytree(GOLDEN / 'bag', tmp_path / 'run' / 'bag')
+    done = cli('report', str(tmp_path / 'run'))
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / 'run' / 'report' / 'summary.md').exists(), 'the report goes next to the bag, as for RUN/bag'
+    storage = next((tmp_path / 'run' / 'bag').glob('*.mcap'))
+    assert cli('report', str(storage), '--out', str(tmp_path / 'r2')).stdout == done.stdout.replace(
+        str(tmp_path / 'run' / 'report'), str(tmp_path / 'r2'))
+    replayed = cli('replay', str(tmp_path / 'run'), '--agent', '2')
+    assert replayed.returncode == 0 and 'commands compared' in replayed.stdout, replayed.stdout + replayed.stderr
+
+
 def test_report_reads_a_bag_without_our_metadata(tmp_path: Path) -> None:
     """A bag as another recorder writes it: sqlite3 storage, no custom_data, extra topics."""
     foreign = tmp_path / 'foreign'
@@ -232,6 +245,10 @@ def test_bag_tools_reject_bad_input_in_one_line(tmp_path: Path) -> None:
     for value, says in (('r=-1', 'parameter r: must be positive'), ('zero_users=sometimes', 'parameter zero_users')):
         done = cli('replay', str(GOLDEN / 'bag'), '--agent', '3', '--set', value)
         assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1 and says in done.stderr, done.stderr
+    (tmp_path / 'broken').mkdir()
+    (tmp_path / 'broken' / 'metadata.yaml').write_text('rosbag2_bagfile_information: [\n')
+    done = cli('report', str(tmp_path / 'broken'))  # rosbags' own message spans lines: one line all the same
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
     shutil.copytree(GOLDEN / 'bag', tmp_path / 'bag')
     again = cli('up', '--scenario', SCENARIO, '--record', '--out', str(tmp_path))
     assert again.returncode == 2 and 'exists already' in again.stderr  # a bag is never overwritten

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import json
 from collections import Counter, defaultdict
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Iterator, Optional
 
 import numpy as np
 import yaml
@@ -105,16 +106,35 @@ def _custom(path: Path, key: str) -> dict[str, Any]:
         return {}
 
 
-def load(path: Path) -> BagRun:
-    """Read a run's bag."""
+def find_bag(path: Path) -> Path:
+    """The bag folder that path names: the folder itself, a run folder holding bag/, or a file in the bag.
+
+    Users point at whichever they have at hand, as `ros2 bag info` takes the folder or its storage file.
+    """
     path = Path(path)
     if not path.exists():
         raise BagError(f'{path}: no such bag')
+    for candidate in (path, path / 'bag', path.parent):
+        if (candidate / 'metadata.yaml').is_file():
+            return candidate
+    raise BagError(f'{path}: not a rosbag2 bag (no metadata.yaml in it, nor a bag/ folder with one)')
+
+
+@contextmanager
+def _reader(path: Path) -> Iterator[AnyReader]:
+    """An open bag; whatever rosbags finds wrong with it becomes one line for the user."""
     try:
         with AnyReader([path], default_typestore=typestore()) as reader:
-            return _read(path, reader)
-    except (AnyReaderError, ReaderError, OSError) as exc:  # OSError: a folder without metadata.yaml
-        raise BagError(f'{path}: not a readable rosbag2 bag ({exc})') from None
+            yield reader
+    except (AnyReaderError, ReaderError, OSError) as exc:  # OSError: unreadable files
+        raise BagError(f'{path}: not a readable rosbag2 bag ({" ".join(str(exc).split())})') from None
+
+
+def load(path: Path) -> BagRun:
+    """Read a run's bag."""
+    path = find_bag(path)
+    with _reader(path) as reader:
+        return _read(path, reader)
 
 
 def _read(path: Path, reader: AnyReader) -> BagRun:
@@ -223,36 +243,31 @@ class ReplayInputs:
 
 def replay_inputs(path: Path, agent: int) -> ReplayInputs:
     """One MAP's recorded inputs and commands, for `replay`."""
-    path = Path(path)
-    if not path.exists():
-        raise BagError(f'{path}: no such bag')
+    path = find_bag(path)
     sensing: dict[int, tuple[bytes, list[int]]] = {}
     states: dict[int, dict[int, bytes]] = defaultdict(dict)
     commands: dict[int, tuple[np.ndarray, int, int]] = {}
     failures: list[tuple[int, str, bytes]] = []
     clusters = b''
     mine = {f'/map_{agent}/sensing', f'/map_{agent}/cmd', '/clusters', '/events/failure'}
-    try:
-        with AnyReader([path], default_typestore=typestore()) as reader:
-            wanted = [c for c in reader.connections if c.topic in mine or _map_topic(c.topic)[1] == 'state']
-            for conn, _, raw in reader.messages(connections=wanted):
-                raw = bytes(raw)
-                i, kind = _map_topic(conn.topic)
-                if kind == 'state':
-                    states[i][int(reader.deserialize(raw, conn.msgtype).step)] = raw
-                    continue
-                msg = reader.deserialize(raw, conn.msgtype)
-                if kind == 'sensing':
-                    sensing[int(msg.step)] = (raw, [int(j) for j in msg.neighbors.ids])
-                elif kind == 'cmd':
-                    a = msg.accel
-                    commands[int(msg.step)] = (np.array([a.x, a.y, a.z]), int(msg.mode), int(msg.goal))
-                elif conn.topic == '/clusters':
-                    clusters = raw
-                else:
-                    failures.append((int(msg.step), str(msg.cause), raw))
-    except (AnyReaderError, ReaderError, OSError) as exc:  # OSError: a folder without metadata.yaml
-        raise BagError(f'{path}: not a readable rosbag2 bag ({exc})') from None
+    with _reader(path) as reader:
+        wanted = [c for c in reader.connections if c.topic in mine or _map_topic(c.topic)[1] == 'state']
+        for conn, _, raw in reader.messages(connections=wanted):
+            raw = bytes(raw)
+            i, kind = _map_topic(conn.topic)
+            if kind == 'state':
+                states[i][int(reader.deserialize(raw, conn.msgtype).step)] = raw
+                continue
+            msg = reader.deserialize(raw, conn.msgtype)
+            if kind == 'sensing':
+                sensing[int(msg.step)] = (raw, [int(j) for j in msg.neighbors.ids])
+            elif kind == 'cmd':
+                a = msg.accel
+                commands[int(msg.step)] = (np.array([a.x, a.y, a.z]), int(msg.mode), int(msg.goal))
+            elif conn.topic == '/clusters':
+                clusters = raw
+            else:
+                failures.append((int(msg.step), str(msg.cause), raw))
     if not sensing:
         raise BagError(f'{path}: no /map_{agent}/sensing messages: MAP {agent} is not in this bag')
     if not clusters:

@@ -119,6 +119,7 @@ def make_folder(path: Path, what: str) -> Path:
 
 
 SCENARIO_HELP = 'scenario YAML file, or a shipped name (default: paper)'
+BAG_HELP = 'the bag folder: RUN/bag for `up --record`, or just RUN'
 
 
 def add_scenario_options(p: argparse.ArgumentParser, grid: bool) -> None:
@@ -263,11 +264,11 @@ def cmd_topics(args: argparse.Namespace) -> int:
 
 def cmd_report(args: argparse.Namespace) -> int:
     from . import bag, report
-    path = Path(args.bag)
-    out = Path(args.out) if args.out else (path.parent / 'report' if path.name == 'bag' else path / 'report')
-    if args.out:
-        make_folder(out, 'report: --out')
     try:
+        path = bag.find_bag(Path(args.bag))
+        out = Path(args.out) if args.out else (path.parent / 'report' if path.name == 'bag' else path / 'report')
+        if args.out:
+            make_folder(out, 'report: --out')
         summary, files = report.report(path, out)
     except bag.BagError as exc:
         raise UsageError(f'report: {exc}') from None
@@ -339,11 +340,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--domain-id', type=domain_id, help='ROS_DOMAIN_ID to look at (default: the environment)')
     p.set_defaults(func=cmd_topics)
     p = sub.add_parser('report', help="plots and a summary table from a run's bag (ours or ros2 bag record's)")
-    p.add_argument('bag', help='the bag folder (RUN/bag for `up --record`)')
+    p.add_argument('bag', help=BAG_HELP)
     p.add_argument('--out', help='output folder (default: RUN/report next to the bag)')
     p.set_defaults(func=cmd_report)
     p = sub.add_parser('replay', help="feed one MAP's recorded inputs to a fresh agent node, compare commands")
-    p.add_argument('bag', help='the bag folder (RUN/bag for `up --record`)')
+    p.add_argument('bag', help=BAG_HELP)
     p.add_argument('--agent', type=non_negative_int, required=True, help='the MAP id to replay')
     p.add_argument('--tolerance', type=non_negative_float, default=1e-9,
                    help='largest |Δu| accepted (m/s^2, default 1e-9)')
