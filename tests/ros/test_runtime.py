@@ -213,6 +213,10 @@ def test_echo_and_topics_show_a_live_run(tmp_path: Path, ros_env: dict[str, str]
                          'mode1', 'mode2'] and msg['alive'] == 4
     assert '/map_3/state [uav_flock_msgs/msg/AgentState]' in listed.stdout
     assert '/metrics [uav_flock_msgs/msg/Metrics]' in listed.stdout
+    # Once the run has ended, its topics are gone: both say so at once rather than wait and list nothing.
+    for args in (('echo', '/metrics'), ('topics',)):
+        after = cli(*args, '--run', str(run), timeout=60)
+        assert after.returncode == 2 and 'has ended' in after.stderr, after.stderr
 
 
 def test_discovery_server_run_equals_the_batch_simulator(tmp_path: Path, ros_env: dict[str, str]) -> None:

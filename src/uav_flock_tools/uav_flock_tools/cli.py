@@ -258,8 +258,8 @@ def cmd_topics(args: argparse.Namespace) -> int:
     from . import echo
     try:
         return echo.topics(args.run, args.domain_id)
-    except FileNotFoundError as exc:
-        raise UsageError(str(exc)) from None
+    except (FileNotFoundError, echo.EchoError) as exc:
+        raise UsageError(f'topics: {exc}') from None
 
 
 def cmd_report(args: argparse.Namespace) -> int:

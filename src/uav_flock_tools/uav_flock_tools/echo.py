@@ -27,9 +27,12 @@ class EchoError(Exception):
 def use_domain(run: Optional[str], domain_id: Optional[int]) -> None:
     """Point this process at a run's domain (from its run.json) or an explicit one."""
     if run is not None:
+        from .launcher import run_has_ended
         info = Path(run) / 'run.json'
         if not info.exists():
             raise FileNotFoundError(f'--run: {run} has no run.json (is it a run folder of ./uav-flock up?)')
+        if run_has_ended(Path(run)):  # its topics are gone: say so now rather than after a long wait
+            raise EchoError(f'--run: the run in {run} has ended (its world_sim is gone)')
         meta = json.loads(info.read_text())
         domain_id = int(meta['domain_id'])
         if meta.get('discovery_server'):  # a super client sees every endpoint the server knows
@@ -69,14 +72,13 @@ def message_type(name: str) -> type:
 
 def expected_topics(run: str) -> set[str]:
     """What a live run surely has on its graph: the world's metrics and the state of each MAP whose process lives."""
-    from world_sim.world_node import process_alive
-
-    from .launcher import read_pid_table
+    from .launcher import agent_of_run, read_pid_table
     try:
         table = read_pid_table(Path(run))
     except (FileNotFoundError, ValueError):
         return set()
-    return {'/metrics'} | {f'/map_{i}/state' for i, pid in table.items() if process_alive(pid)}
+    params = Path(run).resolve() / 'agent_params.yaml'
+    return {'/metrics'} | {f'/map_{i}/state' for i, pid in table.items() if agent_of_run(pid, params)}
 
 
 def _init_rclpy() -> 'StopSignals':

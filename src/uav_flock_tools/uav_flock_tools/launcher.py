@@ -268,13 +268,13 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     params = run / 'agent_params.yaml'
     params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {
         **scenario.flock.as_dict(), 'sync': sync, 'world_start_timeout': 2 * start_timeout}}}, sort_keys=False))
-    (run / 'run.json').write_text(json.dumps({'domain_id': domain, 'discovery_server': server_address,
-                                              'discovery_range': None if server_address else discovery_range,
-                                              'scenario': str(scenario_path),
-                                              'maps': scenario.maps, 'seed': scenario.seed,
-                                              'agents_per_process': agents_per_process, 'sync': sync,
-                                              'rate': rate if sync == 'realtime' else None,
-                                              'bag': str(bag_path) if record else None}, indent=1))
+    info: dict[str, object] = {'domain_id': domain, 'discovery_server': server_address,
+                               'discovery_range': None if server_address else discovery_range,
+                               'scenario': str(scenario_path), 'maps': scenario.maps, 'seed': scenario.seed,
+                               'agents_per_process': agents_per_process, 'sync': sync,
+                               'rate': rate if sync == 'realtime' else None,
+                               'bag': str(bag_path) if record else None}
+    (run / 'run.json').write_text(json.dumps(info, indent=1))
     logs = run / 'logs'
     logs.mkdir(exist_ok=True)
     pace = f'realtime x{rate:g}' if sync == 'realtime' else 'lockstep'
@@ -328,6 +328,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
             world_args += ['-p', f'fail_at:={float(s.fail_at)}', '-p', f'fail_fraction:={float(s.fail_fraction)}']
         world = subprocess.Popen(world_args, env=env, stdout=subprocess.PIPE, stderr=open(logs / 'world.log', 'w'),
                                  text=True, start_new_session=True)
+        (run / 'run.json').write_text(json.dumps({**info, 'world_pid': world.pid}, indent=1))  # for run_has_ended
         go_on()
         groups = [list(range(first, min(first + agents_per_process, scenario.maps)))
                   for first in range(0, scenario.maps, agents_per_process)]
@@ -404,15 +405,29 @@ def kill(run: Path, ids: Optional[list[int]], fraction: Optional[float]) -> list
     return killed
 
 
+def _running(pid: int, *words: str) -> bool:
+    """A living process whose command line holds all of words: a pid alone may since belong to another."""
+    from world_sim.world_node import process_alive
+    try:
+        line = Path(f'/proc/{pid}/cmdline').read_bytes().replace(b'\0', b' ').decode(errors='replace')
+    except OSError:
+        return False
+    return all(w in line for w in words) and process_alive(pid)
+
+
 def agent_of_run(pid: int, params: Path) -> bool:
     """A living agent process of the run whose parameter file this is.
 
     After a run has ended its pids may belong to other processes: `kill --run` on an old run must not
     SIGKILL them. Every agent's command line names its run's agent_params.yaml.
     """
-    from world_sim.world_node import process_alive
+    return _running(pid, 'uav_agent_node', f'--params-file {params}')
+
+
+def run_has_ended(run: Path) -> bool:
+    """The run's world_sim is gone, so are its topics. False while unknown (world not yet started)."""
     try:
-        line = Path(f'/proc/{pid}/cmdline').read_bytes().replace(b'\0', b' ').decode(errors='replace')
-    except OSError:
+        pid = json.loads((run / 'run.json').read_text()).get('world_pid')
+    except (OSError, ValueError, AttributeError):
         return False
-    return 'uav_agent_node' in line and f'--params-file {params}' in line and process_alive(pid)
+    return isinstance(pid, int) and not _running(pid, 'world_sim_node', f' out:={run.resolve()} ')
