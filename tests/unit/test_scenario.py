@@ -46,6 +46,18 @@ def test_bad_scenarios_name_the_key(doc: dict[str, Any], edit: Any, key: str) ->
     assert str(err.value).startswith(key + ':'), str(err.value)
 
 
+@pytest.mark.parametrize('override, key', [
+    ({'seed': -5}, 'seed'), ({'maps': -3}, 'maps'), ({'maps': 2.5}, 'maps'), ({'duration': -5.0}, 'duration'),
+    ({'duration': float('nan')}, 'duration'), ({'fail_at': -2.0}, 'failure.at'),
+    ({'fail_fraction': -0.5}, 'failure.fraction'), ({'fail_fraction': 1.5}, 'failure.fraction'),
+])
+def test_overrides_are_checked_as_the_file_is(doc: dict[str, Any], override: dict[str, Any], key: str) -> None:
+    """Node parameters and library callers override without the command line's argument types in front."""
+    with pytest.raises(ScenarioError) as err:
+        parse(doc).with_overrides(**override)
+    assert str(err.value).startswith(key + ':'), str(err.value)
+
+
 def test_command_line_reports_one_line_and_exit_2(doc: dict[str, Any], tmp_path: Path) -> None:
     doc['flock']['d'] = 25.0
     bad = tmp_path / 'bad.yaml'

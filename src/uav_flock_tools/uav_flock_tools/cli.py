@@ -216,7 +216,8 @@ def cmd_up(args: argparse.Namespace) -> int:
     path = resolve(args.scenario)
     base = simrun.load_scenario(args.scenario)
     check_failure('up', base, args)
-    s = base.with_overrides(maps=args.maps, seed=args.seed, duration=args.duration, fail_at=args.fail_at, fail_fraction=args.fail_fraction)
+    s = base.with_overrides(maps=args.maps, seed=args.seed, duration=args.duration, fail_at=args.fail_at,
+                            fail_fraction=args.fail_fraction)
     if args.rate != 1.0 and args.sync != 'realtime':
         raise UsageError('up: --rate sets the pace of --sync realtime; lockstep runs as fast as it can')
     out = make_folder(Path(args.out) if args.out else default_out('up'), 'up: --out')

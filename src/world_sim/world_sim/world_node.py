@@ -60,6 +60,10 @@ def sim_time(t: float) -> Time:
     return Time(sec=sec, nanosec=int(round((t - sec) * 1e9)) % 1_000_000_000)
 
 
+# Parameters that override the scenario, each with the default that means "the scenario's value".
+SCENARIO_OVERRIDES = {'maps': 0, 'seed': -1, 'duration': 0.0, 'fail_at': -1.0, 'fail_fraction': -1.0}
+
+
 def process_alive(pid: int) -> bool:
     """A process that exists and is not a zombie (killed but not yet reaped)."""
     try:
@@ -75,17 +79,15 @@ class WorldNode(Node):
         # Told to stop (Ctrl-C on `up`, which stops the agents too): their deaths are not failures, and a
         # lockstep run must not go on to its end without them.
         self.stopping = stopping
-        for name, default in (('scenario', ''), ('maps', 0), ('seed', -1), ('duration', 0.0), ('fail_at', -1.0),
-                              ('fail_fraction', -1.0), ('out', ''), ('pid_table', ''), ('start_timeout', 60.0),
-                              ('record', False), ('marker_period', 5), ('sync', 'lockstep'), ('rate', 1.0),
-                              ('command_ttl', 5)):
+        for name, default in (('scenario', ''), *SCENARIO_OVERRIDES.items(), ('out', ''), ('pid_table', ''),
+                              ('start_timeout', 60.0), ('record', False), ('marker_period', 5), ('sync', 'lockstep'),
+                              ('rate', 1.0), ('command_ttl', 5)):
             self.declare_parameter(name, default)
         get = lambda n: self.get_parameter(n).value  # noqa: E731
         scenario = load_scenario(get('scenario') or DEFAULT)
-        scenario = scenario.with_overrides(
-            maps=get('maps') or None, seed=get('seed') if get('seed') >= 0 else None,
-            duration=get('duration') or None, fail_at=get('fail_at') if get('fail_at') >= 0 else None,
-            fail_fraction=get('fail_fraction') if get('fail_fraction') >= 0 else None)
+        # A parameter left at its default keeps the scenario's value; any other value is checked as the file's.
+        scenario = scenario.with_overrides(**{name: None if get(name) == unset else get(name)
+                                              for name, unset in SCENARIO_OVERRIDES.items()})
         self.s = scenario
         self.realtime = is_realtime(str(get('sync')))
         self.rate = float(get('rate'))  # realtime: simulated seconds per wall second

@@ -4,7 +4,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import yaml
 
@@ -46,8 +46,9 @@ class Scenario:
         return int(round(self.duration / self.dt))
 
     def with_overrides(self, **kw: Any) -> 'Scenario':
+        """The scenario with some values replaced (None keeps the scenario's), each checked as in a file."""
         values = {f.name: getattr(self, f.name) for f in fields(self)}
-        values.update({k: v for k, v in kw.items() if v is not None})
+        values.update({k: _OVERRIDES[k](v) if k in _OVERRIDES else v for k, v in kw.items() if v is not None})
         out = Scenario(**values)
         _check(out)
         return out
@@ -76,6 +77,16 @@ def _int(where: str, value: Any, *, minimum: int = 1) -> int:
     if v != int(v) or v < minimum:
         raise ScenarioError(f'{where}: must be an integer >= {minimum}, got {value!r}')
     return int(v)
+
+
+# The values a command line or a node parameter may override, checked as the scenario file's own.
+_OVERRIDES: dict[str, Callable[[Any], Any]] = {
+    'seed': lambda v: _int('seed', v, minimum=0),
+    'maps': lambda v: _int('maps', v),
+    'duration': lambda v: _num('duration', v),
+    'fail_at': lambda v: _num('failure.at', v, allow_zero=True),
+    'fail_fraction': lambda v: _num('failure.fraction', v, allow_zero=True),
+}
 
 
 def _section(doc: dict[str, Any], key: str, allowed: set[str], required: bool = True) -> dict[str, Any]:
