@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import signal
 import subprocess
@@ -232,6 +233,27 @@ def test_kill_pid_on_replay_stops_its_agent(tmp_path: Path) -> None:
     _, said = replaying.communicate(timeout=30)
     assert replaying.returncode == 130 and said.strip() == 'uav-flock: interrupted', said
     assert all(dead(pid) for pid in agents), 'the agent outlived the replay'
+
+
+def test_a_recorder_that_dies_is_reported_and_the_run_goes_on(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """The user asked for a bag and will not get a whole one: the terminal says so, live and at the end."""
+    run = tmp_path / 'run'
+    proc = up('--maps', '3', '--duration', '30', '--record', '--out', str(run), env=ros_env)
+    try:
+        seen = ''.join(wait_for_line(proc, 't =   1.0 s', 120))
+        recorder = [pid for pid in children(proc.pid)
+                    if 'uav_flock_recorder' in Path(f'/proc/{pid}/cmdline').read_text(errors='replace')]
+        assert len(recorder) == 1, 'up started one recorder'
+        os.kill(recorder[0], signal.SIGKILL)
+        rest, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    said = seen + rest
+    assert proc.returncode == 1, said
+    assert '[ERROR] [world_sim]: the recorder wrote nothing new' in said, 'world_sim\'s error reaches the terminal'
+    assert 'recorder ended during the run (killed by SIGKILL' in said and 'is incomplete' in said, said
+    assert read_csv(run / 'metrics.csv')['t'][-1] == 30.0, 'the run went on to its end without the recorder'
 
 
 def test_bag_tools_reject_bad_input_in_one_line(tmp_path: Path) -> None:

@@ -10,12 +10,14 @@ import json
 import multiprocessing
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
-from typing import Callable, Optional, Sequence, Union
+from typing import IO, Callable, Optional, Sequence, Union
 
 import numpy as np
 import yaml
@@ -243,6 +245,30 @@ def _orphan_ports(since: float) -> list[str]:
     return [c for c in candidates if c not in mapped]
 
 
+ROS_LOG_LINE = re.compile(r'^\[(WARN|ERROR|FATAL)\] \[[\d.]+\] (.*)$')
+
+
+def relay_log(stream: IO[str], log: Path) -> threading.Thread:
+    """A node's console log into its file, and its warnings and errors to our stderr as they come.
+
+    A dropped MAP, a stalled step or a recorder gone must not wait for someone to open the log file.
+    """
+    def pump() -> None:
+        with open(log, 'w') as out:
+            for line in stream:
+                out.write(line)
+                out.flush()
+                if m := ROS_LOG_LINE.match(line):  # without the timestamp, which says nothing here
+                    print(f'[{m[1]}] {m[2]}', file=sys.stderr, flush=True)
+    thread = threading.Thread(target=pump, name=f'relay {log.name}', daemon=True)
+    thread.start()
+    return thread
+
+
+def describe_exit(code: int) -> str:
+    return f'killed by {signal.Signals(-code).name}' if code < 0 else f'exit {code}'
+
+
 def scenario_summary(path: Path, s: Scenario) -> dict[str, object]:
     """What a bag says about the run it holds, beside the agents' parameters."""
     return {'scenario': Path(path).name, 'maps': s.maps, 'seed': s.seed, 'dt': s.dt, 'duration': s.duration,
@@ -284,6 +310,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     world_exe = executable('world_sim', 'world_sim_node')
     agents: list[ForkedAgent] = []
     world: Optional[subprocess.Popen] = None
+    world_log: Optional[threading.Thread] = None
     recorder: Optional[subprocess.Popen] = None
     interrupted = starting = stopping = False
 
@@ -326,8 +353,9 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
             world_args += ['-p', 'record:=true']
         if s.fail_at is not None:
             world_args += ['-p', f'fail_at:={float(s.fail_at)}', '-p', f'fail_fraction:={float(s.fail_fraction)}']
-        world = subprocess.Popen(world_args, env=env, stdout=subprocess.PIPE, stderr=open(logs / 'world.log', 'w'),
+        world = subprocess.Popen(world_args, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                  text=True, start_new_session=True)
+        world_log = relay_log(world.stderr, logs / 'world.log')  # type: ignore[arg-type]
         (run / 'run.json').write_text(json.dumps({**info, 'world_pid': world.pid}, indent=1))  # for run_has_ended
         go_on()
         groups = [list(range(first, min(first + agents_per_process, scenario.maps)))
@@ -345,6 +373,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
         code = 130
     finally:
         stopping = True
+        recorder_gone = recorder.poll() if recorder is not None else None  # it ends only when we stop it
         # World and agents together, the world signalled first (SIGINT: it writes its records, and takes the
         # agents' ends for the stop, not for failures); the recorder once the world has published its last,
         # then it drains and closes the bag.
@@ -359,12 +388,18 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
             clean_shared_memory(env, since=began_at)
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)
+    if world_log is not None:
+        world_log.join(timeout=GRACE_S)  # its stream ended with world_sim: the file is complete
     if interrupted:
         print(f'uav-flock up: interrupted; every process ended, records so far in {run}', file=sys.stderr)
     result = read_result(run, scenario)
     if code not in (0, 130):
         tail = (logs / 'world.log').read_text().strip().splitlines()[-1:] if (logs / 'world.log').exists() else []
-        print(f'uav-flock up: world_sim failed (exit {code}){": " + tail[0] if tail else ""}', file=sys.stderr)
+        print(f'uav-flock up: world_sim failed ({describe_exit(code)}){": " + tail[0] if tail else ""}', file=sys.stderr)
+    if recorder_gone is not None:
+        print(f'uav-flock up: the recorder ended during the run ({describe_exit(recorder_gone)}, see '
+              f'{logs / "recorder.log"}); the bag in {bag_path} is incomplete', file=sys.stderr)
+        code = code or 1
     return code, result
 
 

@@ -92,7 +92,8 @@ def replay(path: Path, agent: int, tolerance: float = 1e-9, timeout: float = 20.
                 return None
             log.flush()
             last = (Path(log.name).read_text(errors='replace').strip().splitlines() or [''])[-1]
-            return f'the agent node of MAP {agent} exited with code {proc.returncode}' + (f': {last}' if last else '')
+            how = launcher.describe_exit(proc.returncode)
+            return f'the agent node of MAP {agent} ended ({how})' + (f': {last}' if last else '')
 
         try:
             _drive(inputs, outcome, timeout, agent_exit)

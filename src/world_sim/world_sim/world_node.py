@@ -348,7 +348,8 @@ class WorldNode(Node):
             self.commands.pop(i, None)  # a dropped MAP flies no command any more
         self.failure_pub.publish(FailureEvent(header=self.header(), step=self.world.k,
                                               ids=ids.astype(np.uint32).tolist(), cause=cause))
-        self.get_logger().warning(f'step {self.world.k}: dropped MAPs {ids.tolist()} ({cause})')
+        # INFO, not WARN: `up` shows warnings on the terminal, where the progress line below already says it.
+        self.get_logger().info(f'step {self.world.k}: dropped MAPs {ids.tolist()} ({cause})')
         print(f't = {self.world.k * self.s.dt:5.1f} s  dropped MAPs {ids.tolist()} ({cause})', flush=True)
 
     def kill_processes(self, ids: np.ndarray) -> None:
