@@ -26,7 +26,7 @@ from typing import Optional
 import rclpy  # imported once here, before the forks, as `up`'s agent template does: discovery is timed, not imports
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Int64
-from uav_flock_tools.launcher import (clean_shared_memory, discovery_server_address, fresh_domain_id, ros_env,
+from uav_flock_tools.launcher import (claim_domain, clean_shared_memory, discovery_server_address, ros_env,
                                       start_discovery_server, stop)
 
 MODES = ('localhost', 'server', 'subnet', 'profile')
@@ -73,7 +73,8 @@ def participant(index: int, n: int, env: dict[str, str], start: float, deadline:
 
 
 def measure(mode: str, n: int, timeout: float) -> dict[str, float]:
-    domain = fresh_domain_id()
+    claim = claim_domain()  # no other run on this host shares the domain while we measure
+    domain = claim.domain
     env = mode_env(mode, domain)
     server = None
     if mode == 'server':
@@ -102,6 +103,7 @@ def measure(mode: str, n: int, timeout: float) -> dict[str, float]:
         if server is not None:
             stop([server])
         clean_shared_memory(env)
+        claim.release()
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     done = sorted(s for s in seen if s is not None)
     return {'all': len(done), 'last': done[-1] if len(done) == n else float('nan'),

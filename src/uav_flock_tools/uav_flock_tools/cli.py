@@ -224,7 +224,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     try:
         code, result = launcher.up(path.resolve(), s, out.resolve(), args.agents_per_process, args.domain_id,
                                    args.discovery, args.record, args.sync, args.rate)
-    except FileExistsError as exc:
+    except (FileExistsError, launcher.DomainInUse) as exc:
         raise UsageError(f'up: {exc}') from None
     if result is None:
         return code or 1
@@ -279,10 +279,10 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from . import bag, replay
+    from . import bag, launcher, replay
     try:
         outcome = replay.replay(Path(args.bag), args.agent, args.tolerance, args.timeout, dict(args.set or []))
-    except (bag.BagError, replay.ReplayError) as exc:
+    except (bag.BagError, replay.ReplayError, launcher.DomainInUse) as exc:
         raise UsageError(f'replay: {exc}') from None
     print(outcome.describe())
     return 0 if outcome.ok else 1
@@ -312,7 +312,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser('up', help='run a scenario distributed: world_sim and one process per MAP')
     add_scenario_options(p, grid=False)
     p.add_argument('--agents-per-process', type=positive_int, default=1, help='pack K agent nodes into one process')
-    p.add_argument('--domain-id', type=domain_id, help='ROS_DOMAIN_ID to use (default: a fresh one per run)')
+    p.add_argument('--domain-id', type=domain_id,
+                   help='ROS_DOMAIN_ID to use (default: one from 1 to 101 that no other run on this host holds)')
     p.add_argument('--discovery', choices=('auto', 'localhost', 'subnet', 'server'), default='auto',
                    help='LOCALHOST discovery, SUBNET (multicast) discovery, or a Fast DDS discovery server for '
                         'the run (auto: the server above 30 processes or 100 MAPs)')

@@ -1,11 +1,12 @@
 """Start world_sim and the MAP agents as real OS processes, and end them all, whatever happens.
 
-Every run gets its own ROS_DOMAIN_ID, so runs and tests on one host never hear each other. Fast DDS is
-told to use UDP only, with large socket buffers; rmw_fastrtps overrides that with its own transports
+Every run holds its own ROS_DOMAIN_ID (claim_domain), so runs on one host never hear each other. Fast DDS
+is told to use UDP only, with large socket buffers; rmw_fastrtps overrides that with its own transports
 (loopback UDP and shared memory) when discovery is LOCALHOST (docs/design.md).
 """
 from __future__ import annotations
 
+import fcntl
 import json
 import multiprocessing
 import os
@@ -14,6 +15,7 @@ import re
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -81,8 +83,58 @@ def start_discovery_server(address: str, env: dict[str, str], log: Path) -> subp
                                 env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
 
 
-def fresh_domain_id() -> int:
-    return random.SystemRandom().randint(1, 101)
+# Domains a run may be given: 0, ROS's default, is left to whatever else runs ROS on the host. Above 101
+# Fast DDS's ports for a domain run into Linux's ephemeral range.
+FRESH_DOMAINS = range(1, 102)
+DOMAIN_CLAIMS = Path(tempfile.gettempdir()) / 'uav-flock-domains'
+
+
+class DomainInUse(Exception):
+    """Every domain asked for is held by another run on this host."""
+
+
+class DomainClaim:
+    """A ROS_DOMAIN_ID held for one run, released on release(), on leaving a with block, or when the process ends.
+
+    Two runs in one domain would hear each other's MAPs: their topics have the same names. The claim is
+    an flock on one file per domain, which the kernel drops with the process, so a SIGKILLed run frees
+    its domain at once and nothing stale is left to clean.
+    """
+
+    def __init__(self, domain: int, fd: int) -> None:
+        self.domain, self._fd = domain, fd
+
+    def release(self) -> None:
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
+
+    def __enter__(self) -> int:
+        return self.domain
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+def claim_domain(requested: Optional[int] = None) -> DomainClaim:
+    """The requested domain, or a random free one of FRESH_DOMAINS; DomainInUse if another run holds it."""
+    if not DOMAIN_CLAIMS.is_dir():
+        DOMAIN_CLAIMS.mkdir(exist_ok=True)
+        os.chmod(DOMAIN_CLAIMS, 0o1777)  # shared by every user of the host, as DDS domains are
+    candidates = [requested] if requested is not None else random.SystemRandom().sample(FRESH_DOMAINS,
+                                                                                        len(FRESH_DOMAINS))
+    for domain in candidates:
+        fd = os.open(DOMAIN_CLAIMS / str(domain), os.O_RDONLY | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            continue
+        return DomainClaim(domain, fd)
+    if requested is not None:
+        raise DomainInUse(f'ROS_DOMAIN_ID {requested} is in use by another run on this host')
+    raise DomainInUse(f'every ROS_DOMAIN_ID from {FRESH_DOMAINS[0]} to {FRESH_DOMAINS[-1]} is in use by '
+                      'another run on this host')
 
 
 def write_pid_table(path: Path, table: dict[int, int]) -> None:
@@ -283,7 +335,8 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     if record and bag_path.exists():
         raise FileExistsError(f'{bag_path} exists already: give a new --out folder')
     run.mkdir(parents=True, exist_ok=True)
-    domain = domain_id if domain_id is not None else fresh_domain_id()
+    claim = claim_domain(domain_id)  # held until every process of the run has ended
+    domain = claim.domain
     processes = -(-scenario.maps // agents_per_process) + 1 + int(record)
     use_server = discovery == 'server' or (discovery == 'auto' and (processes > LOCALHOST_LIMIT
                                                                      or scenario.maps > LOCALHOST_MAPS_LIMIT))
@@ -388,6 +441,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
             clean_shared_memory(env, since=began_at)
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)
+        claim.release()
     if world_log is not None:
         world_log.join(timeout=GRACE_S)  # its stream ended with world_sim: the file is complete
     if interrupted:
@@ -395,7 +449,8 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     result = read_result(run, scenario)
     if code not in (0, 130):
         tail = (logs / 'world.log').read_text().strip().splitlines()[-1:] if (logs / 'world.log').exists() else []
-        print(f'uav-flock up: world_sim failed ({describe_exit(code)}){": " + tail[0] if tail else ""}', file=sys.stderr)
+        print(f'uav-flock up: world_sim failed ({describe_exit(code)}){": " + tail[0] if tail else ""}',
+              file=sys.stderr)
     if recorder_gone is not None:
         print(f'uav-flock up: the recorder ended during the run ({describe_exit(recorder_gone)}, see '
               f'{logs / "recorder.log"}); the bag in {bag_path} is incomplete', file=sys.stderr)

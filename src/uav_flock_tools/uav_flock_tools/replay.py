@@ -74,9 +74,8 @@ def replay(path: Path, agent: int, tolerance: float = 1e-9, timeout: float = 20.
         floats = {f.name for f in fields(FlockParams) if isinstance(f.default, float)}
         inputs.params = {**inputs.params, **{k: float(v) if k in floats and type(v) is int else v
                                             for k, v in overrides.items()}}
-    domain = launcher.fresh_domain_id()
-    env = launcher.ros_env(domain)
-    with tempfile.TemporaryDirectory(prefix='uav-flock-replay-') as tmp:
+    with launcher.claim_domain() as domain, tempfile.TemporaryDirectory(prefix='uav-flock-replay-') as tmp:
+        env = launcher.ros_env(domain)
         params = Path(tmp) / 'agent_params.yaml'
         params.write_text(yaml.safe_dump({'/**': {'ros__parameters': inputs.params}}, sort_keys=False))
         log = open(Path(tmp) / 'agent.log', 'w')

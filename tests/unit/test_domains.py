@@ -1,0 +1,56 @@
+"""ROS_DOMAIN_ID claims: two runs on one host never share a domain, whatever the random draw."""
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from uav_flock_tools.launcher import FRESH_DOMAINS, DomainInUse, claim_domain
+
+HOLDER = '''
+import sys, time
+from uav_flock_tools.launcher import claim_domain
+claim = claim_domain()
+print(claim.domain, flush=True)
+time.sleep(300)
+'''
+
+
+def test_fresh_claims_never_share_a_domain_until_none_is_left() -> None:
+    held = []
+    try:
+        with pytest.raises(DomainInUse, match='every ROS_DOMAIN_ID from 1 to 101 is in use'):
+            for _ in range(len(FRESH_DOMAINS) + 1):
+                held.append(claim_domain())
+        domains = [c.domain for c in held]
+        assert len(set(domains)) == len(domains) and set(domains) <= set(FRESH_DOMAINS)
+        freed = held.pop()
+        freed.release()
+        again = claim_domain()
+        held.append(again)
+        assert again.domain == freed.domain, 'a released domain is free again'
+    finally:
+        for c in held:
+            c.release()
+
+
+def test_a_domain_held_by_another_process_is_refused_and_freed_when_it_dies(tmp_path: Path) -> None:
+    holder = subprocess.Popen([sys.executable, '-c', HOLDER], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None
+        domain = int(holder.stdout.readline())
+        with pytest.raises(DomainInUse, match=f'ROS_DOMAIN_ID {domain} is in use'):
+            claim_domain(domain)
+        up = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'up', '--maps', '2', '--domain-id',
+                             str(domain), '--out', str(tmp_path)], capture_output=True, text=True, timeout=120)
+        assert up.returncode == 2 and up.stderr.strip().count('\n') == 0 and 'is in use' in up.stderr, up.stderr
+        holder.send_signal(signal.SIGKILL)
+        holder.wait(timeout=30)
+        with claim_domain(domain) as claimed:  # the kernel dropped the dead holder's claim: nothing stale
+            assert claimed == domain
+    finally:
+        if holder.poll() is None:
+            holder.kill()
+            holder.wait()
