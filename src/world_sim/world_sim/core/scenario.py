@@ -48,7 +48,7 @@ class Scenario:
     def with_overrides(self, **kw: Any) -> 'Scenario':
         """The scenario with some values replaced (None keeps the scenario's), each checked as in a file."""
         values = {f.name: getattr(self, f.name) for f in fields(self)}
-        values.update({k: _OVERRIDES[k](v) if k in _OVERRIDES else v for k, v in kw.items() if v is not None})
+        values.update({k: _OVERRIDABLE[k](v) if k in _OVERRIDABLE else v for k, v in kw.items() if v is not None})
         out = Scenario(**values)
         _check(out)
         return out
@@ -79,8 +79,8 @@ def _int(where: str, value: Any, *, minimum: int = 1) -> int:
     return int(v)
 
 
-# The values a command line or a node parameter may override, checked as the scenario file's own.
-_OVERRIDES: dict[str, Callable[[Any], Any]] = {
+# The values a command line or a node parameter may override: one check for them and for the file's own.
+_OVERRIDABLE: dict[str, Callable[[Any], Any]] = {
     'seed': lambda v: _int('seed', v, minimum=0),
     'maps': lambda v: _int('maps', v),
     'duration': lambda v: _num('duration', v),
@@ -158,9 +158,9 @@ def parse(doc: Any) -> Scenario:
         raise ScenarioError(f"radio.association: must be '3d' or 'horizontal', got {association!r}")
     scenario = Scenario(
         name=str(doc.get('name', 'unnamed')),
-        seed=_int('seed', _need(doc, '', 'seed'), minimum=0),
-        maps=_int('maps', _need(doc, '', 'maps')),
-        duration=_num('duration', _need(doc, '', 'duration')),
+        seed=_OVERRIDABLE['seed'](_need(doc, '', 'seed')),
+        maps=_OVERRIDABLE['maps'](_need(doc, '', 'maps')),
+        duration=_OVERRIDABLE['duration'](_need(doc, '', 'duration')),
         dt=_num('dt', _need(doc, '', 'dt')),
         flock=flock,
         clusters=tuple(clusters),
@@ -170,8 +170,8 @@ def parse(doc: Any) -> Scenario:
         rho=_num('radio.rho', _need(radio, 'radio', 'rho')),
         eta=_num('radio.eta', _need(radio, 'radio', 'eta')),
         association=association,
-        fail_at=_num('failure.at', failure['at'], allow_zero=True) if failure.get('at') is not None else None,
-        fail_fraction=_num('failure.fraction', failure.get('fraction', 0.0), allow_zero=True),
+        fail_at=_OVERRIDABLE['fail_at'](failure['at']) if failure.get('at') is not None else None,
+        fail_fraction=_OVERRIDABLE['fail_fraction'](failure.get('fraction', 0.0)),
     )
     _check(scenario)
     return scenario
