@@ -130,3 +130,29 @@ def test_kill_on_an_ended_run_spares_processes_that_now_hold_its_pids(tmp_path: 
     finally:
         bystander.kill()
         bystander.wait()
+
+
+SWALLOWED = '''
+import os, signal, time, weakref
+from uav_flock_tools import cli
+cli.install_interrupts()
+class Thing: pass
+thing = Thing()
+def callback(_):
+    os.kill(os.getpid(), signal.SIGTERM)
+    sum(range(100000))  # the handler runs in here, where Python swallows its exception
+ref = weakref.ref(thing, callback)
+try:
+    del thing
+    time.sleep(5)
+    print('carried on')
+except KeyboardInterrupt:
+    print('interrupted')
+'''
+
+
+def test_an_interrupt_swallowed_in_a_callback_is_raised_again() -> None:
+    """`kill PID` landing in a weakref callback (importlib has them) was lost: a replay ran on to its end."""
+    done = subprocess.run([sys.executable, '-c', SWALLOWED], capture_output=True, text=True, timeout=60)
+    assert done.stdout.strip() == 'interrupted', done.stdout + done.stderr
+    assert 'Exception ignored' not in done.stderr, done.stderr

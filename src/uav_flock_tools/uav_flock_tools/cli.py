@@ -375,14 +375,34 @@ def _main(argv: Optional[Sequence[str]]) -> int:
         return EXIT_USAGE
 
 
-def _terminate(signum: int, frame: Optional[FrameType]) -> None:
+RETRY_INTERRUPT_S = 0.05
+
+
+def _interrupt(signum: int, frame: Optional[FrameType]) -> None:
     raise KeyboardInterrupt
+
+
+def _unraisable(args: 'sys.UnraisableHookArgs') -> None:
+    """An interrupt that landed where Python swallows exceptions (a weakref callback of an import) is raised again.
+
+    Otherwise a Ctrl-C or `kill PID` at that moment would be lost and the command would carry on.
+    """
+    if args.exc_type is KeyboardInterrupt:
+        signal.setitimer(signal.ITIMER_REAL, RETRY_INTERRUPT_S)  # SIGALRM: _interrupt, once out of the callback
+        return
+    sys.__unraisablehook__(args)
+
+
+def install_interrupts() -> None:
+    """`kill PID` stops a command as Ctrl-C does, so its clean-up (children stopped, partial records) runs too."""
+    signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGALRM, _interrupt)
+    sys.unraisablehook = _unraisable
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     # Only the standard library is imported above: Ctrl-C while numpy, rclpy and the rest load is caught here too.
-    # `kill PID` stops a command as Ctrl-C does, so its clean-up (children stopped, partial records) runs too.
-    signal.signal(signal.SIGTERM, _terminate)
+    install_interrupts()
     try:
         return _main(argv)
     except KeyboardInterrupt:
