@@ -114,7 +114,7 @@ def find_bag(path: Path) -> Path:
     path = Path(path)
     if not path.exists():
         raise BagError(f'{path}: no such bag')
-    for candidate in (path, path / 'bag', path.parent):
+    for candidate in ((path, path / 'bag') if path.is_dir() else (path.parent,)):
         if (candidate / 'metadata.yaml').is_file():
             return candidate
     raise BagError(f'{path}: not a rosbag2 bag (no metadata.yaml in it, nor a bag/ folder with one)')
