@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 from helpers.runs import cli, dead, dropped_ids, kill_during, shm_entries, up, wait_for_line
+from uav_flock_tools.launcher import claim_domain
 from world_sim.core.records import read_csv
 
 
@@ -114,6 +115,54 @@ def test_ctrl_c_ends_every_process_and_keeps_the_records(tmp_path: Path, ros_env
     noisy = [name for name, text in logs.items() if 'FATAL' in text or 'Traceback' in text]
     assert not noisy, f'an error logged while stopping: {noisy}\n' + '\n'.join(logs[n] for n in noisy)
     assert shm_entries() - shm_before == set(), 'shared-memory debris left in /dev/shm'
+
+
+def run_processes(run: Path) -> dict[str, list[int]]:
+    """The living processes of a run, found by their command lines: world_sim, recorder, discovery server."""
+    info = json.loads((run / 'run.json').read_text())
+    port = info['discovery_server'].rsplit(':', 1)[1]
+    found: dict[str, list[int]] = {'world_sim': [], 'recorder': [], 'discovery server': []}
+    for proc in Path('/proc').iterdir():
+        if not proc.name.isdigit() or dead(int(proc.name)):
+            continue
+        try:
+            argv = (proc / 'cmdline').read_bytes().decode(errors='replace').split('\0')
+        except OSError:
+            continue
+        line = ' '.join(argv)
+        if 'world_sim_node' in line and f'out:={run}' in line:
+            found['world_sim'].append(int(proc.name))
+        elif 'uav_flock_recorder' in line and str(run) in line:
+            found['recorder'].append(int(proc.name))
+        elif argv[0].endswith('fast-discovery-server') and port in argv:
+            found['discovery server'].append(int(proc.name))
+    return found
+
+
+def test_a_sigkilled_up_takes_its_whole_run_with_it(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """`up` cannot stop what it started when it is SIGKILLed: the kernel tells its children, and they end."""
+    run = tmp_path / 'up'
+    proc = up('--maps', '4', '--duration', '600', '--discovery', 'server', '--record', '--out', str(run),
+              env=ros_env)
+    try:
+        wait_for_line(proc, 't =   1.0 s', 120)  # a recorded run with a discovery server gets under way
+        children = run_processes(run)
+        assert all(len(pids) == 1 for pids in children.values()), children
+        agents = list(json.loads((run / 'pids.json').read_text()).values())
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+        everyone = agents + [pid for pids in children.values() for pid in pids]
+        t0 = time.monotonic()
+        while not all(dead(p) for p in everyone) and time.monotonic() - t0 < 10:
+            time.sleep(0.05)
+        left = {name: [p for p in pids if not dead(p)] for name, pids in {**children, 'agents': agents}.items()}
+        assert not any(left.values()), f'outlived the SIGKILLed up: {left}'
+        with claim_domain(json.loads((run / 'run.json').read_text())['domain_id']):
+            pass  # the domain is free again, and nothing of the dead run is left in it
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
 
 
 def test_ctrl_c_twice_during_start_up_still_ends_cleanly(tmp_path: Path, ros_env: dict[str, str]) -> None:

@@ -6,12 +6,14 @@ is told to use UDP only, with large socket buffers; rmw_fastrtps overrides that 
 """
 from __future__ import annotations
 
+import ctypes
 import fcntl
 import json
 import multiprocessing
 import os
 import random
 import re
+import select
 import signal
 import subprocess
 import sys
@@ -75,12 +77,54 @@ def discovery_server_address(domain_id: int) -> str:
     return f'127.0.0.1:{DISCOVERY_BASE_PORT + domain_id}'
 
 
+PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def ends_with_us(signum: int) -> Callable[[], None]:
+    """A Popen preexec_fn: the kernel sends the child signum when this process ends (a parent-death signal).
+
+    A run's processes live in sessions of their own, so a SIGKILLed `up` or `replay`, which cannot stop them,
+    would leave them running: world_sim to the end of its run and the discovery server for ever, in a
+    domain that the dead command no longer claims.
+    """
+    me = os.getpid()
+
+    def in_child() -> None:
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signum, 0, 0, 0)
+        if os.getppid() != me:  # we ended before the request was made
+            os.kill(os.getpid(), signum)
+
+    return in_child
+
+
+def end_with(pid: int, signum: int) -> None:
+    """Send signum to this process when process pid ends (a thread waits on its pidfd).
+
+    For a forked agent, whose parent is the template process: that one lives on while any agent holds
+    the pipe that multiprocessing keeps it alive by, so a parent-death signal from it would never come.
+    """
+    try:
+        fd = os.pidfd_open(pid)
+    except ProcessLookupError:
+        os.kill(os.getpid(), signum)
+        return
+    except OSError:  # a kernel without pidfds (before Linux 5.3): the agent still ends when world_sim does
+        return
+
+    def wait() -> None:
+        select.select([fd], [], [])
+        os.kill(os.getpid(), signum)
+
+    threading.Thread(target=wait, name=f'end-with-{pid}', daemon=True).start()
+
+
 def start_discovery_server(address: str, env: dict[str, str], log: Path) -> subprocess.Popen:
     """The Fast DDS discovery server the wheels ship, on 127.0.0.1:<port of address>, in its own session."""
     port = address.rsplit(':', 1)[1]
     with open(log, 'w') as out:
         return subprocess.Popen(['fast-discovery-server', '-i', '0', '-l', '127.0.0.1', '-p', port],
-                                env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+                                env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
+                                preexec_fn=ends_with_us(signal.SIGTERM))
 
 
 # Domains a run may be given: 0, ROS's default, is left to whatever else runs ROS on the host. Above 101
@@ -157,9 +201,10 @@ def read_pid_table(run: Path) -> dict[int, int]:
 AGENT_TEMPLATE_MODULES = ['uav_flock_tools.agent_template', 'uav_flock_tools.launcher']
 
 
-def agent_process(argv: list[str], env: dict[str, str], log: str) -> None:
+def agent_process(argv: list[str], env: dict[str, str], log: str, up_pid: int) -> None:
     """Body of a forked agent process: its own session, log file and run environment, then the agent's main."""
     os.setsid()  # a process group of its own, as start_new_session gives a Popen child
+    end_with(up_pid, signal.SIGTERM)
     setproctitle(' '.join(argv))  # what `ps` and `pkill -f` see: the command line of the console script
     fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     os.dup2(fd, 1)
@@ -201,7 +246,7 @@ def start_agents(id_groups: list[list[int]], params: Path, env: dict[str, str], 
         if stop_if():
             return
         argv = ['uav_agent_node', '--ids', ','.join(map(str, ids)), '--ros-args', '--params-file', str(params)]
-        proc = ctx.Process(target=agent_process, args=(argv, env, str(logs / f'agents_{ids[0]}.log')),
+        proc = ctx.Process(target=agent_process, args=(argv, env, str(logs / f'agents_{ids[0]}.log'), os.getpid()),
                            name=f'agents_{ids[0]}')
         proc.start()
         into.append(ForkedAgent(proc))
@@ -386,15 +431,20 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
         starting = True
         if server_address:
             server = start_discovery_server(server_address, env, logs / 'discovery_server.log')
+            info['discovery_server_pid'] = server.pid
         go_on()
         if record:
             rec_params = run / 'recorder_params.yaml'
             rec_params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {
                 'out': str(bag_path), 'maps': scenario.maps, 'params_json': json.dumps(scenario.flock.as_dict()),
                 'scenario_json': json.dumps(scenario_summary(scenario_path, scenario))}}}))
+            # With a discovery server, a plain client hears only of the topics it already uses; the recorder
+            # finds its topics in the graph, so it is a super-client, which hears of every endpoint.
             recorder = subprocess.Popen(
                 [executable('uav_flock_tools', 'uav_flock_recorder'), '--ros-args', '--params-file', str(rec_params)],
-                env=env, stdout=open(logs / 'recorder.log', 'w'), stderr=subprocess.STDOUT, start_new_session=True)
+                env={**env, 'ROS_SUPER_CLIENT': 'TRUE'} if server_address else env,
+                stdout=open(logs / 'recorder.log', 'w'), stderr=subprocess.STDOUT, start_new_session=True,
+                preexec_fn=ends_with_us(signal.SIGINT))
             go_on()
         # The world first, so that its start-up is not starved by the agents'; it waits for them.
         s = scenario
@@ -407,7 +457,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
         if s.fail_at is not None:
             world_args += ['-p', f'fail_at:={float(s.fail_at)}', '-p', f'fail_fraction:={float(s.fail_fraction)}']
         world = subprocess.Popen(world_args, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                 text=True, start_new_session=True)
+                                 text=True, start_new_session=True, preexec_fn=ends_with_us(signal.SIGINT))
         world_log = relay_log(world.stderr, logs / 'world.log')  # type: ignore[arg-type]
         (run / 'run.json').write_text(json.dumps({**info, 'world_pid': world.pid}, indent=1))  # for run_has_ended
         go_on()

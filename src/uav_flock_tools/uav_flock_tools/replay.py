@@ -9,6 +9,7 @@ shows as a difference.
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import tempfile
 import time
@@ -81,7 +82,8 @@ def replay(path: Path, agent: int, tolerance: float = 1e-9, timeout: float = 20.
         log = open(Path(tmp) / 'agent.log', 'w')
         proc = subprocess.Popen([launcher.executable('uav_agent', 'uav_agent_node'), '--ids', str(agent),
                                  '--ros-args', '--params-file', str(params)],
-                                env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+                                env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+                                preexec_fn=launcher.ends_with_us(signal.SIGTERM))
         saved = {k: os.environ.get(k) for k in env}
         os.environ.update(env)
 
