@@ -1,6 +1,7 @@
 """Samples the ROS graph during a run: which MAPs subscribe to each /map_<j>/state, at which step.
 
-Usage: python -m helpers.graph_sampler N_MAPS. On SIGTERM prints JSON [[step, j, [i, ...]], ...].
+Usage: python -m helpers.graph_sampler N_MAPS. Prints 'ready' once it listens; on SIGTERM, JSON
+[[step, j, [i, ...]], ...].
 """
 from __future__ import annotations
 
@@ -29,6 +30,7 @@ def main() -> int:
             samples.append([int(m.step), j, subs])
 
     node.create_subscription(Metrics, '/metrics', on_metrics, STEP_QOS)
+    print('ready', flush=True)
     while running:
         rclpy.spin_once(node, timeout_sec=0.1)
     print(json.dumps(samples), flush=True)

@@ -1,6 +1,6 @@
 """A rogue publisher on /map_<id>/state: NaN, a wrong sender id and stale steps, until SIGTERM.
 
-Usage: python -m helpers.rogue ID. Prints 'published N readers R' when it ends.
+Usage: python -m helpers.rogue ID. Prints 'ready' once it publishes, 'published N readers R' when it ends.
 """
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ def main() -> int:
     running = UntilTerm()
     node = rclpy.create_node('rogue')
     pub = node.create_publisher(AgentState, f'/map_{target}/state', STATE_QOS)
+    print('ready', flush=True)
     here = Point(x=-150.0, y=50.0, z=20.0)
     bad = [AgentState(id=target, step=1, position=Point(x=float('nan'))),
            AgentState(id=target + 2, step=1, position=here),

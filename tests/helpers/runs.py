@@ -17,6 +17,23 @@ def up(*args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
                             stderr=subprocess.STDOUT, text=True, env=env)
 
 
+def helper(module: str, *args: str, env: dict[str, str]) -> subprocess.Popen[str]:
+    """A helper process (tests/helpers) once it has made its endpoints and printed 'ready'.
+
+    A run of a few seconds may end before a helper that is still importing rclpy on a loaded machine has
+    met its MAPs; started first, the helper is met by every MAP while the MAPs discover each other.
+    """
+    proc = subprocess.Popen([sys.executable, '-m', f'helpers.{module}', *args], cwd=Path(__file__).resolve().parents[1],
+                            env=env, stdout=subprocess.PIPE, text=True)
+    try:
+        wait_for_line(proc, 'ready', 60)
+    except AssertionError:
+        proc.kill()
+        proc.wait()
+        raise
+    return proc
+
+
 def dead(pid: int) -> bool:
     """Gone or a zombie: world_sim's own test of a MAP's process."""
     from world_sim.world_node import process_alive

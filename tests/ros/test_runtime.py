@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from helpers.runs import cli, dead, dropped_ids, kill_during, shm_entries, up, wait_for_line
+from helpers.runs import cli, dead, dropped_ids, helper, kill_during, shm_entries, up, wait_for_line
 from uav_flock_tools.launcher import claim_domain
 from world_sim.core.records import read_csv
 
@@ -185,8 +185,7 @@ def test_ctrl_c_twice_during_start_up_still_ends_cleanly(tmp_path: Path, ros_env
 def test_rogue_state_messages_change_nothing(tmp_path: Path, ros_env: dict[str, str]) -> None:
     """NaN, a wrong sender id and stale steps on /map_3/state from another process: every agent ignores them."""
     args = ('--maps', '10', '--seed', '2', '--duration', '5')
-    rogue = subprocess.Popen([sys.executable, '-m', 'helpers.rogue', '3'], cwd=Path(__file__).resolve().parents[1],
-                             env=ros_env, stdout=subprocess.PIPE, text=True)
+    rogue = helper('rogue', '3', env=ros_env)
     try:
         run = cli('up', *args, '--domain-id', ros_env['ROS_DOMAIN_ID'], '--out', str(tmp_path / 'up'), env=ros_env)
     finally:
@@ -204,8 +203,7 @@ def test_rogue_state_messages_change_nothing(tmp_path: Path, ros_env: dict[str, 
 def test_agents_listen_only_to_maps_in_radio_range(tmp_path: Path, ros_env: dict[str, str]) -> None:
     """Sampled from the live ROS graph: no MAP subscribes to a MAP beyond r + hysteresis."""
     r, hysteresis, dt = 24.0, 2.0, 0.1
-    sampler = subprocess.Popen([sys.executable, '-m', 'helpers.graph_sampler', '16'],
-                               cwd=Path(__file__).resolve().parents[1], env=ros_env, stdout=subprocess.PIPE, text=True)
+    sampler = helper('graph_sampler', '16', env=ros_env)
     try:
         run = cli('up', '--maps', '16', '--seed', '5', '--duration', '12', '--domain-id', ros_env['ROS_DOMAIN_ID'],
                   '--out', str(tmp_path), env=ros_env)
