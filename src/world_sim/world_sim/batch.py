@@ -59,7 +59,7 @@ class World:
         rng = world.streams(scenario.seed)
         self._fail_rng = rng['failure']
         self.users = world.make_users(scenario, rng['users'])
-        self.clusters = ClusterMap(self.users.centroids, scenario.flock.height)
+        self.clusters = ClusterMap(self.users.centroids, scenario.flock.height, self.users.radii)
         self.q, self.p = world.release(scenario, rng['release'])
         self.ids = np.arange(scenario.maps, dtype=np.intp)
         self.alive = np.ones(scenario.maps, dtype=bool)
@@ -150,7 +150,7 @@ class BatchSimulator:
             heard = [told[j] for j in nbr[bounds[n]:bounds[n + 1]]]
             mem = decide(self.memory[i], i, counts[n], sensed.cluster_coverage, sensed.q[n], heard, w.clusters, fp)
             self.memory[i] = mem
-            refs.append(reference(mem, w.clusters))
+            refs.append(reference(mem, i, w.clusters, fp))
         target, qa, qb = (np.array([ref[c] for ref in refs]).reshape(-1, 3) for c in range(3))
         mode = np.array([ref[3] for ref in refs], dtype=np.intp)
         pairs = sensed.pairs

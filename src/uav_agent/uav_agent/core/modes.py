@@ -1,12 +1,18 @@
-"""Algorithm 2 (mode switch), the MST over achieved clusters and the gossip of achieved goals.
+"""The mode switch and goals of one MAP: the paper's Algorithm 2 and the demand allocation.
+
+Algorithm 2 (`allocation: algorithm2`) grows the MST over achieved clusters and sends M1 MAPs to its
+edges. The demand allocation (`allocation: demand`, docs/allocation.md) gives every MAP one role from the
+start, a cluster to serve or an edge of the MST over all clusters to relay on, by the share of [0, 1) its
+id's key falls in, with shares sized by each role's demand in MAPs.
 
 Achieved-goal sets travel as bit masks (bit k = cluster k achieved): gossip is then a bitwise OR, the
 "merge by union" of the paper's shared list of achieved goals.
 """
 from __future__ import annotations
 
+import math
 from functools import lru_cache
-from typing import Iterable, NamedTuple, Optional
+from typing import Callable, Iterable, NamedTuple, Optional
 
 import numpy as np
 from scipy.sparse.csgraph import minimum_spanning_tree
@@ -16,6 +22,14 @@ from .params import FlockParams
 
 NO_GOAL = -1
 Edge = tuple[int, int]
+GOLDEN = 0.6180339887498949  # frac(id * GOLDEN) spreads any set of ids evenly over [0, 1)
+STALL_STEPS = 50             # steps without a 1 % gain after which a goal's coverage counts as stalled
+STALL_GAIN = 0.01
+
+
+def key_of(agent_id: int) -> float:
+    """The MAP's key in [0, 1): golden-ratio keys of any ids are evenly spread (three-gap theorem)."""
+    return (agent_id * GOLDEN) % 1.0
 
 
 def mask_of(ids: Iterable[int]) -> int:
@@ -36,14 +50,35 @@ def merge_achieved(own: int, neighbours: Iterable[int]) -> int:
     return own
 
 
+def mst_edges(xy: np.ndarray) -> list[Edge]:
+    """Edges (a < b) of the Euclidean minimum spanning tree over the points xy, sorted."""
+    if len(xy) < 2:
+        return []
+    dist = np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=-1)
+    tree = minimum_spanning_tree(np.triu(dist)).tocoo()
+    return sorted((int(min(i, j)), int(max(i, j))) for i, j in zip(tree.row, tree.col))
+
+
+def segment_distance(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    """Horizontal distance from point to the segment a-b."""
+    point = np.asarray(point, dtype=float)[:2]
+    ab = b - a
+    t = np.clip(np.dot(point - a, ab) / max(float(np.dot(ab, ab)), 1e-12), 0.0, 1.0)
+    return float(np.linalg.norm(a + t * ab - point))
+
+
 class ClusterMap:
     """Cluster centroids known to every MAP (from an aerial survey, Section IV-B), with cached MSTs."""
 
-    def __init__(self, centroids_xy: np.ndarray, height: float) -> None:
+    def __init__(self, centroids_xy: np.ndarray, height: float, radii: Optional[np.ndarray] = None) -> None:
         self.xy = np.asarray(centroids_xy, dtype=float).reshape(-1, 2)
         self.count = len(self.xy)
+        # R_k: radius of the disc holding 95 % of cluster k's MSDs (m), from the survey; 0 if unknown.
+        self.radii = np.zeros(self.count) if radii is None else np.asarray(radii, dtype=float).reshape(self.count)
         self.targets = np.column_stack([self.xy, np.full(self.count, float(height))])
         self._mst = lru_cache(maxsize=None)(self._mst_uncached)
+        self._roles = lru_cache(maxsize=None)(self._roles_uncached)
+        self.slot = lru_cache(maxsize=None)(lambda *args: _slot(self, *args))
 
     def mst(self, achieved: int) -> tuple[Edge, ...]:
         """Edges (a < b) of the minimum spanning tree T_c over the achieved clusters, by centroid distance."""
@@ -51,12 +86,7 @@ class ClusterMap:
 
     def _mst_uncached(self, achieved: int) -> tuple[Edge, ...]:
         ids = ids_of(achieved)
-        if len(ids) < 2:
-            return ()
-        pts = self.xy[ids]
-        dist = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=-1)
-        tree = minimum_spanning_tree(np.triu(dist)).tocoo()
-        return tuple(sorted((min(ids[i], ids[j]), max(ids[i], ids[j])) for i, j in zip(tree.row, tree.col)))
+        return tuple(sorted((min(ids[i], ids[j]), max(ids[i], ids[j])) for i, j in mst_edges(self.xy[ids])))
 
     def nearest(self, q: np.ndarray, exclude: int) -> int:
         """Nearest cluster centre not in the mask exclude, or NO_GOAL if every cluster is in it."""
@@ -68,10 +98,7 @@ class ClusterMap:
 
     def segment_distance(self, q: np.ndarray, edge: Edge) -> float:
         """Horizontal distance from q to the segment between the centres of edge."""
-        a, b = self.xy[edge[0]], self.xy[edge[1]]
-        ab = b - a
-        t = np.clip(np.dot(np.asarray(q, dtype=float)[:2] - a, ab) / max(np.dot(ab, ab), 1e-12), 0.0, 1.0)
-        return float(np.linalg.norm(a + t * ab - np.asarray(q, dtype=float)[:2]))
+        return segment_distance(q, self.xy[edge[0]], self.xy[edge[1]])
 
     def nearest_edge(self, q: np.ndarray, edges: Iterable[Edge]) -> Optional[Edge]:
         return min(edges, key=lambda e: (self.segment_distance(q, e), e), default=None)
@@ -85,17 +112,74 @@ class ClusterMap:
         """
         lengths = np.array([np.linalg.norm(self.xy[a] - self.xy[b]) for a, b in edges])
         bounds = np.cumsum(lengths) / lengths.sum()
-        key = (agent_id * 0.6180339887498949) % 1.0
-        return edges[min(int(np.searchsorted(bounds, key, side='right')), len(edges) - 1)]
+        return edges[min(int(np.searchsorted(bounds, key_of(agent_id), side='right')), len(edges) - 1)]
+
+    def gap(self, edge: Edge, inset: float) -> tuple[np.ndarray, np.ndarray]:
+        """The stretch of an edge between its clusters' outermost servers (the whole edge if they meet).
+
+        Servers cover their cluster's 95 % disc from inside it: the outermost sit about inset (half a
+        lattice spacing) inside the disc's edge, so that is where a relay chain must reach.
+        """
+        a, b = self.xy[edge[0]], self.xy[edge[1]]
+        length = float(np.linalg.norm(b - a))
+        u = (b - a) / max(length, 1e-12)
+        ra, rb = max(self.radii[edge[0]] - inset, 0.0), max(self.radii[edge[1]] - inset, 0.0)
+        if ra + rb >= length:
+            return a, b
+        return a + u * ra, b - u * rb
+
+    def roles(self, d: float) -> 'Roles':
+        """Every cluster and every edge of the MST over all clusters, with its demand in MAPs."""
+        return self._roles(float(d))
+
+    slot: Callable[[int, Edge, float, float], tuple[np.ndarray, np.ndarray]]  # (id, edge, d, H), cached
+
+    def _roles_uncached(self, d: float) -> 'Roles':
+        edges = self.mst(mask_of(range(self.count)))
+        cell = math.sqrt(3.0) / 2.0 * d * d  # area per MAP of a hexagonal lattice of spacing d
+        demand = [math.pi * r * r / cell for r in self.radii]
+        for e in edges:
+            lo, hi = self.gap(e, d / 2)
+            demand.append(float(np.linalg.norm(hi - lo)) / d)
+        weights = np.maximum(np.array(demand), 0.0)
+        if weights.sum() <= 0:  # nothing known of the clusters' extent: an equal share each
+            weights = np.r_[np.ones(self.count), np.zeros(len(edges))]
+        bounds = np.cumsum(weights) / weights.sum()
+        starts = np.r_[0.0, bounds[:-1]]
+        return Roles(edges, tuple(demand), tuple(starts), tuple(bounds))
+
+
+class Roles(NamedTuple):
+    """Roles 0..K-1 serve cluster k; role K + j relays on edges[j]. Role i owns keys [start_i, end_i)."""
+
+    edges: tuple[Edge, ...]
+    demand: tuple[float, ...]   # MAPs each role needs (a lattice of spacing d over the disc, a chain over the gap)
+    start: tuple[float, ...]
+    end: tuple[float, ...]
+
+    def of(self, key: float) -> int:
+        """The role whose share holds key (never an empty one)."""
+        i = int(np.searchsorted(self.end, key, side='right'))
+        while i < len(self.end) - 1 and self.end[i] <= self.start[i]:
+            i += 1
+        return min(i, len(self.end) - 1)
+
+    def place(self, key: float, role: int) -> float:
+        """Where in its role's share key lies, 0..1: a relay's position along its gap."""
+        width = self.end[role] - self.start[role]
+        return float(np.clip((key - self.start[role]) / width, 0.0, 1.0)) if width > 0 else 0.5
 
 
 class Memory(NamedTuple):
-    """What a MAP carries from step to step: its mode M_i, goal g_c^i, known achieved goals and bridge."""
+    """What a MAP carries from step to step: its mode M_i, goal g_c^i, known achieved goals and bridge,
+    and (demand allocation) the best coverage of its goal so far and the steps since it last grew."""
 
     mode: int = M0
     goal: int = NO_GOAL
     achieved: int = 0
     bridge: Optional[Edge] = None
+    best: float = 0.0
+    flat: int = 0
 
 
 def mode_switch(mem: Memory, n_users: int, goal_coverage: float, q: np.ndarray,
@@ -146,20 +230,87 @@ def choose_bridge(mem: Memory, agent_id: int, q: np.ndarray, clusters: ClusterMa
     return mem if edge == mem.bridge else mem._replace(bridge=edge)
 
 
+def served(mem: Memory, r_g: float, p: FlockParams) -> Memory:
+    """Track the goal's coverage: achieved above r0, or once it has stopped growing (a stall).
+
+    A cluster whose MAPs are all in place but that stays just under r0 would otherwise never count as
+    served; STALL_STEPS without a gain of STALL_GAIN counts it served, so it joins the achieved set.
+    """
+    if r_g > mem.best + STALL_GAIN:
+        mem = mem._replace(best=r_g, flat=0)
+    elif r_g > 0:
+        mem = mem._replace(flat=mem.flat + 1)
+    if (r_g > p.r0 or mem.flat >= STALL_STEPS) and not mem.achieved >> mem.goal & 1:
+        mem = mem._replace(achieved=mem.achieved | 1 << mem.goal)
+    return mem
+
+
+def demand_switch(mem: Memory, agent_id: int, r_g: float, clusters: ClusterMap, p: FlockParams) -> Memory:
+    """The demand allocation for one MAP at one step: its role from its key, then its mode.
+
+    A server flies to its cluster in M0 and holds it in M2 once the cluster is served; a relay bridges
+    its edge in M1 from the start, so the tree never waits for clusters to be achieved.
+    """
+    roles = clusters.roles(p.d)
+    role = roles.of(key_of(agent_id))
+    if role < clusters.count:
+        if mem.goal != role:
+            mem = Memory(mode=M0, goal=role, achieved=mem.achieved)
+            r_g = 0.0
+        mem = served(mem, r_g, p)
+        if mem.mode == M0 and mem.achieved >> mem.goal & 1:
+            mem = mem._replace(mode=M2)
+        return mem
+    edge = roles.edges[role - clusters.count]
+    if mem.mode != M1 or mem.bridge != edge:
+        mem = Memory(mode=M1, goal=edge[0], achieved=mem.achieved, bridge=edge)
+    return mem
+
+
 def decide(mem: Memory, agent_id: int, n_users: int, cluster_coverage: np.ndarray, q: np.ndarray,
            neighbour_achieved: Iterable[int], clusters: ClusterMap, p: FlockParams) -> Memory:
-    """One MAP's discrete update at step k: gossip, Algorithm 2, then the bridge it flies to."""
+    """One MAP's discrete update at step k: gossip, then Algorithm 2 and the bridge, or its demand role."""
     achieved = merge_achieved(mem.achieved, neighbour_achieved)
     if achieved != mem.achieved:
         mem = mem._replace(achieved=achieved)
     r_g = float(cluster_coverage[mem.goal]) if mem.goal != NO_GOAL else 0.0
+    if p.allocation == 'demand':
+        return demand_switch(mem, agent_id, r_g, clusters, p)
     mem = mode_switch(mem, n_users, r_g, q, clusters, p)
     return choose_bridge(mem, agent_id, q, clusters, p)
 
 
-def reference(mem: Memory, clusters: ClusterMap) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """(q^r, q_1^r, q_2^r, mode for eq. 9): M1 without a bridge holds at its goal like M2."""
+def slot(agent_id: int, edge: Edge, clusters: ClusterMap, p: FlockParams) -> tuple[np.ndarray, np.ndarray]:
+    """A relay's stretch of its edge (q_1^r, q_2^r for eq. 13): a piece d long around its place in the gap.
+
+    Relays of one edge have keys spread evenly over the edge's share, so their places spread evenly
+    along the gap; E_c then holds each near its place, and the flocking terms space the chain.
+    """
+    return clusters.slot(agent_id, edge, p.d, p.height)
+
+
+def _slot(clusters: ClusterMap, agent_id: int, edge: Edge, d: float, height: float) -> tuple[np.ndarray, np.ndarray]:
+    roles = clusters.roles(d)
+    role = clusters.count + roles.edges.index(edge)
+    lo, hi = clusters.gap(edge, d / 2)
+    length = float(np.linalg.norm(hi - lo))
+    u = (hi - lo) / max(length, 1e-12)
+    at = roles.place(key_of(agent_id), role) * length
+    a = lo + u * max(at - d / 2, 0.0)
+    b = lo + u * min(at + d / 2, length)
+    return np.r_[a, height], np.r_[b, height]
+
+
+def reference(mem: Memory, agent_id: int, clusters: ClusterMap, p: FlockParams
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """(q^r, q_1^r, q_2^r, mode for eq. 9): M1 without a bridge holds at its goal like M2.
+
+    Under the demand allocation an M1 MAP bridges its own slot of the edge, not the whole edge.
+    """
     here = clusters.targets[mem.goal] if mem.goal != NO_GOAL else np.full(3, np.nan)
     if mem.mode == M1 and mem.bridge is not None:
+        if p.allocation == 'demand':
+            q1, q2 = slot(agent_id, mem.bridge, clusters, p)
+            return here, q1, q2, M1
         return here, clusters.targets[mem.bridge[0]], clusters.targets[mem.bridge[1]], M1
     return here, here, here, (M2 if mem.mode == M1 else mem.mode)

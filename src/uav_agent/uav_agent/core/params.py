@@ -7,6 +7,7 @@ from typing import Any, Callable
 
 # Names of the choices where the paper is ambiguous, with their allowed values; docs/choices.md explains them.
 POLICY_VALUES: dict[str, tuple[str, ...]] = {
+    'allocation': ('demand', 'algorithm2'),
     'zero_users': ('move_on', 'static'),
     'm1_pending': ('hold', 'lead'),
     'm0_exhausted': ('bridge', 'serve'),
@@ -32,6 +33,7 @@ class FlockParams:
     n0: int = 3                # serving threshold to M1, Algorithm 2
     n1: int = 10               # serving threshold to M2, Algorithm 2
     height: float = 20.0       # flight altitude H (m)
+    allocation: str = 'demand'  # 'algorithm2': the paper's, with the four policies below
     zero_users: str = 'move_on'
     m1_pending: str = 'hold'
     m0_exhausted: str = 'bridge'

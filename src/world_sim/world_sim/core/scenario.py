@@ -191,6 +191,25 @@ def _check(s: Scenario) -> None:
         raise ScenarioError(f'dt: must not exceed duration ({s.duration}), got {s.dt}')
 
 
+def to_doc(s: Scenario, policies: bool = True) -> dict[str, Any]:
+    """The scenario as a document parse() reads back to an equal Scenario; without `policies` when asked,
+    so the file runs whatever policies are the default."""
+    flock = s.flock.as_dict()
+    doc: dict[str, Any] = {
+        'name': s.name, 'seed': s.seed, 'maps': s.maps, 'duration': s.duration, 'dt': s.dt,
+        'flock': {k: v for k, v in flock.items() if k not in POLICY_VALUES},
+    }
+    if policies:
+        doc['policies'] = {k: v for k, v in flock.items() if k in POLICY_VALUES}
+    doc['radio'] = {'rho': s.rho, 'eta': s.eta, 'association': s.association}
+    doc['release'] = {'center': list(s.release_center), 'half_width': s.release_half_width,
+                      'initial_speed': s.initial_speed}
+    doc['users'] = {'clusters': [{'center': list(c.center), 'spread': c.spread, 'size': c.size} for c in s.clusters]}
+    if s.fail_at is not None:
+        doc['failure'] = {'at': s.fail_at, 'fraction': s.fail_fraction}
+    return doc
+
+
 def load(path: str | Path) -> Scenario:
     """Read and check a scenario file."""
     path = Path(path)

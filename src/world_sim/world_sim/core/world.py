@@ -23,6 +23,7 @@ class Users:
     xyz: F64                # (M, 3)
     cluster: NDArray[np.intp]  # (M,)
     centroids: F64          # (K, 2): the empirical centroid C_k of each cluster
+    radii: F64 | None = None  # (K,): radius R_k about C_k holding 95 % of cluster k's MSDs (m)
 
     @property
     def cluster_sizes(self) -> NDArray[np.intp]:
@@ -45,7 +46,14 @@ def make_users(s: Scenario, rng: np.random.Generator) -> Users:
     xy_all = np.concatenate(xy)
     labels = np.concatenate(label)
     centroids = np.array([xy_all[labels == k].mean(axis=0) for k in range(len(s.clusters))])
-    return Users(np.column_stack([xy_all, np.zeros(len(xy_all))]), labels, centroids)
+    return Users(np.column_stack([xy_all, np.zeros(len(xy_all))]), labels, centroids,
+                 survey_radii(xy_all, labels, centroids))
+
+
+def survey_radii(xy: F64, cluster: NDArray[np.intp], centroids: F64) -> F64:
+    """R_k: the 95th percentile of cluster k's MSDs' distances from C_k (what the aerial survey reports)."""
+    return np.array([np.percentile(np.linalg.norm(xy[cluster == k] - centroids[k], axis=1), 95.0)
+                     if np.any(cluster == k) else 0.0 for k in range(len(centroids))])
 
 
 def release(s: Scenario, rng: np.random.Generator) -> tuple[F64, F64]:

@@ -1,0 +1,73 @@
+"""How a run ended, judged the same way by the layout benchmark, the tests and the docs.
+
+Success: covered (mean R_c >= 95 %) and connected (lambda2 > 0 at every step) over the last 10 s.
+Where the MAPs ended is read geometrically, so every policy set is judged by one rule: a MAP serves the
+cluster whose 95 % disc (widened by the ground radius) holds it, else relays on the MST edge within r of
+it, else it is astray.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from uav_agent.core.modes import mst_edges, segment_distance
+
+from . import layouts
+from .records import METRICS_COLUMNS, TRAJECTORY_COLUMNS
+from .scenario import Scenario
+
+R_C, FIEDLER, T = (METRICS_COLUMNS.index(c) for c in ('coverage_ratio', 'fiedler', 't'))
+COVERED = 0.95
+TAIL = 10.0  # s
+
+
+@dataclass(frozen=True)
+class Outcome:
+    success: bool
+    time_to_success: float            # first t with R_c >= 95 % and lambda2 > 0 (s), inf if never
+    final_coverage: float             # mean R_c over the tail
+    connected_tail: bool              # lambda2 > 0 at every step of the tail
+    per_cluster: tuple[int, ...]      # MAPs ending at each cluster
+    per_edge: tuple[int, ...]         # MAPs ending on each MST edge of the layout's floor
+    astray: int                       # MAPs ending elsewhere
+    in_m0: int                        # MAPs whose last mode is M0
+
+
+def judge(s: Scenario, metrics: np.ndarray, trajectory: np.ndarray) -> Outcome:
+    t = metrics[:, T]
+    tail = t >= t[-1] - TAIL + 1e-9
+    cov = float(metrics[tail, R_C].mean())
+    connected = bool(np.all(metrics[tail, FIEDLER] > 0))
+    good = (metrics[:, R_C] >= COVERED) & (metrics[:, FIEDLER] > 0)
+    first = float(t[np.argmax(good)]) if good.any() else float('inf')
+    step = trajectory[:, TRAJECTORY_COLUMNS.index('step')]
+    last = trajectory[step == step.max()]
+    xy = last[:, [TRAJECTORY_COLUMNS.index('x'), TRAJECTORY_COLUMNS.index('y')]]
+    mode = last[:, TRAJECTORY_COLUMNS.index('mode')]
+    per_cluster, per_edge, astray = place(s, xy)
+    return Outcome(cov >= COVERED and connected, first, cov, connected, per_cluster, per_edge, astray,
+                   int(np.count_nonzero(mode == 0)))
+
+
+def place(s: Scenario, xy: np.ndarray) -> tuple[tuple[int, ...], tuple[int, ...], int]:
+    """(MAPs per cluster, MAPs per MST edge, MAPs astray) for MAP positions xy."""
+    centres = np.array([c.center for c in s.clusters], dtype=float)
+    reach = np.array([layouts.disc95(c.spread) for c in s.clusters]) + layouts.ground_radius(s)
+    dist = np.linalg.norm(xy[:, None, :] - centres[None, :, :], axis=-1)
+    inside = dist <= reach[None, :]
+    nearest = np.argmin(np.where(inside, dist, np.inf), axis=1)
+    at_cluster = inside.any(axis=1)
+    per_cluster = np.bincount(nearest[at_cluster], minlength=len(centres))
+    edges = mst_edges(centres)
+    rest = xy[~at_cluster]
+    per_edge = np.zeros(len(edges), dtype=int)
+    astray = 0
+    for point in rest:
+        d = [segment_distance(point, centres[a], centres[b]) for a, b in edges]
+        if d and min(d) <= s.flock.r:
+            per_edge[int(np.argmin(d))] += 1
+        else:
+            astray += 1
+    return tuple(int(v) for v in per_cluster), tuple(int(v) for v in per_edge), astray
+
