@@ -11,7 +11,7 @@ from uav_agent.core.modes import (NO_GOAL, ClusterMap, Memory, choose_bridge, de
                                   merge_achieved, mode_switch)
 from uav_agent.core.params import FlockParams
 
-P = FlockParams()
+P = FlockParams(allocation="algorithm2")  # the paper's Algorithm 2 with its shipped policies
 # Four clusters on a line-ish layout: 0 (0,0), 1 (100,0), 2 (100,100), 3 (300,0).
 CLUSTERS = ClusterMap(np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 100.0], [300.0, 0.0]]), height=20.0)
 HERE = np.array([5.0, 0.0, 20.0])

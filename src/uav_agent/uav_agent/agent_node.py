@@ -119,7 +119,11 @@ class AgentNode(Node):
         if not np.all(np.isfinite(xy)) or len(xy) == 0:
             self.reject('/clusters', 'no or non-finite centroids')
             return
-        self.clusters = ClusterMap(xy, self.params.height)
+        radii = np.asarray(msg.radii, dtype=float)
+        if len(radii) not in (0, len(xy)) or not np.all(np.isfinite(radii) & (radii >= 0)):
+            self.reject('/clusters', f'{len(radii)} radii for {len(xy)} centroids, or a negative or non-finite one')
+            return
+        self.clusters = ClusterMap(xy, self.params.height, radii if len(radii) else None)
         self.try_step()
 
     def on_finished(self, msg: Int64) -> None:

@@ -183,7 +183,9 @@ def _read(path: Path, reader: AnyReader) -> BagRun:
     if users_msg is not None and clusters_msg is not None:
         xyz = np.array([[p.x, p.y, p.z] for p in users_msg.positions]).reshape(-1, 3)
         centroids = np.array([[c.x, c.y] for c in clusters_msg.centroids]).reshape(-1, 2)
-        run.users = world.Users(xyz, np.asarray(users_msg.cluster, dtype=np.intp), centroids)
+        radii = np.asarray(getattr(clusters_msg, 'radii', []), dtype=float)
+        run.users = world.Users(xyz, np.asarray(users_msg.cluster, dtype=np.intp), centroids,
+                                radii if len(radii) == len(centroids) else None)
     return run
 
 

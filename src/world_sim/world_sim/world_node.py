@@ -152,7 +152,7 @@ class WorldNode(Node):
                                      cluster=u.cluster.astype(np.uint32).tolist()))
         self.clusters_pub.publish(Clusters(
             header=self.header(), centroids=[convert.point(np.array([c[0], c[1], 0.0])) for c in u.centroids],
-            sizes=u.cluster_sizes.astype(np.uint32).tolist()))
+            sizes=u.cluster_sizes.astype(np.uint32).tolist(), radii=np.asarray(u.radii, dtype=float).tolist()))
 
     # ------------------------------------------------------------------ lockstep
     def tick(self) -> None:
