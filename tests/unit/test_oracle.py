@@ -2,16 +2,26 @@
 exactly where the batch simulator moved it."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
+import pytest
 
 from uav_agent.core.agent import Neighbourhood, agent_step
+from uav_agent.core.modes import Told
+from uav_agent.core.params import FlockParams
 from world_sim.batch import BatchSimulator
-from world_sim.core import world
+from world_sim.core import layouts, world
 from world_sim.core.scenario import load
 
 
-def test_agent_step_reproduces_the_batch_step_bit_for_bit(paper_scenario_path: str) -> None:
+@pytest.mark.parametrize('allocation', ['algorithm2', 'demand'])
+def test_agent_step_reproduces_the_batch_step_bit_for_bit(paper_scenario_path: str, allocation: str) -> None:
     s = load(paper_scenario_path).with_overrides(maps=30, seed=3, duration=12.0)
+    if allocation == 'demand':  # the default policies on a random layout
+        s = replace(layouts.draw(s, layouts.LayoutSpec(), np.random.default_rng(7)), flock=replace(
+            s.flock, **{k: getattr(FlockParams(), k) for k in ('allocation', 'edge_choice')}))
+    assert s.flock.allocation == allocation
     sim = BatchSimulator(s)
     checked = 0
     for k in range(s.steps):
@@ -25,7 +35,8 @@ def test_agent_step_reproduces_the_batch_step_bit_for_bit(paper_scenario_path: s
             sim.step()
             for n, i in enumerate(rows):
                 nbr = pairs[pairs[:, 0] == n, 1]
-                hood = Neighbourhood(q[nbr], p[nbr], n_u[nbr].astype(float), [memory[j].achieved for j in nbr])
+                hood = Neighbourhood(q[nbr], p[nbr], n_u[nbr].astype(float), [memory[j].achieved for j in nbr],
+                                     [Told(memory[j].mode, memory[j].goal, memory[j].bridge) for j in nbr])
                 u, mem = agent_step(memory[i], int(i), q[n], p[n], int(n_u[n]), cover, hood, sim.clusters, s.flock)
                 q_next, p_next = world.integrate(q[n][None], p[n][None], u[None], s.dt)
                 assert mem == sim.memory[i], f'MAP {i} decided differently at step {k}'

@@ -234,7 +234,8 @@ class AgentNode(Node):
             q=np.array([convert.xyz(m.position) for m in heard]).reshape(-1, 3),
             p=np.array([convert.xyz(m.velocity) for m in heard]).reshape(-1, 3),
             n_users=np.array([float(m.user_count) for m in heard]),
-            achieved=[convert.achieved_mask(m) for m in heard])
+            achieved=[convert.achieved_mask(m) for m in heard],
+            told=[convert.told(m) for m in heard])
         coverage = np.zeros(self.clusters.count)
         if self.memory.goal != NO_GOAL:
             coverage[self.memory.goal] = s.goal_coverage  # r_g of the goal the world knows we hold

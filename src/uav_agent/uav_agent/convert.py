@@ -8,7 +8,7 @@ import numpy as np
 from geometry_msgs.msg import Point, Vector3
 from uav_flock_msgs.msg import AgentState
 
-from .core.modes import ids_of, mask_of
+from .core.modes import Told, ids_of, mask_of
 
 
 def point(v: np.ndarray) -> Point:
@@ -38,3 +38,9 @@ def achieved_mask(msg: AgentState) -> int:
 
 def achieved_list(mask: int) -> list[int]:
     return ids_of(mask)
+
+
+def told(msg: AgentState) -> Told:
+    """The role a neighbour's state states: mode, goal and bridge (None unless it names two clusters)."""
+    bridge = tuple(int(c) for c in msg.bridge)
+    return Told(int(msg.mode), int(msg.goal), bridge if len(bridge) == 2 else None)

@@ -12,7 +12,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from uav_agent.core.control import control_input
-from uav_agent.core.modes import NO_GOAL, ClusterMap, Memory, decide, reference
+from uav_agent.core.modes import NO_GOAL, ClusterMap, Memory, Told, decide, reference
 
 from .core import world
 from .core.scenario import Scenario
@@ -143,14 +143,17 @@ class BatchSimulator:
             w.drop(failing)
         sensed = w.sense()
         rows = sensed.ids
-        told = [self.memory[i].achieved for i in rows]  # what each MAP's state message of step k carries
+        stated = [self.memory[i] for i in rows]  # what each MAP's state message of step k carries
+        told = [m.achieved for m in stated]
+        roles = [Told(m.mode, m.goal, m.bridge) for m in stated]
         nbr, counts, bounds = sensed.pairs[:, 1].tolist(), sensed.n_users.tolist(), sensed.bounds
         refs = []
         for n, i in enumerate(rows.tolist()):
-            heard = [told[j] for j in nbr[bounds[n]:bounds[n + 1]]]
+            near = nbr[bounds[n]:bounds[n + 1]]
+            heard = [told[j] for j in near]
             mem = decide(self.memory[i], i, counts[n], sensed.cluster_coverage, sensed.q[n], heard, w.clusters, fp)
             self.memory[i] = mem
-            refs.append(reference(mem, i, w.clusters, fp))
+            refs.append(reference(mem, i, sensed.q[n], sensed.q[near], [roles[j] for j in near], w.clusters, fp))
         target, qa, qb = (np.array([ref[c] for ref in refs]).reshape(-1, 3) for c in range(3))
         mode = np.array([ref[3] for ref in refs], dtype=np.intp)
         pairs = sensed.pairs

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .control import control_input
-from .modes import ClusterMap, Memory, decide, reference
+from .modes import ClusterMap, Memory, Told, decide, reference
 from .params import FlockParams
 
 
@@ -18,17 +18,18 @@ class Neighbourhood:
     p: np.ndarray          # (n, 3) velocities (m/s)
     n_users: np.ndarray    # (n,) N_u^j
     achieved: list[int]    # achieved-goal masks
+    told: list[Told]       # mode, goal and bridge each one stated
 
     @classmethod
     def empty(cls) -> 'Neighbourhood':
-        return cls(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), [])
+        return cls(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), [], [])
 
 
 def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_users: int, cluster_coverage: np.ndarray,
                nbrs: Neighbourhood, clusters: ClusterMap, params: FlockParams) -> tuple[np.ndarray, Memory]:
     """Algorithm 1 lines 3-6 for one MAP: gossip, mode switch (Alg. 2), control input (eq. 9)."""
     mem = decide(mem, agent_id, n_users, cluster_coverage, q, nbrs.achieved, clusters, params)
-    target, q1, q2, mode = reference(mem, agent_id, clusters, params)
+    target, q1, q2, mode = reference(mem, agent_id, q, nbrs.q, nbrs.told, clusters, params)
     owner = np.zeros(len(nbrs.q), dtype=np.intp)
     u = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([mode]),
                       target[None, :], q1[None, :], q2[None, :], owner, nbrs.q, nbrs.p,

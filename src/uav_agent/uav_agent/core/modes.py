@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
-from typing import Callable, Iterable, NamedTuple, Optional
+from typing import Iterable, NamedTuple, Optional, Sequence
 
 import numpy as np
 from scipy.sparse.csgraph import minimum_spanning_tree
@@ -78,7 +78,6 @@ class ClusterMap:
         self.targets = np.column_stack([self.xy, np.full(self.count, float(height))])
         self._mst = lru_cache(maxsize=None)(self._mst_uncached)
         self._roles = lru_cache(maxsize=None)(self._roles_uncached)
-        self.slot = lru_cache(maxsize=None)(lambda *args: _slot(self, *args))
 
     def mst(self, achieved: int) -> tuple[Edge, ...]:
         """Edges (a < b) of the minimum spanning tree T_c over the achieved clusters, by centroid distance."""
@@ -131,8 +130,6 @@ class ClusterMap:
     def roles(self, d: float) -> 'Roles':
         """Every cluster and every edge of the MST over all clusters, with its demand in MAPs."""
         return self._roles(float(d))
-
-    slot: Callable[[int, Edge, float, float], tuple[np.ndarray, np.ndarray]]  # (id, edge, d, H), cached
 
     def _roles_uncached(self, d: float) -> 'Roles':
         edges = self.mst(mask_of(range(self.count)))
@@ -280,37 +277,72 @@ def decide(mem: Memory, agent_id: int, n_users: int, cluster_coverage: np.ndarra
     return choose_bridge(mem, agent_id, q, clusters, p)
 
 
-def slot(agent_id: int, edge: Edge, clusters: ClusterMap, p: FlockParams) -> tuple[np.ndarray, np.ndarray]:
-    """A relay's stretch of its edge (q_1^r, q_2^r for eq. 13): a piece d long around its place in the gap.
+class Told(NamedTuple):
+    """What a neighbour's state message says of its role: mode, goal and bridge (as of its last step)."""
 
-    Relays of one edge have keys spread evenly over the edge's share, so their places spread evenly
-    along the gap; E_c then holds each near its place, and the flocking terms space the chain.
+    mode: int
+    goal: int
+    bridge: Optional[Edge]
+
+
+def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, told: Sequence[Told],
+                clusters: ClusterMap, p: FlockParams) -> float:
+    """Where along its edge a relay aims (m from the first cluster's centre): midway along its chain.
+
+    The chain of an edge (a, b) is its relays and the servers of a and b. Servers of a lie on the a side
+    of every relay and servers of b on the b side, so the outermost server heard is each side's anchor.
+    A relay that hears a chain member on each side aims midway between the nearest two, so the chain
+    relaxes to even spacing between the clusters' outermost servers wherever they are; with one side silent it reaches d beyond the other
+    towards the silent side; hearing none, it takes its own place in the gap by its key.
     """
-    return clusters.slot(agent_id, edge, p.d, p.height)
+    a = clusters.xy[edge[0]]
+    u = clusters.xy[edge[1]] - a
+    length = float(np.linalg.norm(u))
+    u = u / max(length, 1e-12)
+    here = float(np.dot(np.asarray(q, dtype=float)[:2] - a, u))
+    below, above = -math.inf, math.inf
+    for qj, tj in zip(nbr_q, told):
+        at = float(np.dot(qj[:2] - a, u))
+        if tj.mode != M1 and tj.goal == edge[0] or tj.mode == M1 and tj.bridge == edge and at < here:
+            below = max(below, at)
+        elif tj.mode != M1 and tj.goal == edge[1] or tj.mode == M1 and tj.bridge == edge and at > here:
+            above = min(above, at)
+    if math.isfinite(below) and math.isfinite(above):
+        return (below + above) / 2.0
+    if math.isfinite(below):
+        return min(below + p.d, length)
+    if math.isfinite(above):
+        return max(above - p.d, 0.0)
+    role = clusters.count + clusters.roles(p.d).edges.index(edge)
+    lo, hi = clusters.gap(edge, p.d / 2)
+    start = float(np.dot(lo - a, u))
+    return start + clusters.roles(p.d).place(key_of(agent_id), role) * float(np.linalg.norm(hi - lo))
 
 
-def _slot(clusters: ClusterMap, agent_id: int, edge: Edge, d: float, height: float) -> tuple[np.ndarray, np.ndarray]:
-    roles = clusters.roles(d)
-    role = clusters.count + roles.edges.index(edge)
-    lo, hi = clusters.gap(edge, d / 2)
-    length = float(np.linalg.norm(hi - lo))
-    u = (hi - lo) / max(length, 1e-12)
-    at = roles.place(key_of(agent_id), role) * length
-    a = lo + u * max(at - d / 2, 0.0)
-    b = lo + u * min(at + d / 2, length)
-    return np.r_[a, height], np.r_[b, height]
+def relay_slot(place: float, edge: Edge, clusters: ClusterMap, p: FlockParams) -> tuple[np.ndarray, np.ndarray]:
+    """q_1^r, q_2^r of eq. 13 for a relay: a piece of its edge d/2 long centred where it aims.
+
+    E_c pulls the relay onto that piece and is flat along it, so the flocking terms keep their say there.
+    """
+    a = clusters.xy[edge[0]]
+    u = clusters.xy[edge[1]] - a
+    length = float(np.linalg.norm(u))
+    u = u / max(length, 1e-12)
+    lo, hi = max(place - p.d / 4, 0.0), min(place + p.d / 4, length)
+    return np.r_[a + u * lo, p.height], np.r_[a + u * max(hi, lo), p.height]
 
 
-def reference(mem: Memory, agent_id: int, clusters: ClusterMap, p: FlockParams
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],
+              clusters: ClusterMap, p: FlockParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """(q^r, q_1^r, q_2^r, mode for eq. 9): M1 without a bridge holds at its goal like M2.
 
-    Under the demand allocation an M1 MAP bridges its own slot of the edge, not the whole edge.
+    Under the demand allocation an M1 MAP bridges its own piece of the edge, where its chain needs it.
     """
     here = clusters.targets[mem.goal] if mem.goal != NO_GOAL else np.full(3, np.nan)
     if mem.mode == M1 and mem.bridge is not None:
         if p.allocation == 'demand':
-            q1, q2 = slot(agent_id, mem.bridge, clusters, p)
+            place = relay_place(agent_id, q, mem.bridge, nbr_q, told, clusters, p)
+            q1, q2 = relay_slot(place, mem.bridge, clusters, p)
             return here, q1, q2, M1
         return here, clusters.targets[mem.bridge[0]], clusters.targets[mem.bridge[1]], M1
     return here, here, here, (M2 if mem.mode == M1 else mem.mode)
