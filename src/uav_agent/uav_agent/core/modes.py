@@ -10,6 +10,7 @@ Achieved-goal sets travel as bit masks (bit k = cluster k achieved): gossip is t
 """
 from __future__ import annotations
 
+import bisect
 import math
 from functools import lru_cache
 from typing import Iterable, NamedTuple, Optional, Sequence
@@ -156,7 +157,7 @@ class Roles(NamedTuple):
 
     def of(self, key: float) -> int:
         """The role whose share holds key (never an empty one)."""
-        i = int(np.searchsorted(self.end, key, side='right'))
+        i = bisect.bisect_right(self.end, key)
         while i < len(self.end) - 1 and self.end[i] <= self.start[i]:
             i += 1
         return min(i, len(self.end) - 1)
@@ -328,8 +329,10 @@ def relay_slot(place: float, edge: Edge, clusters: ClusterMap, p: FlockParams) -
     u = clusters.xy[edge[1]] - a
     length = float(np.linalg.norm(u))
     u = u / max(length, 1e-12)
+    place = min(max(place, 0.0), length)
     lo, hi = max(place - p.d / 4, 0.0), min(place + p.d / 4, length)
-    return np.r_[a + u * lo, p.height], np.r_[a + u * max(hi, lo), p.height]
+    return (np.array([a[0] + u[0] * lo, a[1] + u[1] * lo, p.height]),
+            np.array([a[0] + u[0] * hi, a[1] + u[1] * hi, p.height]))
 
 
 def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],
