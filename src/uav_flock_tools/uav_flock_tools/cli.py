@@ -288,6 +288,27 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0 if outcome.ok else 1
 
 
+def count_range(text: str) -> tuple[int, int]:
+    """N or LOW-HIGH, positive integers."""
+    low, sep, high = text.partition('-')
+    try:
+        lo, hi = int(low), int(high) if sep else int(low)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected N or LOW-HIGH, got {text!r}') from None
+    if not 1 <= lo <= hi:
+        raise argparse.ArgumentTypeError(f'expected 1 <= LOW <= HIGH, got {text!r}')
+    return lo, hi
+
+
+def cmd_layouts(args: argparse.Namespace) -> int:
+    from . import layouts
+    out = Path(args.out) if args.out else default_out('layouts')
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise UsageError(f'layouts: --out {out} exists and is not an empty folder; name a new one')
+    drawn = layouts.draw(args.scenario, args.count, args.clusters, args.seed)  # before any file: all or none
+    return layouts.write(drawn, args.seed, args.factor, args.duration, make_folder(out, 'layouts: --out'))
+
+
 def cmd_paper(args: argparse.Namespace) -> int:
     from . import paper
     make_folder(Path(args.docs).parent, 'paper: --docs')
@@ -354,6 +375,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--set', type=key_value, action='append', metavar='KEY=VALUE',
                    help='replay with an agent parameter changed, e.g. --set c1=0.4 (repeatable)')
     p.set_defaults(func=cmd_replay)
+    p = sub.add_parser('layouts', help='draw random cluster layouts as scenario files, with the MAP floor of each')
+    p.add_argument('--count', type=positive_int, default=10, help='layouts to draw (default: 10)')
+    p.add_argument('--clusters', type=count_range, default=(3, 6), help='clusters per layout, N or LOW-HIGH '
+                                                                          '(default: 3-6)')
+    p.add_argument('--seed', type=non_negative_int, default=0, help='seed of the draws (default: 0)')
+    p.add_argument('--factor', type=positive_float, default=1.5,
+                   help='MAPs per layout as a multiple of its floor LB, rounded up (default: 1.5)')
+    p.add_argument('--duration', type=positive_float, default=90.0, help='simulated time in s (default: 90)')
+    p.add_argument('--scenario', default='paper', help='scenario the layouts take everything else from '
+                                                       '(default: paper; its policies are left out)')
+    p.add_argument('--out', help='a new folder for the scenario files (default: runs/layouts-<time>)')
+    p.set_defaults(func=cmd_layouts)
     p = sub.add_parser('paper', help="regenerate the paper's figures over several seeds and docs/results.md")
     p.add_argument('--scenario', default='paper', help=SCENARIO_HELP)
     p.add_argument('--seeds', type=positive_int, default=5, help='seeds per configuration (default: 5)')

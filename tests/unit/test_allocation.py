@@ -1,0 +1,133 @@
+"""The demand allocation: roles by key, relays by gap, stalled clusters, chains, and one random layout end to end."""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from uav_agent.core.control import M0, M1, M2
+from uav_agent.core.modes import (STALL_STEPS, ClusterMap, Memory, Told, decide, key_of, mst_edges, relay_place)
+from uav_agent.core.params import FlockParams
+from world_sim.batch import BatchSimulator
+from world_sim.core import layouts, outcome
+from world_sim.core.scenario import load
+
+P = FlockParams()  # the default policies: allocation 'demand'
+R = 30.0  # every cluster's 95 % radius in the hand-made layouts
+
+
+def role_counts(clusters: ClusterMap, n: int) -> np.ndarray:
+    roles = clusters.roles(P.d)
+    return np.bincount([roles.of(key_of(i)) for i in range(n)], minlength=len(roles.demand))
+
+
+def line(gaps: list[float]) -> ClusterMap:
+    """Clusters on the x axis whose relay gaps (between their outermost servers) are the given lengths."""
+    rim = R - P.d / 2
+    x = np.cumsum([0.0] + [g + 2 * rim for g in gaps])
+    return ClusterMap(np.column_stack([x, np.zeros(len(x))]), P.height, np.full(len(x), R))
+
+
+def test_the_default_policies_are_the_demand_allocation() -> None:
+    assert P.allocation == 'demand'
+
+
+def test_relays_go_to_edges_in_proportion_to_their_gaps() -> None:
+    clusters = line([100.0, 200.0])
+    roles = clusters.roles(P.d)
+    assert roles.edges == ((0, 1), (1, 2))
+    assert math.isclose(roles.demand[3], 100.0 / P.d) and math.isclose(roles.demand[4], 200.0 / P.d)
+    counts = role_counts(clusters, 120)
+    assert abs(counts[4] - 2 * counts[3]) <= 2, counts  # keys are evenly spread: off by rounding only
+    assert max(counts[:3]) - min(counts[:3]) <= 2, 'equal clusters, equal shares'
+
+
+def test_every_map_of_an_edge_role_bridges_that_edge_in_connectivity_mode() -> None:
+    clusters = line([100.0, 200.0])
+    roles = clusters.roles(P.d)
+    for i in range(40):
+        mem = decide(Memory(), i, 0, np.zeros(3), np.array([0.0, 0.0, 20.0]), [], clusters, P)
+        role = roles.of(key_of(i))
+        if role >= clusters.count:
+            assert mem.mode == M1 and mem.bridge == roles.edges[role - clusters.count]
+        else:
+            assert mem.mode == M0 and mem.goal == role and mem.bridge is None
+
+
+def server_of(clusters: ClusterMap, cluster: int) -> int:
+    roles = clusters.roles(P.d)
+    return next(i for i in range(1000) if roles.of(key_of(i)) == cluster)
+
+
+def test_a_cluster_stalled_below_r0_still_counts_as_served() -> None:
+    clusters = line([100.0, 200.0])
+    i = server_of(clusters, 1)
+    cover = np.array([0.0, 0.90, 0.0])  # under r0 = 0.95 for good
+    mem = Memory()
+    here = np.array([clusters.xy[1][0], 0.0, 20.0])
+    for _ in range(STALL_STEPS + 2):
+        mem = decide(mem, i, 12, cover, here, [], clusters, P)
+    assert mem.achieved >> 1 & 1, 'the stalled cluster joins the achieved set'
+    assert mem.mode == M2
+    growing = Memory()
+    for k in range(STALL_STEPS + 2):
+        growing = decide(growing, i, 12, np.array([0.0, 0.011 * k, 0.0]), here, [], clusters, P)
+    assert not growing.achieved >> 1 & 1 and growing.mode == M0, 'a cluster still gaining is not yet served'
+
+
+def test_a_relay_aims_midway_between_the_chain_members_it_hears() -> None:
+    clusters = line([100.0, 200.0])
+    edge = (0, 1)
+    q = np.array([80.0, 3.0, 20.0])
+    servers_of_0 = Told(M2, 0, None)
+    relay = Told(M1, 0, edge)
+    other_edge = Told(M1, 1, (1, 2))
+    heard = np.array([[40.0, 0.0, 20.0], [120.0, 0.0, 20.0], [90.0, 0.0, 20.0]])
+    assert relay_place(5, q, edge, heard[:2], [servers_of_0, relay], clusters, P) == 80.0
+    # a relay of another edge is not part of this chain; with the b side silent, reach d beyond the a side
+    assert relay_place(5, q, edge, heard[[0, 2]], [servers_of_0, other_edge], clusters, P) == 40.0 + P.d
+    # a server of a is on the a side wherever it is: inside the cluster it pushes the relay outwards
+    assert relay_place(5, q, edge, heard[[1]], [servers_of_0], clusters, P) == 120.0 + P.d
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(2, 7), st.integers(0, 2**32 - 1), st.floats(0.3, 3.0))
+def test_every_role_gets_its_share_of_any_id_range(k: int, seed: int, scale: float) -> None:
+    """Golden-ratio keys of ids 0..N-1 fill each share within rounding: never more than 2.5 MAPs off."""
+    rng = np.random.default_rng(seed)
+    clusters = ClusterMap(rng.uniform(0, 400, size=(k, 2)), P.height, rng.uniform(20, 45, size=k))
+    roles = clusters.roles(P.d)
+    n = max(1, math.ceil(scale * sum(roles.demand)))
+    counts = role_counts(clusters, n)
+    shares = n * (np.array(roles.end) - np.array(roles.start))
+    assert np.all(np.abs(counts - shares) <= 2.5), (counts, shares)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(2, 7), st.integers(0, 2**32 - 1))
+def test_with_maps_for_every_demand_no_edge_is_left_without_its_relays(k: int, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0, 400, size=(k, 2))
+    clusters = ClusterMap(xy, P.height, rng.uniform(20, 45, size=k))
+    roles = clusters.roles(P.d)
+    n = math.ceil(1.25 * sum(roles.demand)) + 2 * len(roles.demand)  # every demand, a quarter more, and slack
+    counts = role_counts(clusters, n)
+    for j, edge in enumerate(roles.edges):
+        demand = roles.demand[k + j]
+        assert counts[k + j] >= (1 if demand >= 1 else 0), f'edge {edge}: no relay for a demand of {demand:.2f}'
+        assert counts[k + j] >= math.floor(demand) - 1, f'edge {edge}: {counts[k + j]} relays for {demand:.2f}'
+    assert sorted(roles.edges) == [tuple(e) for e in mst_edges(xy)], 'the tree spans every cluster from the start'
+
+
+def test_a_small_random_layout_ends_covered_and_connected(paper_scenario_path: str) -> None:
+    paper = load(paper_scenario_path)
+    lay = layouts.draw(paper, layouts.LayoutSpec(clusters=(3, 3)), np.random.default_rng(11))
+    floor = layouts.floor(lay)
+    s = replace(lay, maps=2 * floor.total, duration=60.0, flock=replace(paper.flock, allocation='demand'))
+    result = BatchSimulator(s).run()
+    o = outcome.judge(s, result.metrics, result.trajectory)
+    assert o.success, o
+    assert all(n >= f for n, f in zip(o.per_cluster, floor.per_cluster)), (o.per_cluster, floor.per_cluster)
