@@ -314,7 +314,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
     make_folder(Path(args.docs).parent, 'paper: --docs')
     make_folder(Path(args.out), 'paper: --out')
     return paper.main(seeds=args.seeds, out=Path(args.out), docs=Path(args.docs), scenario=args.scenario,
-                      ablation=not args.no_ablation)
+                      ablation=not args.no_ablation, random_layouts=args.layouts)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -393,6 +393,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--out', default='docs/figures', help='figure folder (default: docs/figures)')
     p.add_argument('--docs', default='docs/results.md', help='results page to write (default: docs/results.md)')
     p.add_argument('--no-ablation', action='store_true', help="skip measuring the effect of each open choice")
+    p.add_argument('--layouts', type=non_negative_int, default=20,
+                   help='random layouts to compare the policy sets on (default: 20; 0 skips them)')
     p.set_defaults(func=cmd_paper)
     return parser
 

@@ -15,10 +15,13 @@ from tqdm import tqdm  # noqa: E402
 
 from world_sim.core.scenario import Scenario  # noqa: E402
 
-from . import plots, simrun  # noqa: E402
+from . import layouts, plots, simrun  # noqa: E402
 
 COUNTS_FIG = (40, 60, 80, 100)
 COUNTS_SWEEP = tuple(range(40, 121, 10))
+COUNTS_DEMAND = tuple(range(40, 91, 5))  # the demand allocation connects at fewer MAPs: a finer sweep
+LAYOUT_FACTORS = (1.2, 1.5, 2.0)          # MAPs as multiples of a random layout's floor LB
+LAYOUT_DURATION = 90.0
 FAIL_FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5)
 FAIL_AT = 18.0
 SETTLE = 10.0  # "after convergence": the mean over the last SETTLE seconds of a run
@@ -51,7 +54,8 @@ def _figure(path: Path, groups: list[tuple[str, list[np.ndarray]]], column: int,
     return plots.save(fig, path)
 
 
-def _fiedler_vs_count(path: Path, counts: tuple[int, ...], values: dict[int, list[float]]) -> Path:
+def _fiedler_vs_count(path: Path, counts: tuple[int, ...], values: dict[int, list[float]],
+                      policies: str = "the paper's Algorithm 2") -> Path:
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     mean = [np.mean(values[n]) for n in counts]
     ax.errorbar(counts, mean, yerr=[np.std(values[n]) for n in counts], marker='o', capsize=3,
@@ -59,7 +63,7 @@ def _fiedler_vs_count(path: Path, counts: tuple[int, ...], values: dict[int, lis
     for n in counts:
         ax.scatter([n] * len(values[n]), values[n], s=8, c='0.5', zorder=3)
     plots.finish(ax, 'number of MAPs', f'Fiedler value λ2 after convergence (mean of last {SETTLE:g} s)',
-                 'Connectivity after convergence vs MAP count (grey: single seeds)')
+                 f'Connectivity after convergence vs MAP count, {policies} (grey: single seeds)')
     return plots.save(fig, path)
 
 
@@ -74,6 +78,9 @@ def _fmt(values: list[float], pct: bool = False, digits: int = 3) -> str:
 def ablation_variants(base: Scenario) -> list[tuple[str, Scenario]]:
     f = base.flock
     out = [('scenario as shipped', base)]
+    if f.allocation != 'demand':
+        out.append(('policies.allocation = demand (the default)',
+                    dataclasses.replace(base, flock=dataclasses.replace(f, allocation='demand'))))
     for key, value in (('zero_users', 'static'), ('m1_pending', 'lead'), ('m0_exhausted', 'serve'),
                        ('edge_choice', 'nearest'), ('edge_choice', 'keep_nearest'), ('edge_choice', 'share')):
         if getattr(f, key) != value:
@@ -85,7 +92,12 @@ def ablation_variants(base: Scenario) -> list[tuple[str, Scenario]]:
     return out
 
 
-def main(seeds: int, out: Path, docs: Path, scenario: str, ablation: bool = True) -> int:
+def with_demand(s: Scenario) -> Scenario:
+    """The scenario under the default policies: what it runs with its `policies` left out."""
+    return dataclasses.replace(s, flock=layouts.policy_sets(s)['default'])
+
+
+def main(seeds: int, out: Path, docs: Path, scenario: str, ablation: bool = True, random_layouts: int = 20) -> int:
     base = simrun.load_scenario(scenario)
     seed_ids = list(range(seeds))
     out.mkdir(parents=True, exist_ok=True)
@@ -98,8 +110,16 @@ def main(seeds: int, out: Path, docs: Path, scenario: str, ablation: bool = True
     variants = ablation_variants(base) if ablation else []
     jobs += [(f'abl/{i}/{n}/{k}', s.with_overrides(maps=n, seed=k))
              for i, (_, s) in enumerate(variants) for n in (60, 80, 90) for k in seed_ids]
+    demand = with_demand(base)
+    jobs += [(f'demand/{n}/{k}', demand.with_overrides(maps=n, seed=k)) for n in COUNTS_DEMAND for k in seed_ids]
     with tqdm(total=len(jobs), unit='run', desc='paper runs', mininterval=0.5) as bar:
         metrics = dict(zip((name for name, _ in jobs), simrun.sweep([s for _, s in jobs], lambda: bar.update(1))))
+    ended: list[layouts.Ended] = []
+    if random_layouts:
+        with tqdm(total=random_layouts * len(LAYOUT_FACTORS) * 2, unit='run', desc='random layouts',
+                  mininterval=0.5) as bar:
+            ended = layouts.evaluate(base, random_layouts, 1, list(LAYOUT_FACTORS), ['default', 'paper'],
+                                     LAYOUT_DURATION, 0, lambda done, total: bar.update(1))
 
     def runs(prefix: str) -> list[np.ndarray]:
         return [metrics[f'{prefix}/{k}'] for k in seed_ids]
@@ -121,14 +141,19 @@ def main(seeds: int, out: Path, docs: Path, scenario: str, ablation: bool = True
         simrun.trajectory_columns(result), result.users.xyz[:, :2], result.users.cluster, result.users.centroids,
         snap.flock.r, (0.0, 10.0, 20.0, 30.0), '90 MAPs, seed 0', out / 'formation_90.png')
 
-    write_results(docs, out, base, seeds, metrics, seed_ids, settled_f, variants, figs, time.time() - started)
+    settled_d = {n: [settled(m, 3) for m in runs(f'demand/{n}')] for n in COUNTS_DEMAND}
+    figs['fiedler_count_demand'] = _fiedler_vs_count(out / 'fiedler_vs_maps_demand.png', COUNTS_DEMAND, settled_d,
+                                                     'demand allocation')
+    write_results(docs, out, base, seeds, metrics, seed_ids, settled_f, variants, figs, time.time() - started,
+                  settled_d, ended)
     print(f'figures in {out}, results in {docs} ({time.time() - started:.0f} s)')
     return 0
 
 
 def write_results(docs: Path, out: Path, base: Scenario, seeds: int, metrics: dict[str, np.ndarray],
                   seed_ids: list[int], settled_f: dict[int, list[float]],
-                  variants: list[tuple[str, Scenario]], figs: dict[str, Path], elapsed: float) -> None:
+                  variants: list[tuple[str, Scenario]], figs: dict[str, Path], elapsed: float,
+                  settled_d: dict[int, list[float]], ended: list[layouts.Ended]) -> None:
     def runs(prefix: str) -> list[np.ndarray]:
         return [metrics[f'{prefix}/{k}'] for k in seed_ids]
 
@@ -212,5 +237,40 @@ def write_results(docs: Path, out: Path, base: Scenario, seeds: int, metrics: di
                 cells.append(cell)
             lines.append(f'| {label} | ' + ' | '.join(cells) + ' |')
         lines.append('')
+    t_demand = [time_to_connected_coverage(m) for m in runs('demand/90')]
+    first_conn = [n for n in COUNTS_DEMAND if min(settled_d[n]) > 0]
+    lines += [
+        '## The demand allocation on the paper layout',
+        '',
+        'The same layout with the default policies (`allocation: demand`, what a scenario without `policies` runs; '
+        'docs/allocation.md). Fiedler value after convergence by MAP count, over the same seeds:',
+        '',
+        '| MAPs | ' + ' | '.join(str(n) for n in COUNTS_DEMAND) + ' |',
+        '|---' * (len(COUNTS_DEMAND) + 1) + '|',
+        '| λ2 (mean) | ' + ' | '.join(f'{np.mean(settled_d[n]):.4f}' for n in COUNTS_DEMAND) + ' |',
+        '| connected seeds | ' + ' | '.join(f'{sum(v > 0 for v in settled_d[n])}/{seeds}' for n in COUNTS_DEMAND)
+        + ' |',
+        '',
+        f'Connected in every seed from {first_conn[0]} MAPs on' if first_conn else 'Never connected in every seed',
+        f'(Algorithm 2: ~65 in the paper, 70 here). 90 MAPs: first time with λ2 > 0 and R_c ≥ 95 %: '
+        f'{", ".join("never" if np.isnan(v) else f"{v:.1f} s" for v in t_demand)}; by 30 s in '
+        f'{sum(v <= 30 for v in t_demand if not np.isnan(v))}/{seeds} seeds.',
+        '',
+        f'![Fiedler value vs MAP count, demand allocation]({rel(figs["fiedler_count_demand"])})',
+        '',
+    ]
+    if ended:
+        count = len({e.job.layout for e in ended})
+        lines += [
+            '## Random layouts',
+            '',
+            f'{count} layouts of `./uav-flock layouts --seed 0` (3 to 6 clusters, docs/allocation.md), one seed, '
+            f'{LAYOUT_DURATION:g} s, N = ceil(factor x LB). Success: R_c ≥ 95 % on average and λ2 > 0 throughout '
+            'the last 10 s. `benchmarks/bench_layouts.py` runs more layouts and seeds.',
+            '',
+        ]
+        for policy, title in (('default', 'Default policies (demand allocation)'),
+                              ('paper', "The paper's Algorithm 2 (paper.yaml)")):
+            lines += [f'**{title}**', '', *layouts.table(ended, policy, list(LAYOUT_FACTORS)), '']
     docs.parent.mkdir(parents=True, exist_ok=True)
     docs.write_text('\n'.join(lines) + '\n')
