@@ -12,7 +12,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from uav_agent.core.control import control_input
-from uav_agent.core.modes import NO_GOAL, ClusterMap, Memory, Told, decide, reference
+from uav_agent.core.modes import NO_GOAL, ClusterMap, Memory, Told, apart_links, decide, reference
 
 from .core import world
 from .core.scenario import Scenario
@@ -147,18 +147,21 @@ class BatchSimulator:
         told = [m.achieved for m in stated]
         roles = [Told(m.mode, m.goal, m.bridge) for m in stated]
         nbr, counts, bounds = sensed.pairs[:, 1].tolist(), sensed.n_users.tolist(), sensed.bounds
-        refs = []
+        refs, apart = [], []
         for n, i in enumerate(rows.tolist()):
             near = nbr[bounds[n]:bounds[n + 1]]
             heard = [told[j] for j in near]
             mem = decide(self.memory[i], i, counts[n], sensed.cluster_coverage, sensed.q[n], heard, w.clusters, fp)
             self.memory[i] = mem
-            refs.append(reference(mem, i, sensed.q[n], sensed.q[near], [roles[j] for j in near], w.clusters, fp))
+            heard_roles = [roles[j] for j in near]
+            refs.append(reference(mem, i, sensed.q[n], sensed.q[near], heard_roles, w.clusters, fp))
+            apart += apart_links(mem, heard_roles, fp)
         target, qa, qb = (np.array([ref[c] for ref in refs]).reshape(-1, 3) for c in range(3))
         mode = np.array([ref[3] for ref in refs], dtype=np.intp)
         pairs = sensed.pairs
         u = control_input(sensed.q, sensed.p, sensed.n_users.astype(float), mode, target, qa, qb, pairs[:, 0],
-                          sensed.q[pairs[:, 1]], sensed.p[pairs[:, 1]], sensed.n_users[pairs[:, 1]].astype(float), fp)
+                          sensed.q[pairs[:, 1]], sensed.p[pairs[:, 1]], sensed.n_users[pairs[:, 1]].astype(float), fp,
+                          np.array(apart, dtype=bool))
         modes = np.array([self.memory[i].mode for i in rows], dtype=np.intp)
         goals = np.array([self.memory[i].goal for i in rows], dtype=np.intp)
         w.advance(sensed, u, modes, goals, integrate)

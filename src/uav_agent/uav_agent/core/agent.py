@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .control import control_input
-from .modes import ClusterMap, Memory, Told, decide, reference
+from .modes import ClusterMap, Memory, Told, apart_links, decide, reference
 from .params import FlockParams
 
 
@@ -33,5 +33,6 @@ def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_u
     owner = np.zeros(len(nbrs.q), dtype=np.intp)
     u = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([mode]),
                       target[None, :], q1[None, :], q2[None, :], owner, nbrs.q, nbrs.p,
-                      np.asarray(nbrs.n_users, dtype=float), params)
+                      np.asarray(nbrs.n_users, dtype=float), params,
+                      np.array(apart_links(mem, nbrs.told, params), dtype=bool))
     return u[0], mem

@@ -40,16 +40,26 @@ def spare_weight(n_users: F64, p: FlockParams) -> F64:
 
 
 def flocking_terms(own_q: F64, own_p: F64, own_nu: F64, owner: NDArray[np.intp],
-                   nbr_q: F64, nbr_p: F64, nbr_nu: F64, p: FlockParams) -> F64:
-    """f_i + g_i (eq. 10 and the consensus term) for every own MAP from its neighbours' q, p, N_u."""
+                   nbr_q: F64, nbr_p: F64, nbr_nu: F64, p: FlockParams,
+                   apart: NDArray[np.bool_] | None = None) -> F64:
+    """f_i + g_i (eq. 10 and the consensus term) for every own MAP from its neighbours' q, p, N_u.
+
+    apart marks links between MAPs of unrelated roles (demand allocation): they keep the repulsion of
+    Phi, so no two collide, but neither attract nor match velocities, so groups bound for different
+    places part instead of dragging one another.
+    """
     m = own_q.shape[0]
     if owner.size == 0:
         return np.zeros((m, 3))
     dq = nbr_q - own_q[owner]
     z = sigma_norm(dq, p.epsilon)
     gain = action(z, p.d, p.r, p.epsilon, p.a, p.b, p.gamma) + p.a * overload_weight(nbr_nu, p)
+    spare = spare_weight(own_nu[owner], p)
+    if apart is not None and apart.any():
+        gain = np.where(apart, np.minimum(gain, 0.0), gain)
+        spare = np.where(apart, 0.0, spare)
     f_edges = gain[:, None] * sigma_grad(dq, p.epsilon)
-    g_edges = spare_weight(own_nu[owner], p)[:, None] * (nbr_p - own_p[owner])
+    g_edges = spare[:, None] * (nbr_p - own_p[owner])
     return sum_edges(f_edges + g_edges, owner, m)
 
 
@@ -73,12 +83,12 @@ def connectivity_potential(q: F64, q1: F64, q2: F64, p: FlockParams) -> F64:
 
 def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer], target: F64,
                   bridge_a: F64, bridge_b: F64, owner: NDArray[np.intp], nbr_q: F64, nbr_p: F64,
-                  nbr_nu: F64, p: FlockParams) -> F64:
+                  nbr_nu: F64, p: FlockParams, apart: NDArray[np.bool_] | None = None) -> F64:
     """u_i of eq. 9 for every own MAP: flocking terms plus the goal term its mode selects.
 
     target is q^r for M0/M2 rows; bridge_a/bridge_b are q_1^r/q_2^r for M1 rows (ignored elsewhere).
     """
-    u = flocking_terms(own_q, own_p, own_nu, owner, nbr_q, nbr_p, nbr_nu, p)
+    u = flocking_terms(own_q, own_p, own_nu, owner, nbr_q, nbr_p, nbr_nu, p, apart)
     bridging = np.asarray(mode) == M1
     h = goal_term(own_q, own_p, target, p)
     if np.any(bridging):

@@ -228,22 +228,24 @@ def choose_bridge(mem: Memory, agent_id: int, q: np.ndarray, clusters: ClusterMa
     return mem if edge == mem.bridge else mem._replace(bridge=edge)
 
 
-def served(mem: Memory, r_g: float, p: FlockParams) -> Memory:
+def served(mem: Memory, r_g: float, arrived: bool, p: FlockParams) -> Memory:
     """Track the goal's coverage: achieved above r0, or once it has stopped growing (a stall).
 
     A cluster whose MAPs are all in place but that stays just under r0 would otherwise never count as
-    served; STALL_STEPS without a gain of STALL_GAIN counts it served, so it joins the achieved set.
+    served; STALL_STEPS without a gain of STALL_GAIN, counted while this MAP is at the cluster (arrived),
+    count it served, so it joins the achieved set.
     """
     if r_g > mem.best + STALL_GAIN:
         mem = mem._replace(best=r_g, flat=0)
-    elif r_g > 0:
+    elif arrived and r_g > 0:
         mem = mem._replace(flat=mem.flat + 1)
     if (r_g > p.r0 or mem.flat >= STALL_STEPS) and not mem.achieved >> mem.goal & 1:
         mem = mem._replace(achieved=mem.achieved | 1 << mem.goal)
     return mem
 
 
-def demand_switch(mem: Memory, agent_id: int, r_g: float, clusters: ClusterMap, p: FlockParams) -> Memory:
+def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
+                  p: FlockParams) -> Memory:
     """The demand allocation for one MAP at one step: its role from its key, then its mode.
 
     A server flies to its cluster in M0 and holds it in M2 once the cluster is served; a relay bridges
@@ -255,7 +257,8 @@ def demand_switch(mem: Memory, agent_id: int, r_g: float, clusters: ClusterMap, 
         if mem.goal != role:
             mem = Memory(mode=M0, goal=role, achieved=mem.achieved)
             r_g = 0.0
-        mem = served(mem, r_g, p)
+        arrived = float(np.hypot(*(np.asarray(q, dtype=float)[:2] - clusters.xy[role]))) <= clusters.radii[role]
+        mem = served(mem, r_g, arrived, p)
         if mem.mode == M0 and mem.achieved >> mem.goal & 1:
             mem = mem._replace(mode=M2)
         return mem
@@ -273,7 +276,7 @@ def decide(mem: Memory, agent_id: int, n_users: int, cluster_coverage: np.ndarra
         mem = mem._replace(achieved=achieved)
     r_g = float(cluster_coverage[mem.goal]) if mem.goal != NO_GOAL else 0.0
     if p.allocation == 'demand':
-        return demand_switch(mem, agent_id, r_g, clusters, p)
+        return demand_switch(mem, agent_id, r_g, q, clusters, p)
     mem = mode_switch(mem, n_users, r_g, q, clusters, p)
     return choose_bridge(mem, agent_id, q, clusters, p)
 
@@ -333,6 +336,27 @@ def relay_slot(place: float, edge: Edge, clusters: ClusterMap, p: FlockParams) -
     lo, hi = max(place - p.d / 4, 0.0), min(place + p.d / 4, length)
     return (np.array([a[0] + u[0] * lo, a[1] + u[1] * lo, p.height]),
             np.array([a[0] + u[0] * hi, a[1] + u[1] * hi, p.height]))
+
+
+def related(a: Told, b: Told) -> bool:
+    """Whether two MAPs' roles belong together: one cluster's servers, or a relay and its edge's servers
+    or fellow relays. Under the demand allocation only related MAPs attract (control.flocking_terms)."""
+    if a.mode == M1 and b.mode == M1:
+        return a.bridge == b.bridge
+    if a.mode == M1:
+        return a.bridge is not None and b.goal in a.bridge
+    if b.mode == M1:
+        return b.bridge is not None and a.goal in b.bridge
+    return a.goal == b.goal
+
+
+def apart_links(mem: Memory, heard: Sequence[Told], p: FlockParams) -> list[bool]:
+    """For each neighbour heard, whether its link to this MAP (as decided this step) joins unrelated roles;
+    all False under Algorithm 2, whose flocking terms take every neighbour alike."""
+    if p.allocation != 'demand':
+        return [False] * len(heard)
+    own = Told(mem.mode, mem.goal, mem.bridge)
+    return [not related(own, t) for t in heard]
 
 
 def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],
