@@ -185,6 +185,22 @@ def test_bag_tools_take_the_run_folder_or_a_file_of_the_bag(tmp_path: Path) -> N
     assert replayed.returncode == 0 and 'commands compared' in replayed.stdout, replayed.stdout + replayed.stderr
 
 
+def test_report_on_a_bag_without_steps_says_so(tmp_path: Path) -> None:
+    """The bag of a run interrupted before its first step: our fixed topics, no step. Not 'not a run'."""
+    early = tmp_path / 'early'
+    with AnyReader([GOLDEN / 'bag']) as r:
+        writer = Writer(early, version=8, storage_plugin=StoragePlugin.MCAP)
+        writer.open()
+        fixed = [c for c in r.connections if c.topic in ('/clusters', '/users')]
+        conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=r.typestore) for c in fixed}
+        for c, t, raw in r.messages(connections=fixed):
+            writer.write(conns[c.id], t, raw)
+        writer.close()
+    done = cli('report', str(early), '--out', str(tmp_path / 'r'))
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert 'the bag holds no steps' in done.stderr and 'not a uav-flock run' not in done.stderr, done.stderr
+
+
 def test_report_reads_a_bag_without_our_metadata(tmp_path: Path) -> None:
     """A bag as another recorder writes it: sqlite3 storage, no custom_data, extra topics."""
     foreign = tmp_path / 'foreign'

@@ -65,8 +65,29 @@ def test_command_line_reports_one_line_and_exit_2(doc: dict[str, Any], tmp_path:
     proc = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'sim', '--scenario', str(bad)],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
-    assert proc.stderr.strip().splitlines() == ['uav-flock: error: flock.d: must be below flock.r (24.0), got 25.0']
+    assert proc.stderr.strip().splitlines() == [f'uav-flock: error: {bad}: flock.d: must be below flock.r (24.0), '
+                                                'got 25.0']
     assert 'Traceback' not in proc.stderr
+
+
+@pytest.mark.parametrize('text, says', [
+    ('name: x\nfoo: 1\n', 'foo: unknown key'),
+    ('', 'the scenario file is empty'),
+    ('name: x\n  seed: [1\n', 'not valid YAML at line 2, column 7'),
+])
+def test_a_bad_scenario_file_is_named_and_located(tmp_path: Path, text: str, says: str) -> None:
+    bad = tmp_path / 'mine.yaml'
+    bad.write_text(text)
+    proc = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'sim', '--scenario', str(bad)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert f'{bad}: {says}' in proc.stderr, proc.stderr
+
+
+def test_options_are_never_abbreviated() -> None:
+    proc = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'sim', '--map', '40'],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and 'unrecognized arguments: --map 40' in proc.stderr, proc.stderr
 
 
 def test_command_line_rejects_bad_options_in_one_line() -> None:

@@ -94,7 +94,7 @@ def test_the_wrapper_help_names_every_command() -> None:
 
 
 def test_ctrl_c_ends_the_paper_sweep_without_running_the_rest(tmp_path: Path) -> None:
-    """Ctrl-C reaches the whole process group, as in a terminal. The sweep's 205 runs take minutes on two cores:
+    """Ctrl-C reaches the whole process group, as in a terminal. The sweep's hundreds of runs take minutes on two cores:
     the runs not yet started must be dropped, not run to the end before the exit."""
     log = tmp_path / 'stderr.txt'
     with open(log, 'w') as err:
@@ -103,7 +103,7 @@ def test_ctrl_c_ends_the_paper_sweep_without_running_the_rest(tmp_path: Path) ->
                                 start_new_session=True)
     try:
         deadline = time.monotonic() + 120
-        while not re.search(r'paper runs:.* [1-9]\d*/205', log.read_text()):
+        while not re.search(r'paper runs:.* [1-9]\d*/\d+', log.read_text()):
             assert time.monotonic() < deadline and proc.poll() is None, f'the sweep never started: {log.read_text()}'
             time.sleep(0.2)
         os.killpg(proc.pid, signal.SIGINT)

@@ -171,7 +171,10 @@ def _read(path: Path, reader: AnyReader) -> BagRun:
         elif conn.topic == '/clusters':
             clusters_msg = msg
     if not metrics and not traj:
-        raise BagError(f'{path}: no /metrics and no /map_<id>/state messages: not a uav-flock run')
+        if wanted:  # our topics are there, but the run never stepped
+            raise BagError(f'{path}: the bag holds no steps (no /metrics and no /map_<id>/state message): '
+                           'the run ended before its first step')
+        raise BagError(f'{path}: no uav_flock_msgs topics: not a uav-flock run')
     m = np.array(sorted(metrics), dtype=float).reshape(-1, len(records.METRICS_COLUMNS))
     run = BagRun(path=path, counts=dict(counts), metrics=m, trajectory=np.zeros((0, 12)), sensed=dict(sensed),
                  users=None, failures=sorted(failures), association=association,

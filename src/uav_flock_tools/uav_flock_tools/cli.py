@@ -21,6 +21,12 @@ class UsageError(Exception):
 
 
 class _Parser(argparse.ArgumentParser):
+    """One-line errors, and no prefix matching of options: `--map 40` is not taken for `--maps 40`."""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        kwargs.setdefault('allow_abbrev', False)
+        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
+
     def error(self, message: str) -> NoReturn:
         raise UsageError(f'{self.prog}: {message} (see --help)')
 

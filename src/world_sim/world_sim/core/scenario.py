@@ -221,5 +221,13 @@ def load(path: str | Path) -> Scenario:
         why = exc.strerror if isinstance(exc, OSError) else 'not a text file'
         raise ScenarioError(f'{path}: cannot read the scenario ({why})') from None
     except yaml.YAMLError as exc:
-        raise ScenarioError(f'{path}: not valid YAML ({str(exc).splitlines()[0]})') from None
-    return parse(doc)
+        mark = getattr(exc, 'problem_mark', None)
+        where = f' at line {mark.line + 1}, column {mark.column + 1}' if mark is not None else ''
+        what = getattr(exc, 'problem', None) or str(exc).splitlines()[0]
+        raise ScenarioError(f'{path}: not valid YAML{where} ({what})') from None
+    if doc is None:
+        raise ScenarioError(f'{path}: the scenario file is empty')
+    try:
+        return parse(doc)
+    except ScenarioError as exc:
+        raise ScenarioError(f'{path}: {exc}') from None
