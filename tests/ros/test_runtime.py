@@ -105,6 +105,36 @@ def test_killed_agents_are_dropped_and_the_run_completes(tmp_path: Path, ros_env
     assert last == set(range(12)) - {3, 7}
 
 
+def test_kill_takes_exactly_the_maps_it_says_when_agents_are_packed(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """A SIGKILL takes a whole process: one MAP of five packed is refused, naming the others; with
+    --whole-processes all five go, and what kill prints is what world_sim drops and the alive count shows."""
+    run = tmp_path / 'up'
+    proc = up('--maps', '10', '--seed', '0', '--duration', '150', '--agents-per-process', '5', '--out', str(run),
+              env=ros_env)
+    try:
+        wait_for_line(proc, 't =   2.0 s', 120)
+        refused = cli('kill', '--run', str(run), '--ids', '3')
+        assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1, refused.stderr
+        assert 'MAPs [0, 1, 2, 4]' in refused.stderr and '--whole-processes' in refused.stderr, refused.stderr
+        fraction = cli('kill', '--run', str(run), '--fraction', '0.1')
+        assert fraction.returncode == 2 and '--whole-processes' in fraction.stderr, fraction.stderr
+        killed = cli('kill', '--run', str(run), '--ids', '3', '--whole-processes')
+        assert killed.returncode == 0 and 'SIGKILLed MAPs [0, 1, 2, 3, 4]' in killed.stdout, killed.stdout + killed.stderr
+        seen = ''.join(wait_for_line(proc, '(killed)', 60))
+        if len(dropped_ids(seen)) < 5:
+            seen += ''.join(wait_for_line(proc, '(killed)', 60))
+        rest, _ = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, seen + rest
+    assert dropped_ids(seen) == [0, 1, 2, 3, 4], seen
+    m = read_csv(run / 'metrics.csv')
+    assert m['alive'][0] == 10 and m['alive'][-1] == 5
+    after = cli('kill', '--run', str(run), '--ids', '5')
+    assert after.returncode == 2 and 'has ended' in after.stderr, after.stdout + after.stderr
+
+
 def test_ctrl_c_ends_every_process_and_keeps_the_records(tmp_path: Path, ros_env: dict[str, str]) -> None:
     run = tmp_path / 'up'
     shm_before = shm_entries()

@@ -246,10 +246,10 @@ def cmd_kill(args: argparse.Namespace) -> int:
     if (args.ids is None) == (args.fraction is None):
         raise UsageError('kill: give exactly one of --ids or --fraction')
     try:
-        killed = launcher.kill(Path(args.run), args.ids, args.fraction)
+        killed, pids = launcher.kill(Path(args.run), args.ids, args.fraction, args.whole_processes)
     except (FileNotFoundError, ValueError) as exc:
         raise UsageError(f'kill: {exc}') from None
-    print(f'SIGKILLed MAPs {killed}' if killed else 'no live MAP matched')
+    print(f'SIGKILLed MAPs {killed} (processes {pids})' if killed else 'no live MAP matched')
     return 0
 
 
@@ -356,6 +356,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--run', required=True, help='the run folder of `up`')
     p.add_argument('--ids', type=int_list, help='MAP ids to kill, e.g. 3,7')
     p.add_argument('--fraction', type=fraction, help='fraction of the live MAPs to kill, chosen at random')
+    p.add_argument('--whole-processes', action='store_true',
+                   help='with agents packed several to a process: kill every MAP of the processes concerned '
+                        '(refused otherwise, since a SIGKILL takes them all)')
     p.set_defaults(func=cmd_kill)
     p = sub.add_parser('echo', help='print messages of a topic as `ros2 topic echo` does')
     p.add_argument('topic')
