@@ -273,6 +273,22 @@ def test_agents_listen_only_to_maps_in_radio_range(tmp_path: Path, ros_env: dict
     assert far_pairs > 50, 'the run must have MAPs far apart, or the check proves nothing'
 
 
+def test_echo_once_on_a_killed_map_ends_within_its_timeout(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """The killed MAP's stale endpoint still counts as a publisher, but no message comes: one line, exit 2."""
+    run = tmp_path / 'up'
+    proc = up('--maps', '4', '--seed', '0', '--duration', '600', '--out', str(run), env=ros_env)
+    try:
+        wait_for_line(proc, 't =   1.0 s', 120)
+        killed = cli('kill', '--run', str(run), '--ids', '3')
+        assert killed.returncode == 0, killed.stdout + killed.stderr
+        echoed = cli('echo', '/map_3/state', '--once', '--timeout', '5', '--run', str(run), timeout=120)  # hung before
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=30)
+    assert echoed.returncode == 2 and len(echoed.stderr.strip().splitlines()) == 1, echoed.stdout + echoed.stderr
+    assert '/map_3/state' in echoed.stderr and 'within 5 s' in echoed.stderr, echoed.stderr
+
+
 def test_echo_and_topics_show_a_live_run(tmp_path: Path, ros_env: dict[str, str]) -> None:
     import yaml
     run = tmp_path / 'up'

@@ -363,7 +363,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser('echo', help='print messages of a topic as `ros2 topic echo` does')
     p.add_argument('topic')
     p.add_argument('--once', action='store_true', help='print one message and exit')
-    p.add_argument('--timeout', type=positive_float, default=10.0, help='wait this long for a publisher (s)')
+    p.add_argument('--timeout', type=positive_float, default=10.0,
+                   help='wait at most this long for the first message, publisher or not (s, default 10)')
     p.add_argument('--run', help='a run folder of `up`: use its ROS_DOMAIN_ID')
     p.add_argument('--domain-id', type=domain_id, help='ROS_DOMAIN_ID to listen on (default: the environment)')
     p.set_defaults(func=cmd_echo)

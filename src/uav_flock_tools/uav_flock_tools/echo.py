@@ -160,14 +160,21 @@ def echo(topic: str, once: bool, timeout: float, run: Optional[str], domain_id: 
         qos = QoSProfile(depth=10,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
                          reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT)
-        done = False
+        done = shown = False
 
         def show(msg: Any) -> None:
-            nonlocal done
+            nonlocal done, shown
             print(to_yaml(msg), flush=True)
-            done = once
+            done, shown = once, True
 
         node.create_subscription(message_type(infos[0].topic_type), topic, show, qos)
+        # timeout bounds the wait for the first message too: a publisher can exist and never send (the stale
+        # endpoint of a SIGKILLed MAP counts as one until DDS notices it is gone).
+        while not shown and not stop.received and time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        if not shown and not stop.received:
+            raise EchoError(f'no message on {topic} within {timeout:g} s ({len(infos)} publisher(s) known, '
+                            'none sending)')
         while not done and not stop.received:  # Ctrl-C is the usual way to end an echo: exit 0, as ros2 does
             rclpy.spin_once(node, timeout_sec=0.2)
         node.destroy_node()
