@@ -289,7 +289,29 @@ def test_bag_tools_reject_bad_input_in_one_line(tmp_path: Path) -> None:
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
     shutil.copytree(GOLDEN / 'bag', tmp_path / 'bag')
     again = cli('up', '--scenario', SCENARIO, '--record', '--out', str(tmp_path))
-    assert again.returncode == 2 and 'exists already' in again.stderr  # a bag is never overwritten
+    assert again.returncode == 2 and 'holds files already' in again.stderr  # a bag is never overwritten
+
+
+def test_a_run_folder_is_never_shared_by_two_runs(tmp_path: Path) -> None:
+    """A second `up` into a run's folder is refused in one line; with --replace the folder is the new run alone."""
+    run = tmp_path / 'r'
+    first = cli('up', '--maps', '3', '--duration', '2', '--record', '--out', str(run))
+    assert first.returncode == 0, first.stdout + first.stderr
+    before = {p.name: p.stat().st_mtime_ns for p in run.iterdir()}
+    again = cli('up', '--maps', '4', '--duration', '2', '--out', str(run))
+    assert again.returncode == 2 and len(again.stderr.strip().splitlines()) == 1, again.stdout + again.stderr
+    assert '--replace' in again.stderr
+    assert {p.name: p.stat().st_mtime_ns for p in run.iterdir()} == before, 'nothing of the first run was touched'
+    replaced = cli('up', '--maps', '4', '--duration', '2', '--replace', '--out', str(run))
+    assert replaced.returncode == 0, replaced.stdout + replaced.stderr
+    assert not (run / 'bag').exists() and not (run / 'report').exists(), 'the old bag went with the old run'
+    assert json.loads((run / 'run.json').read_text())['maps'] == 4
+    assert set(read_csv(run / 'trajectory.csv')['id'].astype(int)) == {0, 1, 2, 3}
+    stray = tmp_path / 'notes'
+    stray.mkdir()
+    (stray / 'thesis.tex').write_text('mine')
+    refused = cli('sim', '--maps', '3', '--duration', '1', '--replace', '--out', str(stray))
+    assert refused.returncode == 2 and 'not a run folder' in refused.stderr and (stray / 'thesis.tex').exists()
 
 
 def test_rviz_markers_show_maps_by_mode_links_msds_and_centroids(recorded: Path) -> None:

@@ -124,6 +124,28 @@ def make_folder(path: Path, what: str) -> Path:
     return path
 
 
+RUN_MARKS = ('metrics.csv', 'run.json', 'bag')  # what every run folder of sim, up or run holds one of
+
+
+def run_folder(path: Path, what: str, replace: bool) -> Path:
+    """A new folder for one run's files: an earlier run's folder is refused, or with replace removed whole first.
+
+    Never two runs in one folder: their metrics, plots and bag would contradict each other.
+    """
+    if path.exists() and path.is_dir() and any(path.iterdir()):
+        if not replace:
+            raise UsageError(f'{what} {path} holds files already (an earlier run?); name a new folder, '
+                             'or pass --replace to replace that run whole')
+        looks_like_run = any((path / m).exists() for m in RUN_MARKS) or any(
+            (sub / 'metrics.csv').exists() for sub in path.glob('maps*_seed*'))
+        if not looks_like_run:
+            raise UsageError(f'{what} {path} is not a run folder (no {", ".join(RUN_MARKS)}): '
+                             'not removing it; name a new folder')
+        import shutil
+        shutil.rmtree(path)
+    return make_folder(path, what)
+
+
 SCENARIO_HELP = 'scenario YAML file, or a shipped name (default: paper)'
 BAG_HELP = 'the bag folder: RUN/bag for `up --record`, or just RUN'
 
@@ -163,7 +185,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     check_failure('sim', base, args)
     maps = args.maps or [base.maps]
     seeds = args.seed or [base.seed]
-    out = make_folder(Path(args.out) if args.out else default_out('sim'), 'sim: --out')
+    out = run_folder(Path(args.out) if args.out else default_out('sim'), 'sim: --out', args.replace)
     runs = simrun.grid(base, maps, seeds, duration=args.duration, fail_at=args.fail_at,
                        fail_fraction=args.fail_fraction)
     several = len(runs) > 1
@@ -202,7 +224,7 @@ RUN_AGENTS_PER_PROCESS = 10  # the main job packs agents: see docs/benchmarks.md
 def cmd_run(args: argparse.Namespace) -> int:
     """The main job: the paper scenario with 90 MAPs, distributed and recorded, then its report."""
     ns = argparse.Namespace(scenario='paper', maps=[90], seed=None, duration=None, fail_at=None,
-                            fail_fraction=None, out=args.out or str(default_out('run')))
+                            fail_fraction=None, out=args.out or str(default_out('run')), replace=args.replace)
     if args.batch:
         return cmd_sim(ns)
     ns.__dict__.update(maps=90, agents_per_process=RUN_AGENTS_PER_PROCESS, domain_id=None, discovery='auto',
@@ -226,7 +248,7 @@ def cmd_up(args: argparse.Namespace) -> int:
                             fail_fraction=args.fail_fraction)
     if args.rate != 1.0 and args.sync != 'realtime':
         raise UsageError('up: --rate sets the pace of --sync realtime; lockstep runs as fast as it can')
-    out = make_folder(Path(args.out) if args.out else default_out('up'), 'up: --out')
+    out = run_folder(Path(args.out) if args.out else default_out('up'), 'up: --out', args.replace)
     try:
         code, result = launcher.up(path.resolve(), s, out.resolve(), args.agents_per_process, args.domain_id,
                                    args.discovery, args.record, args.sync, args.rate)
@@ -330,11 +352,13 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser('sim', help='run a scenario in-process for one or more MAP counts and seeds')
     add_scenario_options(p, grid=True)
     p.add_argument('--out', help='output folder (default: runs/sim-<time>)')
+    p.add_argument('--replace', action='store_true', help='replace the earlier run in --out (refused otherwise)')
     p.set_defaults(func=cmd_sim)
     p = sub.add_parser('run', help='the main job: the paper scenario with 90 MAPs, distributed and recorded, '
                                    'with plots and a report of its bag')
     p.add_argument('--batch', action='store_true', help='in one process with the batch simulator instead (seconds)')
     p.add_argument('--out', help='output folder (default: runs/run-<time>)')
+    p.add_argument('--replace', action='store_true', help='replace the earlier run in --out (refused otherwise)')
     p.set_defaults(func=cmd_run)
     p = sub.add_parser('up', help='run a scenario distributed: world_sim and one process per MAP')
     add_scenario_options(p, grid=False)
@@ -351,6 +375,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--rate', type=positive_float, default=1.0,
                    help='realtime: simulated seconds per wall second (default: 1)')
     p.add_argument('--out', help='run folder (default: runs/up-<time>)')
+    p.add_argument('--replace', action='store_true', help='replace the earlier run in --out (refused otherwise)')
     p.set_defaults(func=cmd_up)
     p = sub.add_parser('kill', help='SIGKILL agent processes of a running `up`')
     p.add_argument('--run', required=True, help='the run folder of `up`')
