@@ -208,8 +208,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
     if several:
         series = [(label, r.metrics[:, 1], 100 * r.metrics[:, 2]) for label, r in done]
         plots.time_series(series, 'coverage ratio R_c (%)', 'Coverage', out / 'coverage.png')
-        plots.time_series([(label, r.metrics[:, 1], r.metrics[:, 3]) for label, r in done],
-                          'Fiedler value λ2 (-)', 'Connectivity', out / 'fiedler.png')
+        plots.fiedler_series([(label, r.metrics[:, 1], r.metrics[:, 3]) for label, r in done], 'Connectivity',
+                             out / 'fiedler.png')
     for label, r in done:
         m = r.metrics
         print(f'{label}: t = {m[-1, 1]:.1f} s, R_c = {100 * m[-1, 2]:.1f} %, Fiedler = {m[-1, 3]:.4f}, '

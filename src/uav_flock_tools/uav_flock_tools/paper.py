@@ -50,6 +50,8 @@ def _figure(path: Path, groups: list[tuple[str, list[np.ndarray]]], column: int,
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for label, runs in groups:
         _band(ax, runs, column, scale, label)
+    if column == 3:  # the Fiedler value: connected or not is what the figure is for
+        plots.fiedler_axis(ax)
     plots.finish(ax, 'time t (s)', ylabel, title + ' (line: mean over seeds, band: min to max)', events)
     return plots.save(fig, path)
 
@@ -62,7 +64,8 @@ def _fiedler_vs_count(path: Path, counts: tuple[int, ...], values: dict[int, lis
                 label='mean ± std over seeds')
     for n in counts:
         ax.scatter([n] * len(values[n]), values[n], s=8, c='0.5', zorder=3)
-    plots.finish(ax, 'number of MAPs', f'Fiedler value λ2 after convergence (mean of last {SETTLE:g} s)',
+    plots.fiedler_axis(ax)
+    plots.finish(ax, 'number of MAPs', f'Fiedler value λ2 after convergence (mean of last {SETTLE:g} s, symlog)',
                  f'Connectivity after convergence vs MAP count, {policies} (grey: single seeds)')
     return plots.save(fig, path)
 
@@ -128,7 +131,7 @@ def main(seeds: int, out: Path, docs: Path, scenario: str, ablation: bool = True
     figs['coverage'] = _figure(out / 'coverage_vs_time.png', [(f'{n} MAPs', runs(f'sweep/{n}')) for n in COUNTS_FIG],
                                2, 100, 'coverage ratio R_c (%)', 'Coverage vs time')
     figs['fiedler'] = _figure(out / 'fiedler_vs_time.png', [(f'{n} MAPs', runs(f'sweep/{n}')) for n in COUNTS_FIG],
-                              3, 1, 'Fiedler value λ2 (-)', 'Fiedler value vs time')
+                              3, 1, 'Fiedler value λ2 (-, symlog)', 'Fiedler value vs time')
     figs['failures'] = _figure(out / 'coverage_failures.png',
                                [('no failure', runs('sweep/80'))]
                                + [(f'{int(fr * 100)} % fail', runs(f'fail/{fr}')) for fr in FAIL_FRACTIONS],

@@ -23,14 +23,33 @@ def save(fig: plt.Figure, path: Path) -> Path:
 
 
 def finish(ax: plt.Axes, xlabel: str, ylabel: str, title: str, events: Sequence[float] = ()) -> None:
-    """Event marks (e.g. failures), axis labels with units, title, grid and legend."""
+    """Event marks (e.g. failures), axis labels with units, title, grid, and a legend when there is
+    more than one thing to tell apart."""
     for e in events:
         ax.axvline(e, color='grey', ls='--', lw=1, label=f'failure at t = {e:g} s')
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(loc='best', fontsize=8)
+    if len(ax.get_legend_handles_labels()[1]) > 1:
+        ax.legend(loc='best', fontsize=8)
+
+
+FIEDLER_LINEAR_BELOW = 1e-3  # the symlog axis is linear below this, so lambda2 = 0 sits on the axis
+
+
+def fiedler_axis(ax: plt.Axes, t: np.ndarray | None = None, fiedler: np.ndarray | None = None) -> None:
+    """A symlog axis for lambda2, where 0.02 stands well clear of 0, with 0 marked as disconnected; given
+    one run's series, its disconnected spans are shaded."""
+    ax.set_yscale('symlog', linthresh=FIEDLER_LINEAR_BELOW)
+    ax.set_ylim(bottom=0.0)
+    ax.axhline(0.0, color='tab:red', lw=1.2, label='λ2 = 0: disconnected')
+    if t is not None and fiedler is not None and len(t):
+        off = np.asarray(fiedler) <= 0
+        edges = np.flatnonzero(np.diff(np.r_[0, off.astype(int), 0]))
+        for start, stop in zip(edges[::2], edges[1::2]):
+            ax.axvspan(t[start], t[min(stop, len(t) - 1)], color='tab:red', alpha=0.12, lw=0,
+                       label='disconnected span' if start == edges[0] else None)
 
 
 def time_series(series: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: str, title: str,
@@ -40,6 +59,17 @@ def time_series(series: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: st
     for label, t, y in series:
         ax.plot(t, y, label=label, lw=1.6)
     finish(ax, 'time t (s)', ylabel, title, events)
+    return save(fig, path)
+
+
+def fiedler_series(series: Sequence[tuple[str, np.ndarray, np.ndarray]], title: str, path: Path,
+                   events: Sequence[float] = ()) -> Path:
+    """lambda2 over time on the Fiedler axis; one run's disconnected spans shaded."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for label, t, y in series:
+        ax.plot(t, y, label=label if len(series) > 1 else None, lw=1.6)
+    fiedler_axis(ax, *(series[0][1:] if len(series) == 1 else (None, None)))
+    finish(ax, 'time t (s)', 'Fiedler value λ2 (-, symlog)', title, events)
     return save(fig, path)
 
 
@@ -74,22 +104,29 @@ def formation(ax: plt.Axes, users_xy: np.ndarray, users_cluster: np.ndarray, cen
 def formation_snapshots(traj: dict[str, np.ndarray], users_xy: np.ndarray, users_cluster: np.ndarray,
                         centroids: np.ndarray, r: float, times: Sequence[float], title: str, path: Path) -> Path:
     """Formation at several times, side by side, sharing one legend."""
-    fig, axes = plt.subplots(1, len(times), figsize=(4.2 * len(times), 4.4), squeeze=False)
     all_t = np.unique(traj['t'])
-    for ax, want in zip(axes[0], times):
-        t = all_t[np.argmin(np.abs(all_t - want))]
+    shown = [all_t[np.argmin(np.abs(all_t - want))] for want in times]
+    # One frame for every panel, fitted to what they show, so the panels fill the figure.
+    pts = np.vstack([users_xy, np.column_stack([traj['x'][np.isin(traj['t'], shown)],
+                                                traj['y'][np.isin(traj['t'], shown)]])])
+    lo, hi = pts.min(axis=0) - 10.0, pts.max(axis=0) + 10.0
+    width = 3.6 * (hi[0] - lo[0]) / max(hi[1] - lo[1], 1e-9)
+    fig, axes = plt.subplots(1, len(times), figsize=(min(max(width, 2.4), 5.0) * len(times) + 0.6, 4.6),
+                             squeeze=False)
+    for ax, t in zip(axes[0], shown):
         sel = traj['t'] == t
         q = np.column_stack([traj['x'][sel], traj['y'][sel]])
         formation(ax, users_xy, users_cluster, centroids, q, traj['mode'][sel].astype(int), r, f't = {t:.1f} s')
-    handles, labels = axes[0][0].get_legend_handles_labels()
-    for ax in axes[0][1:]:
-        for h, lab in zip(*ax.get_legend_handles_labels()):
-            if lab not in labels:
-                handles.append(h)
-                labels.append(lab)
-    fig.legend(handles, labels, loc='lower center', ncol=len(labels), fontsize=8)
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+    # The legend in reading order, with every mode whether or not a panel shows it.
+    handles = [plt.Line2D([], [], ls='', marker='o', ms=3, color='0.75', label='MSD')]
+    handles += [plt.Line2D([], [], ls='', marker='o', ms=5, color=c, label=n) for c, n in zip(MODE_COLOURS, MODE_NAMES)]
+    handles += [plt.Line2D([], [], ls='', marker='x', ms=7, color='k', label='cluster centroid'),
+                plt.Line2D([], [], color='0.35', lw=0.8, label=f'link (within r = {r:g} m)')]
+    fig.legend(handles=handles, loc='lower center', ncol=len(handles), fontsize=8, frameon=False)
     fig.suptitle(title)
-    fig.tight_layout(rect=(0, 0.07, 1, 0.95))
+    fig.tight_layout(rect=(0, 0.08, 1, 0.96))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
@@ -106,8 +143,7 @@ def run_figures(metrics: np.ndarray, traj: dict[str, np.ndarray], users_xy: np.n
     out = [
         time_series([(label, t, 100 * metrics[:, 2])], 'coverage ratio R_c (%)', f'Coverage, {label}',
                     folder / 'coverage.png', events),
-        time_series([(label, t, metrics[:, 3])], 'Fiedler value λ2 (-)', f'Connectivity, {label}',
-                    folder / 'fiedler.png', events),
+        fiedler_series([(label, t, metrics[:, 3])], f'Connectivity, {label}', folder / 'fiedler.png', events),
         mode_counts(t, metrics[:, 6:9], f'Modes, {label}', folder / 'modes.png'),
     ]
     if users_xy is not None and users_cluster is not None and centroids is not None and len(traj['t']):

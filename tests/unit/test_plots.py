@@ -1,0 +1,41 @@
+"""What the figures must make visible: connected or not, at a glance."""
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from uav_flock_tools import plots  # noqa: E402
+
+
+def test_the_fiedler_axis_sets_small_values_apart_from_zero_and_shades_disconnected_spans() -> None:
+    t = np.arange(10) * 0.1
+    lam2 = np.array([0.5, 0.5, 0.0, 0.0, 0.02, 0.02, 0.0, 0.0, 0.0, 0.02])
+    fig, ax = plt.subplots()
+    ax.plot(t, lam2)
+    plots.fiedler_axis(ax, t, lam2)
+    fig.canvas.draw()
+    assert ax.get_yscale() == 'symlog'
+    to_px = ax.transData.transform
+    zero, small, large = (to_px((0.0, v))[1] for v in (0.0, 0.02, 0.5))
+    assert small - zero > 0.5 * (large - zero), '0.02 stands well clear of 0 (on a linear axis it is 4 % of the way)'
+    spans = [p for p in ax.patches if p.get_alpha() is not None]
+    assert len(spans) == 2, 'one shaded span per disconnected stretch'
+    labels = ax.get_legend_handles_labels()[1]
+    assert 'λ2 = 0: disconnected' in labels and labels.count('disconnected span') == 1
+    plt.close(fig)
+
+
+def test_a_single_series_gets_no_legend_of_its_own(tmp_path) -> None:
+    path = plots.time_series([('run', np.arange(5.0), np.ones(5))], 'R_c (%)', 'Coverage', tmp_path / 'c.png')
+    assert path.stat().st_size > 1000
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [0, 1], label='one')
+    plots.finish(ax, 'x', 'y', 'title')
+    assert ax.get_legend() is None
+    ax.plot([0, 1], [1, 0], label='two')
+    plots.finish(ax, 'x', 'y', 'title')
+    assert ax.get_legend() is not None
+    plt.close(fig)
