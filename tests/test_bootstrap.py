@@ -19,6 +19,7 @@ def scratch(tmp_path: Path) -> Path:
     """A checkout with the bootstrap and requirements but no .venv, and a bin/ holding only basic tools."""
     (tmp_path / 'tools').mkdir()
     shutil.copy(ROOT / 'tools' / 'bootstrap.sh', tmp_path / 'tools')
+    shutil.copy(ROOT / 'uav-flock', tmp_path)
     shutil.copytree(ROOT / 'requirements', tmp_path / 'requirements')
     (tmp_path / 'ros2_ws').mkdir()
     (tmp_path / 'ros2_ws' / 'src').mkdir()
@@ -31,11 +32,12 @@ def scratch(tmp_path: Path) -> Path:
     return tmp_path
 
 
-def bootstrap(root: Path, **env: str) -> subprocess.CompletedProcess[str]:
+def bootstrap(root: Path, *command: str, **env: str) -> subprocess.CompletedProcess[str]:
+    """tools/bootstrap.sh, or with command the ./uav-flock wrapper (which bootstraps first)."""
     base = {'PATH': str(root / 'bin'), 'HOME': os.environ.get('HOME', '/tmp')}
     base.update(env)
-    return subprocess.run(['bash', str(root / 'tools' / 'bootstrap.sh')], env=base, capture_output=True,
-                          text=True, timeout=300)
+    argv = ['bash', str(root / 'uav-flock'), *command] if command else ['bash', str(root / 'tools' / 'bootstrap.sh')]
+    return subprocess.run(argv, env=base, capture_output=True, text=True, timeout=300)
 
 
 def one_error_line(proc: subprocess.CompletedProcess[str]) -> str:
@@ -59,17 +61,22 @@ def test_missing_compiler_is_named(scratch: Path) -> None:
     assert not (scratch / '.venv').exists()
 
 
-def test_failed_download_is_named_and_leaves_no_stamp(scratch: Path) -> None:
+@pytest.mark.parametrize('through_wrapper', [False, True])
+def test_failed_download_is_named_and_leaves_no_stamp(scratch: Path, through_wrapper: bool) -> None:
+    """Also through ./uav-flock, as `make test` runs it: each stage says what it does, with the time so far."""
     for tool in ('cc', 'c++', 'cmake', 'make'):
         found = shutil.which(tool)
         assert found, f'the test needs {tool} on PATH'
         (scratch / 'bin' / tool).symlink_to(found)
     python = shutil.which('python3.11') or shutil.which('python3.12') or shutil.which('python3.10')
     assert python, 'the test needs a CPython 3.10-3.12 on PATH'
-    proc = bootstrap(scratch, UAV_FLOCK_PYTHON=os.path.realpath(python), PIP_INDEX_URL='http://127.0.0.1:9/simple',
+    proc = bootstrap(scratch, *(['test'] if through_wrapper else []), UAV_FLOCK_PYTHON=os.path.realpath(python),
+                     PIP_INDEX_URL='http://127.0.0.1:9/simple',
                      PIP_EXTRA_INDEX_URL='', PIP_FIND_LINKS='', PIP_RETRIES='0', PIP_TIMEOUT='2',
                      PIP_CONFIG_FILE=os.devnull)
     line = one_error_line(proc)
     assert 'package installation failed' in line and 'PyPI' in line
+    stages = [ln for ln in proc.stderr.splitlines() if ln.startswith('uav-flock: [set-up')]
+    assert [ln.split('] ')[1].split(' ')[0] for ln in stages] == ['creating', 'installing'], proc.stderr
     assert (scratch / '.venv' / 'bin' / 'python').exists(), 'the venv stays, so the next call only installs'
     assert not (scratch / '.venv' / '.uav-flock-stamp').exists(), 'an unfinished stage must not be stamped'

