@@ -80,3 +80,17 @@ def test_failed_download_is_named_and_leaves_no_stamp(scratch: Path, through_wra
     assert [ln.split('] ')[1].split(' ')[0] for ln in stages] == ['creating', 'installing'], proc.stderr
     assert (scratch / '.venv' / 'bin' / 'python').exists(), 'the venv stays, so the next call only installs'
     assert not (scratch / '.venv' / '.uav-flock-stamp').exists(), 'an unfinished stage must not be stamped'
+
+
+def test_the_shell_puts_the_environment_before_what_the_users_rc_files_add(tmp_path: Path) -> None:
+    """A ~/.bashrc that puts a pyenv-like shim first on PATH must not hide the venv's python."""
+    shim = tmp_path / 'shim'
+    shim.mkdir()
+    (shim / 'python').write_text('#!/bin/sh\necho shim-python\nexit 1\n')
+    (shim / 'python').chmod(0o755)
+    (tmp_path / '.bashrc').write_text(f'export PATH="{shim}:$PATH"\n')
+    env = {**os.environ, 'HOME': str(tmp_path)}
+    proc = subprocess.run([str(ROOT / 'uav-flock'), 'shell'], input='python -c "import rclpy, sys; print(sys.executable)"\n'
+                          'exit\n', env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert str(ROOT / '.venv') in proc.stdout and 'shim-python' not in proc.stdout, proc.stdout + proc.stderr
