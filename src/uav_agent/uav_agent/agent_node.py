@@ -88,6 +88,7 @@ class AgentNode(Node):
         self.neighbour_subs: dict[int, Subscription] = {}
         self.dead: set[int] = set()
         self.rejected: dict[str, int] = {}
+        self.repeats: dict[str, int] = {}  # late copies of earlier steps: normal on a busy DDS, only counted
         self.stopped = False
         self.run_finished = False  # stopped because world_sim ended the run normally
         self.last_state: Optional[AgentState] = None
@@ -113,6 +114,17 @@ class AgentNode(Node):
         self.rejected[source] = self.rejected.get(source, 0) + 1
         if self.rejected[source] == 1:
             self.get_logger().warning(f'rejected a message from {source}: {why} (further ones only counted)')
+
+    def repeat(self, source: str) -> None:
+        """Count a message of a step already past: the world and neighbours repeat a stalled step's
+        messages, and a late copy changes nothing, so it is no warning; the counts go in the log at the end."""
+        self.repeats[source] = self.repeats.get(source, 0) + 1
+
+    def summary(self) -> None:
+        """At the end: what was ignored, in one line, if anything."""
+        if self.repeats:
+            told = ', '.join(f'{n} from {src}' for src, n in sorted(self.repeats.items()))
+            self.get_logger().info(f'ignored {sum(self.repeats.values())} late copies of past steps ({told})')
 
     def on_clusters(self, msg: Clusters) -> None:
         xy = np.array([[c.x, c.y] for c in msg.centroids]).reshape(-1, 2)
@@ -150,7 +162,7 @@ class AgentNode(Node):
             self.answer_again()  # the world repeats a stalled step: say again what we said
             return
         if msg.step < self.step or (self.realtime and msg.step == self.step):
-            self.reject('sensing', f'stale step {msg.step} (now at {self.step})')
+            self.repeat('sensing')
             return
         self.sensed_at = time.monotonic()
         self.next_report = 2.0
@@ -172,8 +184,11 @@ class AgentNode(Node):
             return
         known = self.latest.get(sender)
         ahead = REALTIME_AHEAD_STEPS if self.realtime else 1  # in lockstep a neighbour is at most a step ahead
-        if (known is not None and msg.step < known.step) or msg.step > self.step + ahead:
-            self.reject(source, f'step {msg.step} out of order (now at {self.step})')
+        if known is not None and msg.step < known.step:
+            self.repeat('neighbour states')
+            return
+        if msg.step > self.step + ahead:  # no neighbour gets that far ahead: something is wrong
+            self.reject(source, f'step {msg.step} ahead of this MAP (now at {self.step})')
             return
         self.latest[sender] = msg
         if not self.realtime:
@@ -362,6 +377,7 @@ def main(argv: Optional[list[str]] = None) -> int:
         # by os._exit, past the interpreter's teardown.
         executor.shutdown()
         for n in nodes:
+            n.summary()
             n.destroy_node()
         rclpy.try_shutdown()
     return 1 if any(n.stopped and not n.run_finished for n in nodes) else 0
