@@ -30,7 +30,7 @@ from .core.agent import Neighbourhood, agent_step
 from .core.modes import NO_GOAL, ClusterMap, Memory
 from .core.params import FlockParams, check as check_params
 from .executors import PARAMETER_ERRORS, StopSignals, make_executor
-from .qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STATE_READ_QOS, STEP_QOS, is_realtime
+from .qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STEP_QOS, is_realtime
 
 WATCH_PERIOD_S = 1.0
 WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long (after it was seen): it is gone
@@ -215,7 +215,7 @@ class AgentNode(Node):
             self.destroy_subscription(old)
         self.neighbour_subs[j] = self.create_subscription(
             AgentState, f'/map_{j}/state', lambda m, j=j: self.on_state(j, m),
-            LATEST_STATE_READ_QOS if self.realtime else STATE_READ_QOS)
+            LATEST_STATE_READ_QOS if self.realtime else STATE_QOS)
 
     # ------------------------------------------------------------------ step
     def answer_again(self) -> None:

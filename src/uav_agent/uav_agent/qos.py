@@ -6,13 +6,11 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 HISTORY_DEPTH = 50
 RECORDER_MAX_LAG_STEPS = 16
 
-# State of a MAP: a neighbour that subscribes late gets the recent samples at once, the last one last.
+# State of a MAP, written and read alike: a neighbour that subscribes late gets the recent samples at once,
+# the last one last; and the deep reader queue keeps a flood of bad samples from another writer on the
+# same topic from evicting the genuine one before the callback has seen it.
 STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=HISTORY_DEPTH,
                        reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-# Reading states: a deep queue, so that a flood of bad samples from another writer on the same topic
-# cannot evict the genuine one before the callback has seen it.
-STATE_READ_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=HISTORY_DEPTH,
-                            reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Per-step traffic that must not be lost in lockstep: sensing, commands, association, metrics, events.
 STEP_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=HISTORY_DEPTH,
                       reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)

@@ -21,6 +21,7 @@ from rosbags.rosbag2 import ReaderError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from uav_agent.core.params import FlockParams
 from world_sim.core import records, world
 
 MSG_PACKAGE = 'uav_flock_msgs'
@@ -87,7 +88,7 @@ class BagRun:
 
     @property
     def r(self) -> float:
-        return float(self.params.get('r', 24.0))
+        return float(self.params.get('r', FlockParams().r))  # a bag without our metadata: the default range
 
 
 def _map_topic(topic: str) -> tuple[Optional[int], str]:

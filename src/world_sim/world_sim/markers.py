@@ -10,18 +10,19 @@ from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
+from uav_agent.core.modes import key_of
+
 from .batch import Sensed
 from .core.world import UNSERVED, Users
 
 # The mode colours of the plots (tab:blue, tab:orange, tab:green) for M0, M1, M2.
 MODE_RGB = ((0.12, 0.47, 0.71), (1.0, 0.50, 0.05), (0.17, 0.63, 0.17))
 UNSERVED_RGB = (0.6, 0.6, 0.6)
-GOLDEN = 0.618033988749895  # hue step: neighbouring MAP ids get far-apart colours
 
 
 def map_colour(map_id: int) -> tuple[float, float, float]:
     """A colour of its own for each MAP id, the same in every frame."""
-    return colorsys.hsv_to_rgb((map_id * GOLDEN) % 1.0, 0.75, 0.9)
+    return colorsys.hsv_to_rgb(key_of(map_id), 0.75, 0.9)  # neighbouring ids, far-apart hues
 
 
 def _rgba(rgb: tuple[float, float, float], a: float = 1.0) -> ColorRGBA:

@@ -73,6 +73,8 @@ def bridge_term(q: F64, p_vel: F64, q1: F64, q2: F64, p: FlockParams) -> F64:
     d1, d2 = q1 - q, q2 - q
     pull = (p.k * d1 / (1.0 + p.epsilon * sigma_norm(d1, p.epsilon))[..., None]
             + p.k * d2 / (1.0 + p.epsilon * sigma_norm(d2, p.epsilon))[..., None])
+    # Eq. 13 damps toward each of the two clusters' velocities with half of c2; both are zero (the
+    # clusters stand still), so the two halves are equal, kept as written for bit-equal results.
     return pull + 0.5 * p.c2 * (0.0 - p_vel) + 0.5 * p.c2 * (0.0 - p_vel)
 
 

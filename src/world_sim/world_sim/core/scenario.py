@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Callable
 
@@ -39,7 +39,6 @@ class Scenario:
     association: str = '3d'              # MSD-MAP range: '3d' (||y - q|| <= r) or 'horizontal'
     fail_at: float | None = None         # time of the random failure (s)
     fail_fraction: float = 0.0           # fraction of MAPs that fail then
-    extra: dict[str, Any] = field(default_factory=dict)
 
     @property
     def steps(self) -> int:
