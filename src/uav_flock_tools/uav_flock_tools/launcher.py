@@ -27,7 +27,7 @@ import numpy as np
 import yaml
 from setproctitle import setproctitle
 
-from world_sim.batch import RunResult, World
+from world_sim.core.model import RunResult, World
 from world_sim.core import records
 from world_sim.core.scenario import Scenario
 

@@ -12,7 +12,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from uav_agent.core.modes import key_of
 
-from .batch import Sensed
+from .core.model import Sensed
 from .core.world import UNSERVED, Users
 
 # The mode colours of the plots (tab:blue, tab:orange, tab:green) for M0, M1, M2.

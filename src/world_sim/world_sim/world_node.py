@@ -36,7 +36,7 @@ from uav_agent.core.modes import NO_GOAL
 from uav_agent.executors import StopSignals, spun_node
 from uav_agent.qos import LATCHED_QOS, LATEST_QOS, RECORDER_MAX_LAG_STEPS, STEP_QOS, is_realtime
 
-from .batch import Sensed, World
+from .core.model import Sensed, World
 from .markers import world_markers
 from .core import records
 from .core.scenario import ScenarioError
