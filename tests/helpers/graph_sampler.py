@@ -12,7 +12,7 @@ import rclpy
 from uav_flock_msgs.msg import Metrics
 
 from helpers.lifecycle import UntilTerm
-from uav_agent.qos import STEP_QOS
+from uav_flock_ros.qos import STEP_QOS
 
 def main() -> int:
     n = int(sys.argv[1])

@@ -11,7 +11,7 @@ from geometry_msgs.msg import Point, Vector3
 from uav_flock_msgs.msg import AgentState
 
 from helpers.lifecycle import UntilTerm
-from uav_agent.qos import STATE_QOS
+from uav_flock_ros.qos import STATE_QOS
 
 def main() -> int:
     target = int(sys.argv[1])

@@ -36,7 +36,7 @@ def helper(module: str, *args: str, env: dict[str, str]) -> subprocess.Popen[str
 
 def dead(pid: int) -> bool:
     """Gone or a zombie: world_sim's own test of a MAP's process."""
-    from world_sim.world_node import process_alive
+    from uav_flock_ros.processes import process_alive
     return not process_alive(pid)
 
 

@@ -11,7 +11,7 @@ import yaml
 from geometry_msgs.msg import Point, Vector3
 from std_msgs.msg import Int64
 from uav_agent.core.params import FlockParams
-from uav_agent.qos import LATCHED_QOS, STATE_QOS, STEP_QOS
+from uav_flock_ros.qos import LATCHED_QOS, STATE_QOS, STEP_QOS
 from uav_flock_msgs.msg import AgentState, Clusters, Command, NeighborList, Sensing
 
 

@@ -137,7 +137,8 @@ def test_run_trends_modes_and_numbers_from_the_bag_alone(recorded: Path) -> None
 
 def test_sigkilled_agents_leave_a_complete_bag(tmp_path: Path, ros_env: dict[str, str]) -> None:
     run = tmp_path / 'up'
-    proc = up('--scenario', SCENARIO, '--maps', '10', '--duration', '30', '--record', '--out', str(run), env=ros_env)
+    # 10 MAPs step about 100 times a second here: long enough a run that the kill lands while it goes on.
+    proc = up('--scenario', SCENARIO, '--maps', '10', '--duration', '150', '--record', '--out', str(run), env=ros_env)
     try:
         wait_for_line(proc, 't =   2.0 s', 120)
         killed = cli('kill', '--run', str(run), '--fraction', '0.3')

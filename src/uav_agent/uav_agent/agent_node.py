@@ -24,13 +24,13 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.subscription import Subscription
 from std_msgs.msg import Int64
 from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
+from uav_flock_ros import convert
+from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, make_executor
+from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STEP_QOS, is_realtime
 
-from . import convert
 from .core.agent import Neighbourhood, agent_step
-from .core.modes import NO_GOAL, ClusterMap, Memory
+from .core.modes import NO_GOAL, ClusterMap, Memory, Told, ids_of, mask_of
 from .core.params import FlockParams, check as check_params
-from .executors import PARAMETER_ERRORS, StopSignals, make_executor
-from .qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STEP_QOS, is_realtime
 
 WATCH_PERIOD_S = 1.0
 WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long (after it was seen): it is gone
@@ -127,15 +127,14 @@ class AgentNode(Node):
             self.get_logger().info(f'ignored {sum(self.repeats.values())} late copies of past steps ({told})')
 
     def on_clusters(self, msg: Clusters) -> None:
-        xy = np.array([[c.x, c.y] for c in msg.centroids]).reshape(-1, 2)
+        xy, _, radii = convert.clusters_arrays(msg)
         if not np.all(np.isfinite(xy)) or len(xy) == 0:
             self.reject('/clusters', 'no or non-finite centroids')
             return
-        radii = np.asarray(msg.radii, dtype=float)
-        if len(radii) not in (0, len(xy)) or not np.all(np.isfinite(radii) & (radii >= 0)):
-            self.reject('/clusters', f'{len(radii)} radii for {len(xy)} centroids, or a negative or non-finite one')
+        if (radii is None and len(msg.radii)) or (radii is not None and not np.all(np.isfinite(radii) & (radii >= 0))):
+            self.reject('/clusters', f'{len(msg.radii)} radii for {len(xy)} centroids, or a negative or non-finite one')
             return
-        self.clusters = ClusterMap(xy, self.params.height, radii if len(radii) else None)
+        self.clusters = ClusterMap(xy, self.params.height, radii)
         self.try_step()
 
     def on_finished(self, msg: Int64) -> None:
@@ -229,7 +228,7 @@ class AgentNode(Node):
         msg = AgentState(header=s.header, id=self.map_id, step=s.step, position=s.position,
                          velocity=s.velocity, user_count=s.user_count, mode=mem.mode, goal=mem.goal,
                          bridge=list(mem.bridge) if mem.bridge else [],
-                         achieved_goals=convert.achieved_list(mem.achieved))
+                         achieved_goals=ids_of(mem.achieved))
         self.state_pub.publish(msg)
         self.last_state = msg
 
@@ -249,8 +248,8 @@ class AgentNode(Node):
             q=np.array([convert.xyz(m.position) for m in heard]).reshape(-1, 3),
             p=np.array([convert.xyz(m.velocity) for m in heard]).reshape(-1, 3),
             n_users=np.array([float(m.user_count) for m in heard]),
-            achieved=[convert.achieved_mask(m) for m in heard],
-            told=[convert.told(m) for m in heard])
+            achieved=[mask_of(m.achieved_goals) for m in heard],
+            told=[Told(*convert.role(m)) for m in heard])
         coverage = np.zeros(self.clusters.count)
         if self.memory.goal != NO_GOAL:
             coverage[self.memory.goal] = s.goal_coverage  # r_g of the goal the world knows we hold

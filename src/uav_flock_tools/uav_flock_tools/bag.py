@@ -22,6 +22,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from uav_agent.core.params import FlockParams
+from uav_flock_ros import convert
 from world_sim.core import records, world
 
 MSG_PACKAGE = 'uav_flock_msgs'
@@ -185,11 +186,9 @@ def _read(path: Path, reader: AnyReader) -> BagRun:
     t[:, 1] = t[:, 0] * run.dt
     run.trajectory = t
     if users_msg is not None and clusters_msg is not None:
-        xyz = np.array([[p.x, p.y, p.z] for p in users_msg.positions]).reshape(-1, 3)
-        centroids = np.array([[c.x, c.y] for c in clusters_msg.centroids]).reshape(-1, 2)
-        radii = np.asarray(getattr(clusters_msg, 'radii', []), dtype=float)
-        run.users = world.Users(xyz, np.asarray(users_msg.cluster, dtype=np.intp), centroids,
-                                radii if len(radii) == len(centroids) else None)
+        xyz, cluster = convert.users_arrays(users_msg)
+        centroids, _, radii = convert.clusters_arrays(clusters_msg)
+        run.users = world.Users(xyz, cluster, centroids, radii)
     return run
 
 

@@ -346,7 +346,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from uav_agent.qos import SYNC_MODES
+    from uav_flock_ros.qos import SYNC_MODES
     parser = _Parser(prog='uav-flock', description=__doc__)
     sub = parser.add_subparsers(dest='command', required=True, parser_class=_Parser)
     p = sub.add_parser('sim', help='run a scenario in-process for one or more MAP counts and seeds')

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any, Optional
 import yaml
 
 if TYPE_CHECKING:
-    from uav_agent.executors import StopSignals
+    from uav_flock_ros.executors import StopSignals
 
 DISCOVERY_S = 1.5  # least time given to discovery before listing
 SETTLED_S = 1.0  # ... and the list must not have grown for this long
@@ -85,7 +85,7 @@ def _init_rclpy() -> 'StopSignals':
     """rclpy without its signal handlers: theirs end a spin with ExternalShutdownException and a traceback."""
     import rclpy
     from rclpy.signals import SignalHandlerOptions
-    from uav_agent.executors import StopSignals
+    from uav_flock_ros.executors import StopSignals
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     return StopSignals()
 

@@ -574,7 +574,7 @@ def kill(run: Path, ids: Optional[list[int]], fraction: Optional[float], whole_p
 
 def _running(pid: int, *words: str) -> bool:
     """A living process whose command line holds all of words: a pid alone may since belong to another."""
-    from world_sim.world_node import process_alive
+    from uav_flock_ros.processes import process_alive
     try:
         line = Path(f'/proc/{pid}/cmdline').read_bytes().replace(b'\0', b' ').decode(errors='replace')
     except OSError:

@@ -26,8 +26,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from std_msgs.msg import Int64
 from uav_flock_msgs.msg import Metrics
 
-from uav_agent.executors import StopSignals, spun_node
-from uav_agent.qos import LATCHED_QOS
+from uav_flock_ros.executors import StopSignals, spun_node
+from uav_flock_ros.qos import LATCHED_QOS
 
 from . import bag
 from .echo import message_type

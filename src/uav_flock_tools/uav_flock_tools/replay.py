@@ -116,7 +116,7 @@ def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
     from rclpy.signals import SignalHandlerOptions
     from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
 
-    from uav_agent.qos import LATCHED_QOS, STATE_QOS, STEP_QOS
+    from uav_flock_ros.qos import LATCHED_QOS, STATE_QOS, STEP_QOS
 
     i = inputs.agent
     context = rclpy.Context()

@@ -28,13 +28,13 @@ from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header, Int64
 from visualization_msgs.msg import MarkerArray
-from uav_flock_msgs.msg import (Association, Clusters, Command, FailureEvent, Metrics, NeighborList,
-                                Sensing, Users)
+from uav_flock_msgs.msg import Association, Clusters, Command, FailureEvent, Metrics, Sensing, Users
 
-from uav_agent import convert
 from uav_agent.core.modes import NO_GOAL
-from uav_agent.executors import StopSignals, spun_node
-from uav_agent.qos import LATCHED_QOS, LATEST_QOS, RECORDER_MAX_LAG_STEPS, STEP_QOS, is_realtime
+from uav_flock_ros import convert
+from uav_flock_ros.executors import StopSignals, spun_node
+from uav_flock_ros.processes import process_alive
+from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, RECORDER_MAX_LAG_STEPS, STEP_QOS, is_realtime
 
 from .core.model import Sensed, World
 from .markers import world_markers
@@ -62,15 +62,6 @@ def sim_time(t: float) -> Time:
 
 # Parameters that override the scenario, each with the default that means "the scenario's value".
 SCENARIO_OVERRIDES = {'maps': 0, 'seed': -1, 'duration': 0.0, 'fail_at': -1.0, 'fail_fraction': -1.0}
-
-
-def process_alive(pid: int) -> bool:
-    """A process that exists and is not a zombie (killed but not yet reaped)."""
-    try:
-        with open(f'/proc/{pid}/stat') as f:
-            return f.read().rsplit(')', 1)[1].split()[0] != 'Z'
-    except (OSError, IndexError):
-        return False
 
 
 class WorldNode(Node):
@@ -148,11 +139,8 @@ class WorldNode(Node):
 
     def publish_fixed(self) -> None:
         u = self.world.users
-        self.users_pub.publish(Users(header=self.header(), positions=[convert.point(y) for y in u.xyz],
-                                     cluster=u.cluster.astype(np.uint32).tolist()))
-        self.clusters_pub.publish(Clusters(
-            header=self.header(), centroids=[convert.point(np.array([c[0], c[1], 0.0])) for c in u.centroids],
-            sizes=u.cluster_sizes.astype(np.uint32).tolist(), radii=np.asarray(u.radii, dtype=float).tolist()))
+        self.users_pub.publish(convert.users(self.header(), u.xyz, u.cluster))
+        self.clusters_pub.publish(convert.clusters(self.header(), u.centroids, u.cluster_sizes, u.radii))
 
     # ------------------------------------------------------------------ lockstep
     def tick(self) -> None:
@@ -202,10 +190,7 @@ class WorldNode(Node):
         self.step_resends = 0
         hdr = self.header()
         self.clock_pub.publish(Clock(clock=hdr.stamp))
-        self.assoc_pub.publish(Association(
-            header=hdr, step=s.k, map_ids=s.ids.astype(np.uint32).tolist(),
-            user_counts=s.n_users.astype(np.uint32).tolist(), cluster_coverage=s.cluster_coverage.tolist(),
-            coverage_ratio=s.coverage_ratio))
+        self.assoc_pub.publish(convert.association(hdr, s.k, s.ids, s.n_users, s.cluster_coverage, s.coverage_ratio))
         self.publish_sensing(hdr)
         if not self.realtime:
             self.maybe_advance()  # no live MAP left to wait for: no command will ever come
@@ -218,12 +203,9 @@ class WorldNode(Node):
                 continue
             nbr = s.neighbours(row)
             goal = int(w.goal[i])
-            self.sensing_pubs[i].publish(Sensing(
-                header=hdr, id=i, step=s.k, position=convert.point(s.q[row]), velocity=convert.vector(s.p[row]),
-                user_count=int(s.n_users[row]),
-                goal_coverage=float(s.cluster_coverage[goal]) if goal != NO_GOAL else 0.0,
-                neighbors=NeighborList(id=i, ids=s.ids[nbr].astype(np.uint32).tolist(),
-                                       distances=np.linalg.norm(s.q[nbr] - s.q[row], axis=1).tolist())))
+            self.sensing_pubs[i].publish(convert.sensing(
+                hdr, i, s.k, s.q[row], s.p[row], int(s.n_users[row]),
+                float(s.cluster_coverage[goal]) if goal != NO_GOAL else 0.0, s.ids[nbr], s.q[nbr]))
 
     def on_command(self, sender: int, msg: Command) -> None:
         s = self.sensed

@@ -1,0 +1,85 @@
+"""Messages to numpy values and back: the one place where uav_flock_msgs meet the cores' arrays.
+
+Builders take arrays and numbers, readers return them; the cores' own types (ClusterMap, Users, Told) are
+made from those by the caller, so this package depends on the messages alone. The readers are
+duck-typed: they read rclpy messages and the ones rosbags deserializes from a bag alike.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Iterable, Optional
+
+import numpy as np
+from geometry_msgs.msg import Point, Vector3
+from std_msgs.msg import Header
+from uav_flock_msgs.msg import AgentState, Association, Clusters, NeighborList, Sensing, Users
+
+
+def point(v: np.ndarray) -> Point:
+    return Point(x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+
+def vector(v: np.ndarray) -> Vector3:
+    return Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+
+def xyz(m: Point | Vector3) -> np.ndarray:
+    return np.array([m.x, m.y, m.z])
+
+
+def xyz_rows(points: Iterable[Any]) -> np.ndarray:
+    """(n, 3) array of a list of points."""
+    return np.array([[p.x, p.y, p.z] for p in points], dtype=float).reshape(-1, 3)
+
+
+def finite(*values: Point | Vector3 | float) -> bool:
+    """True if every number (or every coordinate of a Point/Vector3) is finite."""
+    for v in values:
+        parts: Iterable[float] = (v.x, v.y, v.z) if hasattr(v, 'x') else (v,)
+        if not all(math.isfinite(float(c)) for c in parts):
+            return False
+    return True
+
+
+def role(msg: AgentState) -> tuple[int, int, Optional[tuple[int, int]]]:
+    """(mode, goal, bridge) a neighbour's state states; bridge None unless it names two clusters."""
+    bridge = tuple(int(c) for c in msg.bridge)
+    return int(msg.mode), int(msg.goal), (bridge[0], bridge[1]) if len(bridge) == 2 else None
+
+
+def users(header: Header, xyz_all: np.ndarray, cluster: np.ndarray) -> Users:
+    return Users(header=header, positions=[point(y) for y in xyz_all], cluster=np.asarray(cluster, np.uint32).tolist())
+
+
+def users_arrays(msg: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (M, 3) in m, cluster index per MSD)."""
+    return xyz_rows(msg.positions), np.asarray(msg.cluster, dtype=np.intp)
+
+
+def clusters(header: Header, centroids: np.ndarray, sizes: np.ndarray, radii: np.ndarray) -> Clusters:
+    return Clusters(header=header, centroids=[point(np.array([c[0], c[1], 0.0])) for c in centroids],
+                    sizes=np.asarray(sizes, np.uint32).tolist(), radii=np.asarray(radii, dtype=float).tolist())
+
+
+def clusters_arrays(msg: Any) -> tuple[np.ndarray, np.ndarray, Optional[np.ndarray]]:
+    """(centroids (K, 2) in m, sizes, radii (K,) in m or None when the message has none for every cluster)."""
+    xy = xyz_rows(msg.centroids)[:, :2]
+    radii = np.asarray(getattr(msg, 'radii', []), dtype=float)
+    return xy, np.asarray(msg.sizes, dtype=np.intp), radii if len(radii) == len(xy) else None
+
+
+def association(header: Header, step: int, ids: np.ndarray, n_users: np.ndarray, cluster_coverage: np.ndarray,
+                coverage_ratio: float) -> Association:
+    return Association(header=header, step=int(step), map_ids=np.asarray(ids, np.uint32).tolist(),
+                       user_counts=np.asarray(n_users, np.uint32).tolist(),
+                       cluster_coverage=np.asarray(cluster_coverage, dtype=float).tolist(),
+                       coverage_ratio=float(coverage_ratio))
+
+
+def sensing(header: Header, map_id: int, step: int, q: np.ndarray, p: np.ndarray, n_users: int,
+            goal_coverage: float, neighbour_ids: np.ndarray, neighbour_q: np.ndarray) -> Sensing:
+    """One MAP's sensing of a step: its own q, p, N_u and r_g, and its neighbours with their distances."""
+    return Sensing(header=header, id=int(map_id), step=int(step), position=point(q), velocity=vector(p),
+                   user_count=int(n_users), goal_coverage=float(goal_coverage),
+                   neighbors=NeighborList(id=int(map_id), ids=np.asarray(neighbour_ids, np.uint32).tolist(),
+                                          distances=np.linalg.norm(neighbour_q - q, axis=1).tolist()))
