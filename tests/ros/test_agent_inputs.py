@@ -7,10 +7,10 @@ import time
 from pathlib import Path
 
 import rclpy
-import yaml
 from geometry_msgs.msg import Point, Vector3
 from std_msgs.msg import Int64
 from uav_agent.core.params import FlockParams
+from uav_flock_ros.processes import write_params
 from uav_flock_ros.qos import LATCHED_QOS, STATE_QOS, STEP_QOS
 from uav_flock_msgs.msg import AgentState, Clusters, Command, NeighborList, Sensing
 
@@ -25,8 +25,7 @@ def wait(node: rclpy.node.Node, until, timeout: float, what: str) -> None:  # ty
 def test_late_copies_of_past_steps_are_counted_not_warned(tmp_path: Path, ros_env: dict[str, str]) -> None:
     """A neighbour's state of step 0 arriving again after step 1 is normal on a busy DDS: no warning in a
     healthy run, and the count in the log at the end."""
-    params = tmp_path / 'params.yaml'
-    params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {**FlockParams().as_dict(), 'sync': 'lockstep'}}}))
+    params = write_params(tmp_path / 'params.yaml', {**FlockParams().as_dict(), 'sync': 'lockstep'})
     agent = subprocess.Popen([sys.executable, '-m', 'uav_agent.agent_node', '--ids', '0', '--ros-args',
                               '--params-file', str(params)], env=ros_env, stdout=subprocess.PIPE,
                              stderr=subprocess.STDOUT, text=True)

@@ -1,5 +1,16 @@
-"""Process checks the world node and the command line share."""
+"""Process checks and node parameter files, shared by the world node, the launcher, replay and tests."""
 from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+def write_params(path: Path, values: dict[str, Any]) -> Path:
+    """A ros__parameters file that applies to every node of the process (`--ros-args --params-file`)."""
+    path.write_text(yaml.safe_dump({'/**': {'ros__parameters': values}}, sort_keys=False))
+    return path
 
 
 def process_alive(pid: int) -> bool:

@@ -108,6 +108,15 @@ def _custom(path: Path, key: str) -> dict[str, Any]:
         return {}
 
 
+def _recorded_params(path: Path) -> dict[str, Any]:
+    """The agents' parameters the bag was recorded with. A bag from before `allocation` existed was made
+    under Algorithm 2, so that is what its replay must run."""
+    params = _custom(path, PARAMS_KEY)
+    if params and 'allocation' not in params:
+        params['allocation'] = 'algorithm2'
+    return params
+
+
 def find_bag(path: Path) -> Path:
     """The bag folder that path names: the folder itself, a run folder holding bag/, or a file in the bag.
 
@@ -181,7 +190,7 @@ def _read(path: Path, reader: AnyReader) -> BagRun:
     run = BagRun(path=path, counts=dict(counts), metrics=m, trajectory=np.zeros((0, 12)), sensed=dict(sensed),
                  users=None, failures=sorted(failures), association=association,
                  heard={kind: dict(v) for kind, v in heard.items()},
-                 params=_custom(path, PARAMS_KEY), scenario=_custom(path, SCENARIO_KEY))
+                 params=_recorded_params(path), scenario=_custom(path, SCENARIO_KEY))
     t = np.array(sorted(traj), dtype=float).reshape(-1, len(records.TRAJECTORY_COLUMNS))
     t[:, 1] = t[:, 0] * run.dt
     run.trajectory = t

@@ -24,9 +24,9 @@ from pathlib import Path
 from typing import IO, Callable, Optional, Sequence, Union
 
 import numpy as np
-import yaml
 from setproctitle import setproctitle
 
+from uav_flock_ros.processes import write_params
 from world_sim.core.model import RunResult, World
 from world_sim.core import records
 from world_sim.core.scenario import Scenario
@@ -389,9 +389,8 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     discovery_range = 'SUBNET' if discovery == 'subnet' else 'LOCALHOST'
     env = ros_env(domain, server_address, discovery_range)
     start_timeout = max(START_TIMEOUT_MIN_S, START_TIMEOUT_PER_PROCESS_S * processes)
-    params = run / 'agent_params.yaml'
-    params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {
-        **scenario.flock.as_dict(), 'sync': sync, 'world_start_timeout': 2 * start_timeout}}}, sort_keys=False))
+    params = write_params(run / 'agent_params.yaml', {**scenario.flock.as_dict(), 'sync': sync,
+                                                      'world_start_timeout': 2 * start_timeout})
     info: dict[str, object] = {'domain_id': domain, 'discovery_server': server_address,
                                'discovery_range': None if server_address else discovery_range,
                                'scenario': str(scenario_path), 'maps': scenario.maps, 'seed': scenario.seed,
@@ -434,10 +433,9 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
             info['discovery_server_pid'] = server.pid
         go_on()
         if record:
-            rec_params = run / 'recorder_params.yaml'
-            rec_params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {
+            rec_params = write_params(run / 'recorder_params.yaml', {
                 'out': str(bag_path), 'maps': scenario.maps, 'params_json': json.dumps(scenario.flock.as_dict()),
-                'scenario_json': json.dumps(scenario_summary(scenario_path, scenario))}}}))
+                'scenario_json': json.dumps(scenario_summary(scenario_path, scenario))})
             # With a discovery server, a plain client hears only of the topics it already uses; the recorder
             # finds its topics in the graph, so it is a super-client, which hears of every endpoint.
             recorder = subprocess.Popen(

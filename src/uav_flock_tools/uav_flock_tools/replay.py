@@ -18,9 +18,9 @@ from pathlib import Path
 from typing import Callable, Optional
 
 import numpy as np
-import yaml
 
 from uav_agent.core.params import FlockParams
+from uav_flock_ros.processes import write_params
 
 from . import bag, launcher
 
@@ -77,8 +77,7 @@ def replay(path: Path, agent: int, tolerance: float = 1e-9, timeout: float = 20.
                                             for k, v in overrides.items()}}
     with launcher.claim_domain() as domain, tempfile.TemporaryDirectory(prefix='uav-flock-replay-') as tmp:
         env = launcher.ros_env(domain)
-        params = Path(tmp) / 'agent_params.yaml'
-        params.write_text(yaml.safe_dump({'/**': {'ros__parameters': inputs.params}}, sort_keys=False))
+        params = write_params(Path(tmp) / 'agent_params.yaml', inputs.params)
         log = open(Path(tmp) / 'agent.log', 'w')
         proc = subprocess.Popen([launcher.executable('uav_agent', 'uav_agent_node'), '--ids', str(agent),
                                  '--ros-args', '--params-file', str(params)],
