@@ -121,7 +121,7 @@ def table(ended: list[Ended], policy: str, factors: list[float]) -> list[str]:
     ks = sorted({len(e.job.scenario.clusters) for e in mine})
     lines = ['| N / LB | runs | success | ' + ' | '.join(f'K = {k}' for k in ks)
              + ' | median time to success (s) | R_c over last 10 s | connected | cluster MAPs / floor '
-             '(median of min) | edge MAPs / floor (median of min) | astray | M0 at end |',
+             '(median of min) | MAPs between discs / relay floor (median) | astray | M0 at end |',
              '|---' * (10 + len(ks)) + '|']
     for f in factors:
         rs = [e for e in mine if e.job.factor == f]
@@ -129,11 +129,11 @@ def table(ended: list[Ended], policy: str, factors: list[float]) -> list[str]:
             continue
         ok = [e.outcome.time_to_success for e in rs if e.outcome.success]
         cl = [min(n / max(d, 1) for n, d in zip(e.outcome.per_cluster, e.floor.per_cluster)) for e in rs]
-        ed = [min((n / d for n, d in zip(e.outcome.per_edge, e.floor.per_edge) if d > 0), default=1.0) for e in rs]
+        ed = [sum(e.outcome.per_edge) / max(sum(e.floor.per_edge), 1) for e in rs]
         by_k = [_pct([e.outcome.success for e in rs if len(e.job.scenario.clusters) == k]) for k in ks]
         lines.append(
             f'| {f:g} | {len(rs)} | **{_pct([e.outcome.success for e in rs])}** | ' + ' | '.join(by_k)
-            + f' | {np.median(ok) if ok else float("nan"):.1f} | '
+            + f' | {f"{np.median(ok):.1f}" if ok else "–"} | '
             f'{100 * np.mean([e.outcome.final_coverage for e in rs]):.1f} % | '
             f'{_pct([e.outcome.connected_tail for e in rs])} | {np.median(cl):.2f} | {np.median(ed):.2f} | '
             f'{np.mean([e.outcome.astray for e in rs]):.1f} | {np.mean([e.outcome.in_m0 for e in rs]):.1f} |')
