@@ -27,7 +27,7 @@ import numpy as np
 from setproctitle import setproctitle
 
 from uav_flock_ros.processes import write_params
-from world_sim.core.model import RunResult, World
+from world_sim.core.model import RunResult
 from world_sim.core import records
 from world_sim.core.scenario import Scenario
 
@@ -507,8 +507,9 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
 
 
 def read_result(run: Path, scenario: Scenario) -> Optional[RunResult]:
-    """The run's records as a RunResult (users regenerated from the seed, as the world made them)."""
-    if not (run / 'metrics.csv').exists():
+    """The run's records as a RunResult, from the files world_sim wrote (None if it wrote none)."""
+    if not all((run / f).exists() for f in ('metrics.csv', 'trajectory.csv', records.USERS_FILE,
+                                            records.FAILURES_FILE)):
         return None
     m = records.read_csv(run / 'metrics.csv')
     if len(m['step']) == 0:
@@ -516,12 +517,8 @@ def read_result(run: Path, scenario: Scenario) -> Optional[RunResult]:
     t = records.read_csv(run / 'trajectory.csv')
     metrics = np.column_stack([m[c] for c in records.METRICS_COLUMNS]).reshape(-1, len(records.METRICS_COLUMNS))
     traj = np.column_stack([t[c] for c in records.TRAJECTORY_COLUMNS]).reshape(-1, len(records.TRAJECTORY_COLUMNS))
-    w = World(scenario)
-    fail_step = w.fail_step if scenario.fail_fraction > 0 else None
-    steps = traj[:, 0]
-    first, last = traj[steps == steps.min(), 2], traj[steps == steps.max(), 2]
-    failed = np.setdiff1d(first, last).astype(np.intp)
-    return RunResult(scenario, w.users, metrics, traj, failed, fail_step)
+    failed, fail_step = records.read_failures(run / records.FAILURES_FILE)
+    return RunResult(scenario, records.read_users(run / records.USERS_FILE), metrics, traj, failed, fail_step)
 
 
 def kill(run: Path, ids: Optional[list[int]], fraction: Optional[float], whole_processes: bool = False

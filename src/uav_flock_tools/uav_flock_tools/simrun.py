@@ -23,10 +23,12 @@ def trajectory_columns(result: RunResult) -> dict[str, np.ndarray]:
 
 
 def write_run(result: RunResult, folder: Path, label: str) -> list[Path]:
-    """metrics.csv, trajectory.csv and the run's PNGs into folder."""
+    """metrics.csv, trajectory.csv, the MSDs and failures, and the run's PNGs into folder."""
     folder.mkdir(parents=True, exist_ok=True)
     records.write_metrics(folder / 'metrics.csv', result.metrics)
     records.write_trajectory(folder / 'trajectory.csv', result.trajectory)
+    records.write_users(folder / records.USERS_FILE, result.users)
+    records.write_failures(folder / records.FAILURES_FILE, result.failed, result.fail_step)
     events = [result.fail_step * result.scenario.dt] if result.fail_step is not None and len(result.failed) else []
     u = result.users
     return plots.run_figures(result.metrics, trajectory_columns(result), u.xyz[:, :2], u.cluster, u.centroids,

@@ -415,6 +415,8 @@ class WorldNode(Node):
             self.out.mkdir(parents=True, exist_ok=True)
             records.write_metrics(self.out / 'metrics.csv', result.metrics)
             records.write_trajectory(self.out / 'trajectory.csv', result.trajectory)
+            records.write_users(self.out / records.USERS_FILE, result.users)
+            records.write_failures(self.out / records.FAILURES_FILE, result.failed, result.fail_step)
 
 
 def main(argv: Optional[list[str]] = None) -> int:

@@ -111,4 +111,4 @@ class World:
     def result(self) -> RunResult:
         traj = np.concatenate(self._traj) if self._traj else np.zeros((0, 12))
         return RunResult(self.s, self.users, np.array(self._metrics).reshape(-1, 9), traj, self.failed,
-                         self.fail_step)
+                         self.fail_step if self.s.fail_fraction > 0 else None)

@@ -1,10 +1,16 @@
 """The run records every runner writes: metrics.csv and trajectory.csv, one column set for all."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
+from .world import Users
+
+USERS_FILE = 'users.npz'        # what world_sim leaves besides the two CSV files
+FAILURES_FILE = 'failures.json'
 METRICS_COLUMNS = ('step', 't', 'coverage_ratio', 'fiedler', 'alive', 'components', 'mode0', 'mode1', 'mode2')
 TRAJECTORY_COLUMNS = ('step', 't', 'id', 'x', 'y', 'z', 'vx', 'vy', 'vz', 'mode', 'goal', 'user_count')
 _METRICS_FMT = ('%d', '%.10g', '%.10g', '%.10g', '%d', '%d', '%d', '%d', '%d')
@@ -29,3 +35,25 @@ def read_csv(path: Path) -> dict[str, np.ndarray]:
     data = np.genfromtxt(path, delimiter=',', names=True, dtype=float)
     data = np.atleast_1d(data)
     return {name: data[name] for name in data.dtype.names}
+
+
+def write_users(path: Path, users: Users) -> None:
+    """The run's MSDs (users.npz), so that nothing after the run has to draw them again from the seed."""
+    radii = np.full(len(users.centroids), np.nan) if users.radii is None else users.radii
+    np.savez(path, xyz=users.xyz, cluster=users.cluster, centroids=users.centroids, radii=radii)
+
+
+def read_users(path: Path) -> Users:
+    with np.load(path) as f:
+        radii = f['radii']
+        return Users(f['xyz'], f['cluster'].astype(np.intp), f['centroids'], None if np.isnan(radii).any() else radii)
+
+
+def write_failures(path: Path, failed: np.ndarray, fail_step: Optional[int]) -> None:
+    """The MAPs that left the run (failed by the schedule or killed) and the scheduled failure's step."""
+    path.write_text(json.dumps({'failed': [int(i) for i in failed], 'fail_step': fail_step}))
+
+
+def read_failures(path: Path) -> tuple[np.ndarray, Optional[int]]:
+    doc = json.loads(path.read_text())
+    return np.asarray(doc['failed'], dtype=np.intp), doc['fail_step']
