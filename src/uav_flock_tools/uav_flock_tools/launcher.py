@@ -20,6 +20,7 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Callable, Optional, Sequence, Union
 
@@ -80,7 +81,7 @@ def discovery_server_address(domain_id: int) -> str:
 PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
 
-def ends_with_us(signum: int) -> Callable[[], None]:
+def dies_with_parent(signum: int) -> Callable[[], None]:
     """A Popen preexec_fn: the kernel sends the child signum when this process ends (a parent-death signal).
 
     A run's processes live in sessions of their own, so a SIGKILLed `up` or `replay`, which cannot stop them,
@@ -124,7 +125,7 @@ def start_discovery_server(address: str, env: dict[str, str], log: Path) -> subp
     with open(log, 'w') as out:
         return subprocess.Popen(['fast-discovery-server', '-i', '0', '-l', '127.0.0.1', '-p', port],
                                 env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
-                                preexec_fn=ends_with_us(signal.SIGTERM))
+                                preexec_fn=dies_with_parent(signal.SIGTERM))
 
 
 # Domains a run may be given: 0, ROS's default, is left to whatever else runs ROS on the host. Above 101
@@ -372,138 +373,210 @@ def scenario_summary(path: Path, s: Scenario) -> dict[str, object]:
             'fail_at': s.fail_at, 'fail_fraction': s.fail_fraction, 'association': s.association}
 
 
-def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: int = 1,
-       domain_id: Optional[int] = None, discovery: str = 'auto', record: bool = False,
-       sync: str = 'lockstep', rate: float = 1.0) -> tuple[int, Optional[RunResult]]:
-    """Run the scenario distributed; returns (world exit code, result read back from the run folder)."""
-    bag_path = run / 'bag'
-    if record and bag_path.exists():
-        raise FileExistsError(f'{bag_path} exists already: give a new --out folder')
-    run.mkdir(parents=True, exist_ok=True)
-    claim = claim_domain(domain_id)  # held until every process of the run has ended
-    domain = claim.domain
-    processes = -(-scenario.maps // agents_per_process) + 1 + int(record)
+@dataclass
+class Plan:
+    """Everything a run needs decided before anything starts: its domain, discovery, processes and files."""
+
+    scenario_path: Path
+    scenario: Scenario
+    run: Path
+    agents_per_process: int
+    record: bool
+    sync: str
+    rate: float
+    claim: DomainClaim
+    server_address: Optional[str]
+    discovery_range: str
+    env: dict[str, str]
+    start_timeout: float
+    groups: list[list[int]]   # MAP ids per agent process
+
+    @property
+    def bag_path(self) -> Path:
+        return self.run / 'bag'
+
+    @property
+    def logs(self) -> Path:
+        return self.run / 'logs'
+
+
+def plan(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: int, domain_id: Optional[int],
+         discovery: str, record: bool, sync: str, rate: float) -> Plan:
+    """Stage 1: decide the run (and claim its ROS_DOMAIN_ID, held until every process of it has ended)."""
+    if record and (run / 'bag').exists():
+        raise FileExistsError(f'{run / "bag"} exists already: give a new --out folder')
+    groups = [list(range(first, min(first + agents_per_process, scenario.maps)))
+              for first in range(0, scenario.maps, agents_per_process)]
+    processes = len(groups) + 1 + int(record)
     use_server = discovery == 'server' or (discovery == 'auto' and (processes > LOCALHOST_LIMIT
                                                                      or scenario.maps > LOCALHOST_MAPS_LIMIT))
-    server_address = discovery_server_address(domain) if use_server else None
+    claim = claim_domain(domain_id)
+    server_address = discovery_server_address(claim.domain) if use_server else None
     discovery_range = 'SUBNET' if discovery == 'subnet' else 'LOCALHOST'
-    env = ros_env(domain, server_address, discovery_range)
-    start_timeout = max(START_TIMEOUT_MIN_S, START_TIMEOUT_PER_PROCESS_S * processes)
-    params = write_params(run / 'agent_params.yaml', {**scenario.flock.as_dict(), 'sync': sync,
-                                                      'world_start_timeout': 2 * start_timeout})
-    info: dict[str, object] = {'domain_id': domain, 'discovery_server': server_address,
-                               'discovery_range': None if server_address else discovery_range,
-                               'scenario': str(scenario_path), 'maps': scenario.maps, 'seed': scenario.seed,
-                               'agents_per_process': agents_per_process, 'sync': sync,
-                               'rate': rate if sync == 'realtime' else None,
-                               'bag': str(bag_path) if record else None}
-    (run / 'run.json').write_text(json.dumps(info, indent=1))
-    logs = run / 'logs'
-    logs.mkdir(exist_ok=True)
-    pace = f'realtime x{rate:g}' if sync == 'realtime' else 'lockstep'
-    print(f'uav-flock up: {scenario.maps} MAPs in {processes - 1 - int(record)} processes, {pace}, '
-          f'ROS_DOMAIN_ID={domain}, discovery {"server " + server_address if server_address else discovery_range}, run folder {run}', flush=True)
+    return Plan(scenario_path, scenario, run, agents_per_process, record, sync, rate, claim, server_address,
+                discovery_range, ros_env(claim.domain, server_address, discovery_range),
+                max(START_TIMEOUT_MIN_S, START_TIMEOUT_PER_PROCESS_S * processes), groups)
 
-    world_exe = executable('world_sim', 'world_sim_node')
-    agents: list[ForkedAgent] = []
-    world: Optional[subprocess.Popen] = None
-    world_log: Optional[threading.Thread] = None
-    recorder: Optional[subprocess.Popen] = None
-    interrupted = starting = stopping = False
 
-    def on_signal(signum: int, frame: object) -> None:
-        nonlocal interrupted
-        if interrupted or stopping:  # a second Ctrl-C, or one while the run is being stopped: the stop goes on
+class Run:
+    """Stages 2 to 5 of `up`: write the run's files, start its processes, supervise, stop them all.
+
+    A Ctrl-C (or SIGTERM) while a process is being started waits until that process is in hand, so that
+    nothing escapes the stop; at any other time it ends supervision at once.
+    """
+
+    def __init__(self, p: Plan) -> None:
+        self.p = p
+        self.info: dict[str, object] = {}
+        self.agents: list[ForkedAgent] = []
+        self.world: Optional[subprocess.Popen] = None
+        self.world_log: Optional[threading.Thread] = None
+        self.recorder: Optional[subprocess.Popen] = None
+        self.server: Optional[subprocess.Popen] = None
+        self.recorder_gone: Optional[int] = None
+        self.interrupted = self.starting = self.stopping = False
+        self.began_at = time.time()  # wall clock, as file times are
+
+    # ------------------------------------------------------------------ 2. files
+    def write_files(self) -> Path:
+        """agent_params.yaml, run.json and logs/; returns the agents' parameter file."""
+        p, s = self.p, self.p.scenario
+        p.run.mkdir(parents=True, exist_ok=True)
+        params = write_params(p.run / 'agent_params.yaml', {**s.flock.as_dict(), 'sync': p.sync,
+                                                            'world_start_timeout': 2 * p.start_timeout})
+        self.info = {'domain_id': p.claim.domain, 'discovery_server': p.server_address,
+                     'discovery_range': None if p.server_address else p.discovery_range,
+                     'scenario': str(p.scenario_path), 'maps': s.maps, 'seed': s.seed,
+                     'agents_per_process': p.agents_per_process, 'sync': p.sync,
+                     'rate': p.rate if p.sync == 'realtime' else None,
+                     'bag': str(p.bag_path) if p.record else None}
+        self.write_info()
+        p.logs.mkdir(exist_ok=True)
+        pace = f'realtime x{p.rate:g}' if p.sync == 'realtime' else 'lockstep'
+        print(f'uav-flock up: {s.maps} MAPs in {len(p.groups)} processes, {pace}, ROS_DOMAIN_ID={p.claim.domain}, '
+              f'discovery {"server " + p.server_address if p.server_address else p.discovery_range}, '
+              f'run folder {p.run}', flush=True)
+        return params
+
+    def write_info(self) -> None:
+        (self.p.run / 'run.json').write_text(json.dumps(self.info, indent=1))
+
+    # ------------------------------------------------------------------ 3. start
+    def on_signal(self, signum: int, frame: object) -> None:
+        if self.interrupted or self.stopping:  # a second Ctrl-C, or one while the run is being stopped
             return
-        interrupted = True
-        if not starting:  # while a process is started, the interrupt waits until it is in hand (go_on)
+        self.interrupted = True
+        if not self.starting:  # while a process is started, the interrupt waits until it is in hand
             raise KeyboardInterrupt
 
-    def go_on() -> None:
-        if interrupted:
+    def raise_if_interrupted(self) -> None:
+        """Between two starts: act on a Ctrl-C that came while the last one was under way."""
+        if self.interrupted:
             raise KeyboardInterrupt
 
-    began_at = time.time()  # wall clock, as file times are
-    old_int, old_term = signal.signal(signal.SIGINT, on_signal), signal.signal(signal.SIGTERM, on_signal)
-    server: Optional[subprocess.Popen] = None
-    try:
-        starting = True
-        if server_address:
-            server = start_discovery_server(server_address, env, logs / 'discovery_server.log')
-            info['discovery_server_pid'] = server.pid
-        go_on()
-        if record:
-            rec_params = write_params(run / 'recorder_params.yaml', {
-                'out': str(bag_path), 'maps': scenario.maps, 'params_json': json.dumps(scenario.flock.as_dict()),
-                'scenario_json': json.dumps(scenario_summary(scenario_path, scenario))})
+    def start(self, params: Path) -> None:
+        """Discovery server, recorder, world (first, so the agents do not starve its start-up), agents."""
+        p, s = self.p, self.p.scenario
+        self.starting = True
+        if p.server_address:
+            self.server = start_discovery_server(p.server_address, p.env, p.logs / 'discovery_server.log')
+            self.info['discovery_server_pid'] = self.server.pid
+        self.raise_if_interrupted()
+        if p.record:
+            rec_params = write_params(p.run / 'recorder_params.yaml', {
+                'out': str(p.bag_path), 'maps': s.maps, 'params_json': json.dumps(s.flock.as_dict()),
+                'scenario_json': json.dumps(scenario_summary(p.scenario_path, s))})
             # With a discovery server, a plain client hears only of the topics it already uses; the recorder
             # finds its topics in the graph, so it is a super-client, which hears of every endpoint.
-            recorder = subprocess.Popen(
+            self.recorder = subprocess.Popen(
                 [executable('uav_flock_tools', 'uav_flock_recorder'), '--ros-args', '--params-file', str(rec_params)],
-                env={**env, 'ROS_SUPER_CLIENT': 'TRUE'} if server_address else env,
-                stdout=open(logs / 'recorder.log', 'w'), stderr=subprocess.STDOUT, start_new_session=True,
-                preexec_fn=ends_with_us(signal.SIGINT))
-            go_on()
-        # The world first, so that its start-up is not starved by the agents'; it waits for them.
-        s = scenario
-        world_args = [world_exe, '--ros-args', '-p', f'scenario:={scenario_path}', '-p', f'maps:={s.maps}',
-                      '-p', f'seed:={s.seed}', '-p', f'duration:={float(s.duration)}', '-p', f'out:={run}',
-                      '-p', f'pid_table:={run / "pids.json"}', '-p', f'start_timeout:={start_timeout}',
-                      '-p', f'sync:={sync}', '-p', f'rate:={float(rate)}']
-        if record:
+                env={**p.env, 'ROS_SUPER_CLIENT': 'TRUE'} if p.server_address else p.env,
+                stdout=open(p.logs / 'recorder.log', 'w'), stderr=subprocess.STDOUT, start_new_session=True,
+                preexec_fn=dies_with_parent(signal.SIGINT))
+            self.raise_if_interrupted()
+        world_args = [executable('world_sim', 'world_sim_node'), '--ros-args',
+                      '-p', f'scenario:={p.scenario_path}', '-p', f'maps:={s.maps}',
+                      '-p', f'seed:={s.seed}', '-p', f'duration:={float(s.duration)}', '-p', f'out:={p.run}',
+                      '-p', f'pid_table:={p.run / "pids.json"}', '-p', f'start_timeout:={p.start_timeout}',
+                      '-p', f'sync:={p.sync}', '-p', f'rate:={float(p.rate)}']
+        if p.record:
             world_args += ['-p', 'record:=true']
         if s.fail_at is not None:
             world_args += ['-p', f'fail_at:={float(s.fail_at)}', '-p', f'fail_fraction:={float(s.fail_fraction)}']
-        world = subprocess.Popen(world_args, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                 text=True, start_new_session=True, preexec_fn=ends_with_us(signal.SIGINT))
-        world_log = relay_log(world.stderr, logs / 'world.log')  # type: ignore[arg-type]
-        (run / 'run.json').write_text(json.dumps({**info, 'world_pid': world.pid}, indent=1))  # for run_has_ended
-        go_on()
-        groups = [list(range(first, min(first + agents_per_process, scenario.maps)))
-                  for first in range(0, scenario.maps, agents_per_process)]
-        start_agents(groups, params, env, logs, agents, lambda: interrupted)
-        go_on()
-        starting = False
-        table = {i: a.pid for ids, a in zip(groups, agents) for i in ids}
-        write_pid_table(run / 'pids.json', table)
-        assert world.stdout is not None
-        for line in world.stdout:
+        self.world = subprocess.Popen(world_args, env=p.env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                      text=True, start_new_session=True, preexec_fn=dies_with_parent(signal.SIGINT))
+        self.world_log = relay_log(self.world.stderr, p.logs / 'world.log')  # type: ignore[arg-type]
+        self.info['world_pid'] = self.world.pid  # for run_has_ended
+        self.write_info()
+        self.raise_if_interrupted()
+        start_agents(p.groups, params, p.env, p.logs, self.agents, lambda: self.interrupted)
+        self.raise_if_interrupted()
+        self.starting = False
+        write_pid_table(p.run / 'pids.json', {i: a.pid for ids, a in zip(p.groups, self.agents) for i in ids})
+
+    # ------------------------------------------------------------------ 4. supervise
+    def supervise(self) -> int:
+        """world_sim's progress lines to the terminal until it ends; its exit code."""
+        assert self.world is not None and self.world.stdout is not None
+        for line in self.world.stdout:
             print(line.rstrip(), flush=True)
-        code = world.wait()
+        return self.world.wait()
+
+    # ------------------------------------------------------------------ 5. stop
+    def stop_all(self) -> None:
+        """World and agents together, the world signalled first (SIGINT: it writes its records and takes the
+        agents' ends for the stop, not for failures); the recorder once the world has published its last,
+        then it drains and closes the bag; the discovery server last."""
+        self.stopping = True
+        self.recorder_gone = self.recorder.poll() if self.recorder is not None else None  # ends only when told
+        stop([self.world] if self.world is not None else [], signal.SIGINT, {signal.SIGTERM: self.agents})
+        if self.recorder is not None:
+            stop([self.recorder], signal.SIGINT)
+        if self.server is not None:
+            stop([self.server])
+        # A SIGKILLed agent cannot remove its files, nor can one stopped while its participant was still
+        # being made (Ctrl-C during start-up left some behind).
+        if not self.p.server_address and (self.interrupted or any(a.poll() == -signal.SIGKILL for a in self.agents)):
+            clean_shared_memory(self.p.env, since=self.began_at)
+        self.p.claim.release()
+        if self.world_log is not None:
+            self.world_log.join(timeout=GRACE_S)  # its stream ended with world_sim: the file is complete
+
+    def report(self, code: int) -> int:
+        """What went wrong, in one line each, and the exit code up ends with."""
+        p = self.p
+        if self.interrupted:
+            print(f'uav-flock up: interrupted; every process ended, records so far in {p.run}', file=sys.stderr)
+        if code not in (0, 130):
+            log = p.logs / 'world.log'
+            tail = log.read_text().strip().splitlines()[-1:] if log.exists() else []
+            print(f'uav-flock up: world_sim failed ({describe_exit(code)}){": " + tail[0] if tail else ""}',
+                  file=sys.stderr)
+        if self.recorder_gone is not None:
+            print(f'uav-flock up: the recorder ended during the run ({describe_exit(self.recorder_gone)}, see '
+                  f'{p.logs / "recorder.log"}); the bag in {p.bag_path} is incomplete', file=sys.stderr)
+            code = code or 1
+        return code
+
+
+def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: int = 1,
+       domain_id: Optional[int] = None, discovery: str = 'auto', record: bool = False,
+       sync: str = 'lockstep', rate: float = 1.0) -> tuple[int, Optional[RunResult]]:
+    """Run the scenario distributed, in stages; returns (exit code, result read back from the run folder)."""
+    r = Run(plan(scenario_path, scenario, run, agents_per_process, domain_id, discovery, record, sync, rate))
+    old_int, old_term = signal.signal(signal.SIGINT, r.on_signal), signal.signal(signal.SIGTERM, r.on_signal)
+    try:
+        r.start(r.write_files())
+        code = r.supervise()
     except KeyboardInterrupt:
         code = 130
     finally:
-        stopping = True
-        recorder_gone = recorder.poll() if recorder is not None else None  # it ends only when we stop it
-        # World and agents together, the world signalled first (SIGINT: it writes its records, and takes the
-        # agents' ends for the stop, not for failures); the recorder once the world has published its last,
-        # then it drains and closes the bag.
-        stop([world] if world is not None else [], signal.SIGINT, {signal.SIGTERM: agents})
-        if recorder is not None:
-            stop([recorder], signal.SIGINT)
-        if server is not None:
-            stop([server])
-        # A SIGKILLed agent cannot remove its files, nor can one stopped while its participant was still
-        # being made (Ctrl-C during start-up left some behind).
-        if not server_address and (interrupted or any(a.poll() == -signal.SIGKILL for a in agents)):
-            clean_shared_memory(env, since=began_at)
-        signal.signal(signal.SIGINT, old_int)
-        signal.signal(signal.SIGTERM, old_term)
-        claim.release()
-    if world_log is not None:
-        world_log.join(timeout=GRACE_S)  # its stream ended with world_sim: the file is complete
-    if interrupted:
-        print(f'uav-flock up: interrupted; every process ended, records so far in {run}', file=sys.stderr)
-    result = read_result(run, scenario)
-    if code not in (0, 130):
-        tail = (logs / 'world.log').read_text().strip().splitlines()[-1:] if (logs / 'world.log').exists() else []
-        print(f'uav-flock up: world_sim failed ({describe_exit(code)}){": " + tail[0] if tail else ""}',
-              file=sys.stderr)
-    if recorder_gone is not None:
-        print(f'uav-flock up: the recorder ended during the run ({describe_exit(recorder_gone)}, see '
-              f'{logs / "recorder.log"}); the bag in {bag_path} is incomplete', file=sys.stderr)
-        code = code or 1
-    return code, result
+        try:
+            r.stop_all()
+        finally:
+            signal.signal(signal.SIGINT, old_int)
+            signal.signal(signal.SIGTERM, old_term)
+    return r.report(code), read_result(run, scenario)
 
 
 def read_result(run: Path, scenario: Scenario) -> Optional[RunResult]:

@@ -82,7 +82,7 @@ def replay(path: Path, agent: int, tolerance: float = 1e-9, timeout: float = 20.
         proc = subprocess.Popen([launcher.executable('uav_agent', 'uav_agent_node'), '--ids', str(agent),
                                  '--ros-args', '--params-file', str(params)],
                                 env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
-                                preexec_fn=launcher.ends_with_us(signal.SIGTERM))
+                                preexec_fn=launcher.dies_with_parent(signal.SIGTERM))
         saved = {k: os.environ.get(k) for k in env}
         os.environ.update(env)
 

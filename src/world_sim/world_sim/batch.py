@@ -42,16 +42,16 @@ class BatchSimulator:
         sensed = w.sense()
         rows = sensed.ids
         stated = [self.memory[i] for i in rows]  # what each MAP's state message of step k carries
-        told = [m.achieved for m in stated]
-        roles = [Told(m.mode, m.goal, m.bridge) for m in stated]
+        achieved_stated = [m.achieved for m in stated]
+        roles_stated = [Told(m.mode, m.goal, m.bridge) for m in stated]
         nbr, counts, bounds = sensed.pairs[:, 1].tolist(), sensed.n_users.tolist(), sensed.bounds
         refs, apart = [], []
         for n, i in enumerate(rows.tolist()):
             near = nbr[bounds[n]:bounds[n + 1]]
-            heard = [told[j] for j in near]
+            heard = [achieved_stated[j] for j in near]
             mem = decide(self.memory[i], i, counts[n], sensed.cluster_coverage, sensed.q[n], heard, w.clusters, fp)
             self.memory[i] = mem
-            heard_roles = [roles[j] for j in near]
+            heard_roles = [roles_stated[j] for j in near]
             refs.append(reference(mem, i, sensed.q[n], sensed.q[near], heard_roles, w.clusters, fp))
             apart += apart_links(mem, heard_roles, fp)
         target, qa, qb = (np.array([ref[c] for ref in refs]).reshape(-1, 3) for c in range(3))
