@@ -25,7 +25,7 @@ from rclpy.subscription import Subscription
 from std_msgs.msg import Int64
 from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
 from uav_flock_ros import convert
-from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, make_executor
+from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, make_executor, take_waiting
 from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STEP_QOS, is_realtime
 
 from .core.agent import Neighbourhood, agent_step
@@ -276,7 +276,7 @@ class AgentNode(Node):
         for j in [j for j in self.unheard(s) if j in self.neighbour_subs]:
             if self.pending is not s or j not in self.neighbour_subs:
                 break  # a taken sample completed the step
-            self.take_waiting(j)
+            self.take_waiting_of(j)
 
     def watch_world(self) -> None:
         """Say what a stuck step waits for; end on our own when the world is gone."""
@@ -311,7 +311,7 @@ class AgentNode(Node):
         taken = 0
         for j, matched in silent_writers.items():
             if matched and self.pending is not None:
-                taken += self.take_waiting(j)
+                taken += self.take_waiting_of(j)
         if taken:
             self.get_logger().warning(f'took {taken} state samples of {list(silent_writers)} by hand '
                                       'that the executor had not delivered')
@@ -325,17 +325,13 @@ class AgentNode(Node):
             self.get_logger().warning(f'step {self.pending.step}: subscribed anew to the states of '
                                       f'{list(silent_writers)}')
 
-    def take_waiting(self, j: int) -> int:
+    def take_waiting_of(self, j: int) -> int:
         """Take what sits in neighbour j's reader, as the executor itself would (rclpy's own take call)."""
-        sub = self.neighbour_subs[j]
-        count = 0
-        with sub.handle:
-            while (taken := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
-                count += 1
-                self.on_state(j, taken[0])
-                if j not in self.neighbour_subs:  # the sample made us step and drop j
-                    break
-        return count
+        def handle(msg: AgentState) -> bool:
+            self.on_state(j, msg)
+            return j in self.neighbour_subs  # the sample may have made us step and drop j
+
+        return take_waiting(self.neighbour_subs[j], handle)
 
 
 def parse_ids(argv: list[str]) -> list[int]:

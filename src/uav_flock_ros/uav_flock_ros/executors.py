@@ -9,12 +9,13 @@ from __future__ import annotations
 import signal
 import sys
 from types import FrameType
-from typing import Callable, Optional, TypeVar
+from typing import Any, Callable, Optional, TypeVar
 
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.subscription import Subscription
 
 N = TypeVar('N', bound=Node)
 # A parameter of the wrong type (`-p r:=abc` where r is a float) is the user's mistake in any node.
@@ -57,3 +58,15 @@ def spun_node(program: str, factory: Callable[[], N], user_errors: tuple[type[Ex
     executor = make_executor()
     executor.add_node(node)
     return node, executor
+
+
+def take_waiting(sub: Subscription, handle: Callable[[Any], bool], raw: Optional[bool] = None) -> int:
+    """Take what sits in a subscription's reader, as the executor itself would (rclpy's own take call),
+    whether or not an event announced it; handle(message) returns False to stop. Returns how many."""
+    count = 0
+    with sub.handle:
+        while (got := sub.handle.take_message(sub.msg_type, sub.raw if raw is None else raw)) is not None:
+            count += 1
+            if not handle(got[0]):
+                break
+    return count

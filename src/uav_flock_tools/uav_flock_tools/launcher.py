@@ -24,7 +24,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Callable, Optional, Sequence, Union
 
-import numpy as np
 from setproctitle import setproctitle
 
 from uav_flock_ros.processes import write_params
@@ -588,8 +587,8 @@ def read_result(run: Path, scenario: Scenario) -> Optional[RunResult]:
     if len(m['step']) == 0:
         return None
     t = records.read_csv(run / 'trajectory.csv')
-    metrics = np.column_stack([m[c] for c in records.METRICS_COLUMNS]).reshape(-1, len(records.METRICS_COLUMNS))
-    traj = np.column_stack([t[c] for c in records.TRAJECTORY_COLUMNS]).reshape(-1, len(records.TRAJECTORY_COLUMNS))
+    metrics = records.rows(m, records.METRICS_COLUMNS)
+    traj = records.rows(t, records.TRAJECTORY_COLUMNS)
     failed, fail_step = records.read_failures(run / records.FAILURES_FILE)
     return RunResult(scenario, records.read_users(run / records.USERS_FILE), metrics, traj, failed, fail_step)
 

@@ -26,7 +26,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from std_msgs.msg import Int64
 from uav_flock_msgs.msg import Metrics
 
-from uav_flock_ros.executors import StopSignals, spun_node
+from uav_flock_ros.executors import StopSignals, spun_node, take_waiting
 from uav_flock_ros.qos import LATCHED_QOS
 
 from . import bag
@@ -123,13 +123,8 @@ class Recorder(Node):
 
     def take_rest(self) -> int:
         """Write whatever is still queued in any reader, whether or not an event announced it."""
-        taken = 0
-        for topic, sub in self.subs.items():
-            with sub.handle:
-                while (got := sub.handle.take_message(sub.msg_type, True)) is not None:
-                    self.on_message(topic, got[0])
-                    taken += 1
-        return taken
+        return sum(take_waiting(sub, lambda raw, topic=topic: self.on_message(topic, raw) or True, raw=True)
+                   for topic, sub in self.subs.items())
 
     def close(self) -> None:
         self.writer.close()

@@ -38,7 +38,7 @@ def report(path: Path, out: Path) -> tuple[dict[str, Any], list[Path]]:
     out.mkdir(parents=True, exist_ok=True)
     name = path.resolve().parent.name if path.name == 'bag' else path.name  # RUN/bag: the run's name
     label = f'{s["maps_start"]} MAPs, {name}'
-    traj = {c: run.trajectory[:, i] for i, c in enumerate(records.TRAJECTORY_COLUMNS)}
+    traj = records.columns(run.trajectory)
     u = run.users
     files = plots.run_figures(run.metrics, traj, None if u is None else u.xyz[:, :2], None if u is None else u.cluster,
                               None if u is None else u.centroids, run.r, label, out,

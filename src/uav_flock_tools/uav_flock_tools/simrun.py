@@ -19,7 +19,7 @@ from . import plots
 
 
 def trajectory_columns(result: RunResult) -> dict[str, np.ndarray]:
-    return {c: result.trajectory[:, i] for i, c in enumerate(records.TRAJECTORY_COLUMNS)}
+    return records.columns(result.trajectory)
 
 
 def write_run(result: RunResult, folder: Path, label: str) -> list[Path]:

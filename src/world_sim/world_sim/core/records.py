@@ -30,6 +30,16 @@ def write_trajectory(path: Path, rows: np.ndarray) -> None:
     write_csv(path, TRAJECTORY_COLUMNS, rows, _TRAJECTORY_FMT)
 
 
+def columns(rows: np.ndarray, names: tuple[str, ...] = TRAJECTORY_COLUMNS) -> dict[str, np.ndarray]:
+    """A record's rows as named columns (the trajectory's by default)."""
+    return {c: rows[:, i] for i, c in enumerate(names)}
+
+
+def rows(cols: dict[str, np.ndarray], names: tuple[str, ...]) -> np.ndarray:
+    """Named columns back into rows in the record's column order."""
+    return np.column_stack([cols[c] for c in names]).reshape(-1, len(names))
+
+
 def read_csv(path: Path) -> dict[str, np.ndarray]:
     """Columns of a metrics or trajectory file by name."""
     data = np.genfromtxt(path, delimiter=',', names=True, dtype=float)
