@@ -65,8 +65,8 @@ def _fiedler_vs_count(path: Path, counts: tuple[int, ...], values: dict[int, lis
     for n in counts:
         ax.scatter([n] * len(values[n]), values[n], s=8, c='0.5', zorder=3)
     plots.fiedler_axis(ax)
-    plots.finish(ax, 'number of MAPs', f'Fiedler value λ2 after convergence (mean of last {SETTLE:g} s, symlog)',
-                 f'Connectivity after convergence vs MAP count, {policies} (grey: single seeds)')
+    plots.finish(ax, 'number of MAPs', f'λ2, mean of the last {SETTLE:g} s (-, symlog)',
+                 f'Connectivity after convergence, {policies}\n(grey: single seeds)')
     return plots.save(fig, path)
 
 
@@ -254,8 +254,8 @@ def write_results(docs: Path, out: Path, base: Scenario, seeds: int, metrics: di
         '| connected seeds | ' + ' | '.join(f'{sum(v > 0 for v in settled_d[n])}/{seeds}' for n in COUNTS_DEMAND)
         + ' |',
         '',
-        f'Connected in every seed from {first_conn[0]} MAPs on' if first_conn else 'Never connected in every seed',
-        f'(Algorithm 2: ~65 in the paper, 70 here). 90 MAPs: first time with λ2 > 0 and R_c ≥ 95 %: '
+        (f'Connected in every seed from {first_conn[0]} MAPs on' if first_conn else 'Never connected in every seed')
+        + ' (Algorithm 2: ~65 in the paper, 70 here). 90 MAPs: first time with λ2 > 0 and R_c ≥ 95 %: '
         f'{", ".join("never" if np.isnan(v) else f"{v:.1f} s" for v in t_demand)}; by 30 s in '
         f'{sum(v <= 30 for v in t_demand if not np.isnan(v))}/{seeds} seeds.',
         '',
