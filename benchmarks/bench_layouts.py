@@ -11,7 +11,7 @@ import sys
 import time
 
 from uav_flock_tools import layouts
-from world_sim.scenarios import load_scenario
+from world_sim.shipped import load_scenario
 
 
 def main() -> int:

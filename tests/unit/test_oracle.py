@@ -11,7 +11,7 @@ from uav_agent.core.agent import Neighbourhood, agent_step
 from uav_agent.core.modes import Told
 from uav_agent.core.params import FlockParams
 from world_sim.batch import BatchSimulator
-from world_sim.core import layouts, world
+from world_sim.core import layouts, physics
 from world_sim.core.scenario import load
 
 
@@ -28,17 +28,17 @@ def test_agent_step_reproduces_the_batch_step_bit_for_bit(paper_scenario_path: s
         if k % 20 == 0:  # compare at several phases: flight, arrival, mode switches
             rows = sim.ids[sim.alive]
             q, p, memory = sim.q[rows].copy(), sim.p[rows].copy(), list(sim.memory)
-            assoc = world.associate(sim.users, q, s.flock.r, s.association)
-            n_u = world.user_counts(assoc, len(rows))
-            cover = world.cluster_coverage(sim.users, assoc)
-            pairs = world.neighbour_pairs(q, s.flock.r)
+            assoc = physics.associate(sim.users, q, s.flock.r, s.association)
+            n_u = physics.user_counts(assoc, len(rows))
+            cover = physics.cluster_coverage(sim.users, assoc)
+            pairs = physics.neighbour_pairs(q, s.flock.r)
             sim.step()
             for n, i in enumerate(rows):
                 nbr = pairs[pairs[:, 0] == n, 1]
                 hood = Neighbourhood(q[nbr], p[nbr], n_u[nbr].astype(float), [memory[j].achieved for j in nbr],
                                      [Told(memory[j].mode, memory[j].goal, memory[j].bridge) for j in nbr])
                 u, mem = agent_step(memory[i], int(i), q[n], p[n], int(n_u[n]), cover, hood, sim.clusters, s.flock)
-                q_next, p_next = world.integrate(q[n][None], p[n][None], u[None], s.dt)
+                q_next, p_next = physics.integrate(q[n][None], p[n][None], u[None], s.dt)
                 assert mem == sim.memory[i], f'MAP {i} decided differently at step {k}'
                 assert np.array_equal(q_next[0], sim.q[i]) and np.array_equal(p_next[0], sim.p[i]), \
                     f'MAP {i} moved differently at step {k}: {q_next[0] - sim.q[i]}'

@@ -6,14 +6,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from world_sim.core import world
+from world_sim.core import physics
 from world_sim.core.scenario import load
 
 RHO, ETA, R = 1.0, 3.5, 24.0
 
 
-def users_at(xy: np.ndarray) -> world.Users:
-    return world.Users(np.column_stack([xy, np.zeros(len(xy))]), np.zeros(len(xy), np.intp), xy.mean(axis=0, keepdims=True))
+def users_at(xy: np.ndarray) -> physics.Users:
+    return physics.Users(np.column_stack([xy, np.zeros(len(xy))]), np.zeros(len(xy), np.intp), xy.mean(axis=0, keepdims=True))
 
 
 @settings(max_examples=60, deadline=None)
@@ -22,20 +22,20 @@ def test_association_equals_brute_force_of_eq2(seed: int, n_maps: int, n_users: 
     rng = np.random.default_rng(seed)
     users = users_at(rng.uniform(-60, 60, (n_users, 2)))
     q = np.column_stack([rng.uniform(-60, 60, (n_maps, 2)), np.full(n_maps, 20.0)])
-    got = world.associate(users, q, R, mode)
+    got = physics.associate(users, q, R, mode)
     a, b = (users.xyz[:, :2], q[:, :2]) if mode == 'horizontal' else (users.xyz, q)
     dist = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=-1)
     signal = np.where(dist <= R, RHO * dist ** -ETA, -np.inf)
-    expect = np.where(np.isfinite(signal.max(axis=1)), signal.argmax(axis=1), world.UNSERVED)
+    expect = np.where(np.isfinite(signal.max(axis=1)), signal.argmax(axis=1), physics.UNSERVED)
     assert np.array_equal(got, expect)
 
 
 def test_counts_and_coverage() -> None:
-    users = world.Users(np.zeros((6, 3)), np.array([0, 0, 0, 1, 1, 1]), np.zeros((2, 2)))
-    assoc = np.array([0, 0, world.UNSERVED, 2, world.UNSERVED, world.UNSERVED])
-    assert world.user_counts(assoc, 3).tolist() == [2, 0, 1]
-    assert world.cluster_coverage(users, assoc).tolist() == pytest.approx([2 / 3, 1 / 3])
-    assert world.coverage_ratio(assoc) == pytest.approx(0.5)
+    users = physics.Users(np.zeros((6, 3)), np.array([0, 0, 0, 1, 1, 1]), np.zeros((2, 2)))
+    assoc = np.array([0, 0, physics.UNSERVED, 2, physics.UNSERVED, physics.UNSERVED])
+    assert physics.user_counts(assoc, 3).tolist() == [2, 0, 1]
+    assert physics.cluster_coverage(users, assoc).tolist() == pytest.approx([2 / 3, 1 / 3])
+    assert physics.coverage_ratio(assoc) == pytest.approx(0.5)
 
 
 def _pairs(edges: list[tuple[int, int]]) -> np.ndarray:
@@ -45,19 +45,19 @@ def _pairs(edges: list[tuple[int, int]]) -> np.ndarray:
 
 @pytest.mark.parametrize('n', [2, 3, 5, 10])
 def test_fiedler_of_a_path(n: int) -> None:
-    assert world.fiedler(_pairs([(i, i + 1) for i in range(n - 1)]), n) == pytest.approx(2 * (1 - np.cos(np.pi / n)))
+    assert physics.fiedler(_pairs([(i, i + 1) for i in range(n - 1)]), n) == pytest.approx(2 * (1 - np.cos(np.pi / n)))
 
 
 @pytest.mark.parametrize('n', [2, 4, 7])
 def test_fiedler_of_a_complete_graph(n: int) -> None:
-    assert world.fiedler(_pairs([(i, j) for i in range(n) for j in range(i + 1, n)]), n) == pytest.approx(n)
+    assert physics.fiedler(_pairs([(i, j) for i in range(n) for j in range(i + 1, n)]), n) == pytest.approx(n)
 
 
 def test_fiedler_of_a_disconnected_graph_is_zero() -> None:
     pairs = _pairs([(0, 1), (2, 3)])
-    assert world.components(pairs, 4) == 2
-    assert world.fiedler(pairs, 4) == 0.0
-    assert np.linalg.eigvalsh(world.laplacian(pairs, 4))[1] == pytest.approx(0.0, abs=1e-12)
+    assert physics.components(pairs, 4) == 2
+    assert physics.fiedler(pairs, 4) == 0.0
+    assert np.linalg.eigvalsh(physics.laplacian(pairs, 4))[1] == pytest.approx(0.0, abs=1e-12)
 
 
 @settings(max_examples=40, deadline=None)
@@ -66,14 +66,14 @@ def test_neighbour_pairs_equal_brute_force(seed: int, n: int) -> None:
     q = np.random.default_rng(seed).uniform(-50, 50, (n, 3))
     d = np.linalg.norm(q[:, None] - q[None], axis=-1)
     expect = [(i, j) for i in range(n) for j in range(n) if i != j and d[i, j] <= R]
-    assert world.neighbour_pairs(q, R).tolist() == [list(e) for e in expect]
+    assert physics.neighbour_pairs(q, R).tolist() == [list(e) for e in expect]
 
 
 def test_integration_is_exact_for_constant_input() -> None:
     q, p, u = np.array([[1.0, 2.0, 20.0]]), np.array([[0.5, -1.0, 0.0]]), np.array([[0.2, 0.1, 0.0]])
     qk, pk = q, p
     for _ in range(50):
-        qk, pk = world.integrate(qk, pk, u, 0.1)
+        qk, pk = physics.integrate(qk, pk, u, 0.1)
     t = 5.0
     assert np.allclose(qk, q + p * t + 0.5 * u * t * t) and np.allclose(pk, p + u * t)
 
@@ -81,14 +81,14 @@ def test_integration_is_exact_for_constant_input() -> None:
 def test_failure_ids_are_reproducible_and_sized(paper_scenario_path: str) -> None:
     s = load(paper_scenario_path).with_overrides(maps=80, fail_fraction=0.3, fail_at=18.0)
     ids = np.arange(80)
-    a = world.failure_ids(s, ids, world.streams(s.seed)['failure'])
-    b = world.failure_ids(s, ids, world.streams(s.seed)['failure'])
+    a = physics.failure_ids(s, ids, physics.streams(s.seed)['failure'])
+    b = physics.failure_ids(s, ids, physics.streams(s.seed)['failure'])
     assert len(a) == 24 and np.array_equal(a, b) and len(set(a.tolist())) == 24
 
 
 def test_users_follow_the_scenario(paper_scenario_path: str) -> None:
     s = load(paper_scenario_path)
-    users = world.make_users(s, world.streams(s.seed)['users'])
+    users = physics.make_users(s, physics.streams(s.seed)['users'])
     assert users.cluster_sizes.tolist() == [c.size for c in s.clusters]
     for k, c in enumerate(s.clusters):
         assert np.linalg.norm(users.centroids[k] - c.center) < 3 * c.spread / np.sqrt(c.size) * 3

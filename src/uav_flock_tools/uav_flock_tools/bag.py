@@ -23,7 +23,7 @@ from rosbags.typesys.store import Typestore
 
 from uav_agent.core.params import FlockParams
 from uav_flock_ros import convert
-from world_sim.core import records, world
+from world_sim.core import physics, records
 
 MSG_PACKAGE = 'uav_flock_msgs'
 PARAMS_KEY = 'uav_flock.params'      # custom_data key: the run's FlockParams as JSON
@@ -73,7 +73,7 @@ class BagRun:
     metrics: np.ndarray                      # (S, 9) records.METRICS_COLUMNS, from /metrics
     trajectory: np.ndarray                   # (R, 12) records.TRAJECTORY_COLUMNS, from the states
     sensed: dict[int, dict[int, np.ndarray]]  # step -> id -> q measured by the world
-    users: Optional[world.Users]
+    users: Optional[physics.Users]
     failures: list[tuple[int, list[int], str]]  # (step, ids, cause)
     association: dict[int, tuple[np.ndarray, float]]  # step -> (map ids, recorded R_c)
     heard: dict[str, dict[int, set[int]]] = field(default_factory=dict)  # sensing|state|cmd -> step -> ids
@@ -197,7 +197,7 @@ def _read(path: Path, reader: AnyReader) -> BagRun:
     if users_msg is not None and clusters_msg is not None:
         xyz, cluster = convert.users_arrays(users_msg)
         centroids, _, radii = convert.clusters_arrays(clusters_msg)
-        run.users = world.Users(xyz, cluster, centroids, radii)
+        run.users = physics.Users(xyz, cluster, centroids, radii)
     return run
 
 
@@ -209,9 +209,9 @@ def recompute(run: BagRun, association: str = '3d') -> np.ndarray:
     for k in sorted(run.sensed):
         ids = sorted(run.sensed[k])
         q = np.array([run.sensed[k][i] for i in ids]).reshape(-1, 3)
-        assoc = world.associate(run.users, q, run.r, association)
-        pairs = world.neighbour_pairs(q, run.r)
-        rows.append([k, world.coverage_ratio(assoc), world.fiedler(pairs, len(ids))])
+        assoc = physics.associate(run.users, q, run.r, association)
+        pairs = physics.neighbour_pairs(q, run.r)
+        rows.append([k, physics.coverage_ratio(assoc), physics.fiedler(pairs, len(ids))])
     return np.array(rows, dtype=float).reshape(-1, 3)
 
 

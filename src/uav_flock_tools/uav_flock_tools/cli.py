@@ -238,7 +238,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def cmd_up(args: argparse.Namespace) -> int:
     """world_sim and one process per MAP (or K per process), in lockstep or in real time."""
-    from world_sim.scenarios import resolve
+    from world_sim.shipped import resolve
 
     from . import launcher, simrun
     path = resolve(args.scenario)

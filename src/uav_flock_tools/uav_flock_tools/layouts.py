@@ -17,7 +17,7 @@ from uav_agent.core.params import POLICY_VALUES, FlockParams
 from world_sim.batch import BatchSimulator
 from world_sim.core import layouts, outcome
 from world_sim.core.scenario import Scenario, ScenarioError, to_doc
-from world_sim.scenarios import load_scenario
+from world_sim.shipped import load_scenario
 
 INDEX = 'layouts.csv'
 

@@ -13,7 +13,7 @@ from world_sim.batch import BatchSimulator
 from world_sim.core.model import RunResult
 from world_sim.core import records
 from world_sim.core.scenario import Scenario
-from world_sim.scenarios import load_scenario  # noqa: F401 (the CLI, paper and benchmarks read it here)
+from world_sim.shipped import load_scenario  # noqa: F401 (the CLI, paper and benchmarks read it here)
 
 from . import plots
 

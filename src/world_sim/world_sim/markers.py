@@ -13,7 +13,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from uav_agent.core.modes import key_of
 
 from .core.model import Sensed
-from .core.world import UNSERVED, Users
+from .core.physics import UNSERVED, Users
 
 # The mode colours of the plots (tab:blue, tab:orange, tab:green) for M0, M1, M2.
 MODE_RGB = ((0.12, 0.47, 0.71), (1.0, 0.50, 0.05), (0.17, 0.63, 0.17))

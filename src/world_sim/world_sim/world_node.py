@@ -40,7 +40,7 @@ from .core.model import Sensed, World
 from .markers import world_markers
 from .core import records
 from .core.scenario import ScenarioError
-from .scenarios import DEFAULT, load_scenario
+from .shipped import DEFAULT, load_scenario
 
 LIVENESS_PERIOD_S = 0.2  # how often the processes of MAPs we wait for are checked
 RECORDER_TIMEOUT_S = 10.0  # a recorder that writes nothing new this long while we wait for it is given up on

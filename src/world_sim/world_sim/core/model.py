@@ -9,14 +9,14 @@ import numpy as np
 
 from uav_agent.core.modes import NO_GOAL, ClusterMap
 
-from . import world
+from . import physics
 from .scenario import Scenario
 
 
 @dataclass
 class RunResult:
     scenario: Scenario
-    users: world.Users
+    users: physics.Users
     metrics: np.ndarray                      # rows in records.METRICS_COLUMNS order
     trajectory: np.ndarray                   # rows in records.TRAJECTORY_COLUMNS order
     failed: np.ndarray = field(default_factory=lambda: np.zeros(0, np.intp))
@@ -51,11 +51,11 @@ class World:
 
     def __init__(self, scenario: Scenario) -> None:
         self.s = scenario
-        rng = world.streams(scenario.seed)
+        rng = physics.streams(scenario.seed)
         self._fail_rng = rng['failure']
-        self.users = world.make_users(scenario, rng['users'])
+        self.users = physics.make_users(scenario, rng['users'])
         self.clusters = ClusterMap(self.users.centroids, scenario.flock.height, self.users.radii)
-        self.q, self.p = world.release(scenario, rng['release'])
+        self.q, self.p = physics.release(scenario, rng['release'])
         self.ids = np.arange(scenario.maps, dtype=np.intp)
         self.alive = np.ones(scenario.maps, dtype=bool)
         self.goal = np.full(scenario.maps, NO_GOAL, dtype=np.intp)  # each MAP's goal after its last step
@@ -69,7 +69,7 @@ class World:
         """Ids that fail at this step by the scenario's schedule (empty on other steps)."""
         if self.fail_step is None or self.k != self.fail_step or self.s.fail_fraction <= 0:
             return np.zeros(0, np.intp)
-        return world.failure_ids(self.s, self.ids[self.alive], self._fail_rng)
+        return physics.failure_ids(self.s, self.ids[self.alive], self._fail_rng)
 
     def drop(self, ids: np.ndarray) -> None:
         """MAPs that stopped flying: they leave the graph and serve no one from now on."""
@@ -82,10 +82,10 @@ class World:
         fp = self.s.flock
         rows = self.ids[self.alive]
         q, p = self.q[rows], self.p[rows]
-        assoc = world.associate(self.users, q, fp.r, self.s.association)
-        return Sensed(self.k, rows, q, p, world.user_counts(assoc, len(rows)),
-                      world.cluster_coverage(self.users, assoc), world.neighbour_pairs(q, fp.r),
-                      world.coverage_ratio(assoc), assoc=assoc)
+        assoc = physics.associate(self.users, q, fp.r, self.s.association)
+        return Sensed(self.k, rows, q, p, physics.user_counts(assoc, len(rows)),
+                      physics.cluster_coverage(self.users, assoc), physics.neighbour_pairs(q, fp.r),
+                      physics.coverage_ratio(assoc), assoc=assoc)
 
     def advance(self, sensed: Sensed, u: np.ndarray, modes: np.ndarray, goals: np.ndarray,
                 integrate: bool = True) -> np.ndarray:
@@ -95,8 +95,8 @@ class World:
         """
         rows = sensed.ids
         self.goal[rows] = goals
-        n_comp = world.components(sensed.pairs, len(rows))
-        lam2 = world.fiedler(sensed.pairs, len(rows), n_comp)
+        n_comp = physics.components(sensed.pairs, len(rows))
+        lam2 = physics.fiedler(sensed.pairs, len(rows), n_comp)
         counts = np.bincount(np.asarray(modes, dtype=np.intp), minlength=3)
         t = self.k * self.s.dt
         row = np.array([self.k, t, sensed.coverage_ratio, lam2, len(rows), n_comp, *counts[:3]], dtype=float)
@@ -104,7 +104,7 @@ class World:
         self._traj.append(np.column_stack([np.full(len(rows), self.k), np.full(len(rows), t), rows,
                                            sensed.q, sensed.p, modes, goals, sensed.n_users]))
         if integrate:
-            self.q[rows], self.p[rows] = world.integrate(sensed.q, sensed.p, u, self.s.dt)
+            self.q[rows], self.p[rows] = physics.integrate(sensed.q, sensed.p, u, self.s.dt)
             self.k += 1
         return row
 

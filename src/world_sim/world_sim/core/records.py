@@ -7,7 +7,7 @@ from typing import Optional
 
 import numpy as np
 
-from .world import Users
+from .physics import Users
 
 USERS_FILE = 'users.npz'        # what world_sim leaves besides the two CSV files
 FAILURES_FILE = 'failures.json'
