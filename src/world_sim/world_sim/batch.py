@@ -21,7 +21,7 @@ class BatchSimulator:
     """A scenario stepped in-process; step() advances one Δt, run() to the end."""
 
     def __init__(self, scenario: Scenario) -> None:
-        self.s = scenario
+        self.scenario = scenario
         self.world = World(scenario)
         self.memory = [Memory() for _ in range(scenario.maps)]
 
@@ -35,7 +35,7 @@ class BatchSimulator:
 
     def step(self, integrate: bool = True) -> None:
         """Record step k and, unless told otherwise, advance to k + 1."""
-        w, fp = self.world, self.s.flock
+        w, fp = self.world, self.scenario.flock
         failing = w.scheduled_failures()
         if len(failing):
             w.drop(failing)
@@ -66,7 +66,7 @@ class BatchSimulator:
 
     def run(self, progress: Optional[Callable[[int], None]] = None) -> RunResult:
         """Steps 0..N (N = duration / dt), inclusive, so the record ends at t = duration."""
-        for _ in range(self.s.steps):
+        for _ in range(self.scenario.steps):
             self.step()
             if progress:
                 progress(1)

@@ -79,7 +79,7 @@ class WorldNode(Node):
         # A parameter left at its default keeps the scenario's value; any other value is checked as the file's.
         scenario = scenario.with_overrides(**{name: None if get(name) == unset else get(name)
                                               for name, unset in SCENARIO_OVERRIDES.items()})
-        self.s = scenario
+        self.scenario = scenario
         self.realtime = is_realtime(str(get('sync')))
         self.rate = float(get('rate'))  # realtime: simulated seconds per wall second
         if not (0.0 < self.rate < float('inf')):
@@ -135,7 +135,7 @@ class WorldNode(Node):
 
     # ------------------------------------------------------------------ fixed topics
     def header(self) -> Header:
-        return Header(stamp=sim_time(self.world.k * self.s.dt), frame_id='world')
+        return Header(stamp=sim_time(self.world.k * self.scenario.dt), frame_id='world')
 
     def publish_fixed(self) -> None:
         u = self.world.users
@@ -154,27 +154,27 @@ class WorldNode(Node):
 
     def try_start(self) -> None:
         """Begin once every MAP listens to its sensing topic and publishes commands."""
-        ready = sum(1 for i in range(self.s.maps)
+        ready = sum(1 for i in range(self.scenario.maps)
                     if self.sensing_pubs[i].get_subscription_count() > 0
                     and self.count_publishers(f'/map_{i}/cmd') > 0)
-        if ready == self.s.maps and self.record and self.recorded < -1:
+        if ready == self.scenario.maps and self.record and self.recorded < -1:
             if time.monotonic() - self.wall_start > self.start_timeout:
                 self.get_logger().error(f'the recorder was not ready within {self.start_timeout:g} s')
                 self.finish(ok=False)
             return
-        if ready == self.s.maps:
+        if ready == self.scenario.maps:
             self.started = True
             self.get_logger().info(f'{ready} MAPs ready after {time.monotonic() - self.wall_start:.1f} s: starting')
             self.wall_start = time.monotonic()
             if self.realtime:
-                self.create_timer(self.s.dt / self.rate, self.end_step_realtime)
+                self.create_timer(self.scenario.dt / self.rate, self.end_step_realtime)
             self.begin_step()
         elif time.monotonic() - self.wall_start > self.start_timeout:
-            self.get_logger().error(f'only {ready} of {self.s.maps} MAPs appeared within {self.start_timeout:g} s')
+            self.get_logger().error(f'only {ready} of {self.scenario.maps} MAPs appeared within {self.start_timeout:g} s')
             self.finish(ok=False)
         elif time.monotonic() - self.last_report >= START_REPORT_S:
             self.last_report = time.monotonic()
-            print(f'waiting for the MAPs: {ready} of {self.s.maps} ready after '
+            print(f'waiting for the MAPs: {ready} of {self.scenario.maps} ready after '
                   f'{time.monotonic() - self.wall_start:.0f} s', flush=True)
 
     def begin_step(self) -> None:
@@ -266,7 +266,7 @@ class WorldNode(Node):
         goals = np.array([c.goal if c else self.world.goal[i] for c, i in zip(cmds, s.ids.tolist())],
                          dtype=np.intp)
         self.last_mode.update(zip(s.ids.tolist(), modes.tolist()))
-        last = self.world.k >= self.s.steps
+        last = self.world.k >= self.scenario.steps
         if self.marker_period > 0 and s.k % self.marker_period == 0:
             self.markers_pub.publish(world_markers(self.header(), s, modes, self.world.users))
         row = self.world.advance(s, u, modes, goals, integrate=not last)
@@ -307,7 +307,7 @@ class WorldNode(Node):
         self.metrics_pub.publish(Metrics(header=Header(stamp=sim_time(t), frame_id='world'), step=int(k), t=t,
                                          coverage_ratio=rc, fiedler=lam2, alive=int(alive), components=int(comp),
                                          mode0=int(m0), mode1=int(m1), mode2=int(m2)))
-        if int(k) % int(round(1.0 / self.s.dt)) == 0:
+        if int(k) % int(round(1.0 / self.scenario.dt)) == 0:
             wall = time.monotonic() - self.wall_start
             fresh = ''
             if self.realtime and self.applied:
@@ -316,7 +316,7 @@ class WorldNode(Node):
             pace = (k + 1) / max(wall, 1e-9)
             print(f't = {t:5.1f} s  R_c = {100 * rc:5.1f} %  λ2 = {lam2:.4f}  alive = {int(alive)}  '
                   f'modes = {int(m0)}/{int(m1)}/{int(m2)}  {pace:.1f} steps/s{fresh}', flush=True)
-            asked = self.rate / self.s.dt  # realtime's steps per wall second
+            asked = self.rate / self.scenario.dt  # realtime's steps per wall second
             if self.realtime and not self.slow_said and t >= SLOW_AFTER_S and pace < SLOW_FRACTION * asked:
                 self.slow_said = True
                 print(f'realtime x{self.rate:g} asks for {asked:g} steps/s and this machine keeps {pace:.0f}: '
@@ -332,7 +332,7 @@ class WorldNode(Node):
                                               ids=ids.astype(np.uint32).tolist(), cause=cause))
         # INFO, not WARN: `up` shows warnings on the terminal, where the progress line below already says it.
         self.get_logger().info(f'step {self.world.k}: dropped MAPs {ids.tolist()} ({cause})')
-        print(f't = {self.world.k * self.s.dt:5.1f} s  dropped MAPs {ids.tolist()} ({cause})', flush=True)
+        print(f't = {self.world.k * self.scenario.dt:5.1f} s  dropped MAPs {ids.tolist()} ({cause})', flush=True)
 
     def kill_processes(self, ids: np.ndarray) -> None:
         """A scheduled failure is a real one: SIGKILL each agent process whose MAPs have all failed.
@@ -345,7 +345,7 @@ class WorldNode(Node):
         for i, pid in table.items():
             hosted.setdefault(pid, []).append(i)
         for pid, maps in hosted.items():
-            if set(ids.tolist()) & set(maps) and not any(self.world.alive[i] for i in maps if i < self.s.maps):
+            if set(ids.tolist()) & set(maps) and not any(self.world.alive[i] for i in maps if i < self.scenario.maps):
                 try:
                     os.kill(pid, signal.SIGKILL)
                 except (ProcessLookupError, PermissionError):

@@ -24,23 +24,23 @@ def sum_edges(values: F64, owner: NDArray[np.intp], m: int) -> F64:
     return out
 
 
-def overload_weight(n_users: F64, p: FlockParams) -> F64:
+def overload_weight(n_users: F64, fp: FlockParams) -> F64:
     """1 - alpha_{0,1}(||(N_u - N_max)^+||_sigma / ||N_max||_sigma): grows as a MAP exceeds N_max (eq. 10)."""
-    excess = np.maximum(np.asarray(n_users, dtype=float) - p.n_max, 0.0)
-    return 1.0 - bump(sigma_abs(excess, p.epsilon) / sigma_abs(p.n_max, p.epsilon), 0.0, 1.0)
+    excess = np.maximum(np.asarray(n_users, dtype=float) - fp.n_max, 0.0)
+    return 1.0 - bump(sigma_abs(excess, fp.epsilon) / sigma_abs(fp.n_max, fp.epsilon), 0.0, 1.0)
 
 
-def spare_weight(n_users: F64, p: FlockParams) -> F64:
+def spare_weight(n_users: F64, fp: FlockParams) -> F64:
     """1 - alpha_{0,1}(||(N_max - N_u)^+||_sigma / ||N_max||_sigma): velocity-consensus weight of g_i.
 
     A MAP with no users matches its neighbours fully; one at capacity stops matching and holds its users.
     """
-    spare = np.maximum(p.n_max - np.asarray(n_users, dtype=float), 0.0)
-    return 1.0 - bump(sigma_abs(spare, p.epsilon) / sigma_abs(p.n_max, p.epsilon), 0.0, 1.0)
+    spare = np.maximum(fp.n_max - np.asarray(n_users, dtype=float), 0.0)
+    return 1.0 - bump(sigma_abs(spare, fp.epsilon) / sigma_abs(fp.n_max, fp.epsilon), 0.0, 1.0)
 
 
 def flocking_terms(own_q: F64, own_p: F64, own_nu: F64, owner: NDArray[np.intp],
-                   nbr_q: F64, nbr_p: F64, nbr_nu: F64, p: FlockParams,
+                   nbr_q: F64, nbr_p: F64, nbr_nu: F64, fp: FlockParams,
                    apart: NDArray[np.bool_] | None = None) -> F64:
     """f_i + g_i (eq. 10 and the consensus term) for every own MAP from its neighbours' q, p, N_u.
 
@@ -52,47 +52,47 @@ def flocking_terms(own_q: F64, own_p: F64, own_nu: F64, owner: NDArray[np.intp],
     if owner.size == 0:
         return np.zeros((m, 3))
     dq = nbr_q - own_q[owner]
-    z = sigma_norm(dq, p.epsilon)
-    gain = action(z, p.d, p.r, p.epsilon, p.a, p.b, p.gamma) + p.a * overload_weight(nbr_nu, p)
-    spare = spare_weight(own_nu[owner], p)
+    z = sigma_norm(dq, fp.epsilon)
+    gain = action(z, fp.d, fp.r, fp.epsilon, fp.a, fp.b, fp.gamma) + fp.a * overload_weight(nbr_nu, fp)
+    spare = spare_weight(own_nu[owner], fp)
     if apart is not None and apart.any():
         gain = np.where(apart, np.minimum(gain, 0.0), gain)
         spare = np.where(apart, 0.0, spare)
-    f_edges = gain[:, None] * sigma_grad(dq, p.epsilon)
+    f_edges = gain[:, None] * sigma_grad(dq, fp.epsilon)
     g_edges = spare[:, None] * (nbr_p - own_p[owner])
     return sum_edges(f_edges + g_edges, owner, m)
 
 
-def goal_term(q: F64, p_vel: F64, q_ref: F64, p: FlockParams) -> F64:
+def goal_term(q: F64, p_vel: F64, q_ref: F64, fp: FlockParams) -> F64:
     """h_i for M0 and M2, eq. 12: a spring to the goal q^r with damping to its (zero) velocity."""
-    return p.c1 * (q_ref - q) + p.c2 * (0.0 - p_vel)
+    return fp.c1 * (q_ref - q) + fp.c2 * (0.0 - p_vel)
 
 
-def bridge_term(q: F64, p_vel: F64, q1: F64, q2: F64, p: FlockParams) -> F64:
+def bridge_term(q: F64, p_vel: F64, q1: F64, q2: F64, fp: FlockParams) -> F64:
     """h_i for M1, eq. 13: descend E_c toward the segment q1-q2, damped toward the clusters' zero velocity."""
     d1, d2 = q1 - q, q2 - q
-    pull = (p.k * d1 / (1.0 + p.epsilon * sigma_norm(d1, p.epsilon))[..., None]
-            + p.k * d2 / (1.0 + p.epsilon * sigma_norm(d2, p.epsilon))[..., None])
+    pull = (fp.k * d1 / (1.0 + fp.epsilon * sigma_norm(d1, fp.epsilon))[..., None]
+            + fp.k * d2 / (1.0 + fp.epsilon * sigma_norm(d2, fp.epsilon))[..., None])
     # Eq. 13 damps toward each of the two clusters' velocities with half of c2; both are zero (the
     # clusters stand still), so the two halves are equal, kept as written for bit-equal results.
-    return pull + 0.5 * p.c2 * (0.0 - p_vel) + 0.5 * p.c2 * (0.0 - p_vel)
+    return pull + 0.5 * fp.c2 * (0.0 - p_vel) + 0.5 * fp.c2 * (0.0 - p_vel)
 
 
-def connectivity_potential(q: F64, q1: F64, q2: F64, p: FlockParams) -> F64:
+def connectivity_potential(q: F64, q1: F64, q2: F64, fp: FlockParams) -> F64:
     """E_c of eq. 6: zero at the segment's ends, nearly flat along it and rising away from it."""
-    return p.k * (sigma_norm(q1 - q, p.epsilon) + sigma_norm(q2 - q, p.epsilon) - sigma_norm(q1 - q2, p.epsilon))
+    return fp.k * (sigma_norm(q1 - q, fp.epsilon) + sigma_norm(q2 - q, fp.epsilon) - sigma_norm(q1 - q2, fp.epsilon))
 
 
 def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer], target: F64,
                   bridge_a: F64, bridge_b: F64, owner: NDArray[np.intp], nbr_q: F64, nbr_p: F64,
-                  nbr_nu: F64, p: FlockParams, apart: NDArray[np.bool_] | None = None) -> F64:
+                  nbr_nu: F64, fp: FlockParams, apart: NDArray[np.bool_] | None = None) -> F64:
     """u_i of eq. 9 for every own MAP: flocking terms plus the goal term its mode selects.
 
     target is q^r for M0/M2 rows; bridge_a/bridge_b are q_1^r/q_2^r for M1 rows (ignored elsewhere).
     """
-    u = flocking_terms(own_q, own_p, own_nu, owner, nbr_q, nbr_p, nbr_nu, p, apart)
+    u = flocking_terms(own_q, own_p, own_nu, owner, nbr_q, nbr_p, nbr_nu, fp, apart)
     bridging = np.asarray(mode) == M1
-    h = goal_term(own_q, own_p, target, p)
+    h = goal_term(own_q, own_p, target, fp)
     if np.any(bridging):
-        h[bridging] = bridge_term(own_q[bridging], own_p[bridging], bridge_a[bridging], bridge_b[bridging], p)
+        h[bridging] = bridge_term(own_q[bridging], own_p[bridging], bridge_a[bridging], bridge_b[bridging], fp)
     return u + h

@@ -181,54 +181,54 @@ class Memory(NamedTuple):
 
 
 def mode_switch(mem: Memory, n_users: int, goal_coverage: float, q: np.ndarray,
-                clusters: ClusterMap, p: FlockParams) -> Memory:
-    """Algorithm 2 for one MAP at one step, with the paper's open cases resolved by the policies in p.
+                clusters: ClusterMap, fp: FlockParams) -> Memory:
+    """Algorithm 2 for one MAP at one step, with the paper's open cases resolved by the policies in fp.
 
     goal_coverage is r_g^i, the served fraction of the current goal cluster.
     """
     if mem.goal == NO_GOAL:  # first step: the nearest uncovered cluster (any cluster if all are covered)
         nxt = clusters.nearest(q, mem.achieved)
         return mem._replace(goal=nxt if nxt != NO_GOAL else clusters.nearest(q, 0))
-    if not goal_coverage > p.r0:
+    if not goal_coverage > fp.r0:
         return mem
     if not mem.achieved >> mem.goal & 1:
         mem = mem._replace(achieved=mem.achieved | 1 << mem.goal)
     if mem.mode != M0:
         return mem
-    if 0 < n_users < p.n0 or (n_users == 0 and p.zero_users == 'move_on'):
+    if 0 < n_users < fp.n0 or (n_users == 0 and fp.zero_users == 'move_on'):
         nxt = clusters.nearest(q, mem.achieved)
         if nxt != NO_GOAL:
             return mem._replace(goal=nxt)
-        if p.m0_exhausted == 'bridge' and len(clusters.mst(mem.achieved)) > 0:
+        if fp.m0_exhausted == 'bridge' and len(clusters.mst(mem.achieved)) > 0:
             return mem._replace(mode=M1)
         return mem
-    if p.n0 <= n_users < p.n1:
+    if fp.n0 <= n_users < fp.n1:
         return mem._replace(mode=M1)
     return mem._replace(mode=M2)
 
 
-def choose_bridge(mem: Memory, agent_id: int, q: np.ndarray, clusters: ClusterMap, p: FlockParams) -> Memory:
-    """Which MST edge an M1 MAP bridges, by p.edge_choice: the nearest (re-chosen each step or kept
+def choose_bridge(mem: Memory, agent_id: int, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) -> Memory:
+    """Which MST edge an M1 MAP bridges, by fp.edge_choice: the nearest (re-chosen each step or kept
     while in the tree), or its share of the tree by edge length."""
     if mem.mode != M1:
         return mem if mem.bridge is None else mem._replace(bridge=None)
     edges = clusters.mst(mem.achieved)
     if not edges:
-        if p.m1_pending == 'lead' and mem.goal != NO_GOAL:
+        if fp.m1_pending == 'lead' and mem.goal != NO_GOAL:
             ahead = clusters.nearest(q, mem.achieved)
             if ahead != NO_GOAL:
                 return mem._replace(bridge=(mem.goal, ahead))
         return mem._replace(bridge=None) if mem.bridge is not None else mem
-    if p.edge_choice == 'share':
+    if fp.edge_choice == 'share':
         edge = clusters.shared_edge(agent_id, edges)
-    elif p.edge_choice == 'keep_nearest' and mem.bridge in edges:
+    elif fp.edge_choice == 'keep_nearest' and mem.bridge in edges:
         return mem
     else:
         edge = clusters.nearest_edge(q, edges)
     return mem if edge == mem.bridge else mem._replace(bridge=edge)
 
 
-def served(mem: Memory, r_g: float, arrived: bool, p: FlockParams) -> Memory:
+def served(mem: Memory, r_g: float, arrived: bool, fp: FlockParams) -> Memory:
     """Track the goal's coverage: achieved above r0, or once it has stopped growing (a stall).
 
     A cluster whose MAPs are all in place but that stays just under r0 would otherwise never count as
@@ -239,26 +239,26 @@ def served(mem: Memory, r_g: float, arrived: bool, p: FlockParams) -> Memory:
         mem = mem._replace(best=r_g, flat=0)
     elif arrived and r_g > 0:
         mem = mem._replace(flat=mem.flat + 1)
-    if (r_g > p.r0 or mem.flat >= STALL_STEPS) and not mem.achieved >> mem.goal & 1:
+    if (r_g > fp.r0 or mem.flat >= STALL_STEPS) and not mem.achieved >> mem.goal & 1:
         mem = mem._replace(achieved=mem.achieved | 1 << mem.goal)
     return mem
 
 
 def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
-                  p: FlockParams) -> Memory:
+                  fp: FlockParams) -> Memory:
     """The demand allocation for one MAP at one step: its role from its key, then its mode.
 
     A server flies to its cluster in M0 and holds it in M2 once the cluster is served; a relay bridges
     its edge in M1 from the start, so the tree never waits for clusters to be achieved.
     """
-    roles = clusters.roles(p.d)
+    roles = clusters.roles(fp.d)
     role = roles.of(key_of(agent_id))
     if role < clusters.count:
         if mem.goal != role:
             mem = Memory(mode=M0, goal=role, achieved=mem.achieved)
             r_g = 0.0
         arrived = float(np.hypot(*(np.asarray(q, dtype=float)[:2] - clusters.xy[role]))) <= clusters.radii[role]
-        mem = served(mem, r_g, arrived, p)
+        mem = served(mem, r_g, arrived, fp)
         if mem.mode == M0 and mem.achieved >> mem.goal & 1:
             mem = mem._replace(mode=M2)
         return mem
@@ -269,16 +269,16 @@ def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, cluster
 
 
 def decide(mem: Memory, agent_id: int, n_users: int, cluster_coverage: np.ndarray, q: np.ndarray,
-           neighbour_achieved: Iterable[int], clusters: ClusterMap, p: FlockParams) -> Memory:
+           neighbour_achieved: Iterable[int], clusters: ClusterMap, fp: FlockParams) -> Memory:
     """One MAP's discrete update at step k: gossip, then Algorithm 2 and the bridge, or its demand role."""
     achieved = merge_achieved(mem.achieved, neighbour_achieved)
     if achieved != mem.achieved:
         mem = mem._replace(achieved=achieved)
     r_g = float(cluster_coverage[mem.goal]) if mem.goal != NO_GOAL else 0.0
-    if p.allocation == 'demand':
-        return demand_switch(mem, agent_id, r_g, q, clusters, p)
-    mem = mode_switch(mem, n_users, r_g, q, clusters, p)
-    return choose_bridge(mem, agent_id, q, clusters, p)
+    if fp.allocation == 'demand':
+        return demand_switch(mem, agent_id, r_g, q, clusters, fp)
+    mem = mode_switch(mem, n_users, r_g, q, clusters, fp)
+    return choose_bridge(mem, agent_id, q, clusters, fp)
 
 
 class Told(NamedTuple):
@@ -290,7 +290,7 @@ class Told(NamedTuple):
 
 
 def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, told: Sequence[Told],
-                clusters: ClusterMap, p: FlockParams) -> float:
+                clusters: ClusterMap, fp: FlockParams) -> float:
     """Where along its edge a relay aims (m from the first cluster's centre): midway along its chain.
 
     The chain of an edge (a, b) is its relays and the servers of a and b. Servers of a lie on the a side
@@ -314,16 +314,16 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
     if math.isfinite(below) and math.isfinite(above):
         return (below + above) / 2.0
     if math.isfinite(below):
-        return min(below + p.d, length)
+        return min(below + fp.d, length)
     if math.isfinite(above):
-        return max(above - p.d, 0.0)
-    role = clusters.count + clusters.roles(p.d).edges.index(edge)
-    lo, hi = clusters.gap(edge, p.d / 2)
+        return max(above - fp.d, 0.0)
+    role = clusters.count + clusters.roles(fp.d).edges.index(edge)
+    lo, hi = clusters.gap(edge, fp.d / 2)
     start = float(np.dot(lo - a, u))
-    return start + clusters.roles(p.d).place(key_of(agent_id), role) * float(np.linalg.norm(hi - lo))
+    return start + clusters.roles(fp.d).place(key_of(agent_id), role) * float(np.linalg.norm(hi - lo))
 
 
-def relay_slot(place: float, edge: Edge, clusters: ClusterMap, p: FlockParams) -> tuple[np.ndarray, np.ndarray]:
+def relay_slot(place: float, edge: Edge, clusters: ClusterMap, fp: FlockParams) -> tuple[np.ndarray, np.ndarray]:
     """q_1^r, q_2^r of eq. 13 for a relay: a piece of its edge d/2 long centred where it aims.
 
     E_c pulls the relay onto that piece and is flat along it, so the flocking terms keep their say there.
@@ -333,9 +333,9 @@ def relay_slot(place: float, edge: Edge, clusters: ClusterMap, p: FlockParams) -
     length = float(np.linalg.norm(u))
     u = u / max(length, 1e-12)
     place = min(max(place, 0.0), length)
-    lo, hi = max(place - p.d / 4, 0.0), min(place + p.d / 4, length)
-    return (np.array([a[0] + u[0] * lo, a[1] + u[1] * lo, p.height]),
-            np.array([a[0] + u[0] * hi, a[1] + u[1] * hi, p.height]))
+    lo, hi = max(place - fp.d / 4, 0.0), min(place + fp.d / 4, length)
+    return (np.array([a[0] + u[0] * lo, a[1] + u[1] * lo, fp.height]),
+            np.array([a[0] + u[0] * hi, a[1] + u[1] * hi, fp.height]))
 
 
 def related(a: Told, b: Told) -> bool:
@@ -350,26 +350,26 @@ def related(a: Told, b: Told) -> bool:
     return a.goal == b.goal
 
 
-def apart_links(mem: Memory, heard: Sequence[Told], p: FlockParams) -> list[bool]:
+def apart_links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[bool]:
     """For each neighbour heard, whether its link to this MAP (as decided this step) joins unrelated roles;
     all False under Algorithm 2, whose flocking terms take every neighbour alike."""
-    if p.allocation != 'demand':
+    if fp.allocation != 'demand':
         return [False] * len(heard)
     own = Told(mem.mode, mem.goal, mem.bridge)
     return [not related(own, t) for t in heard]
 
 
 def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],
-              clusters: ClusterMap, p: FlockParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+              clusters: ClusterMap, fp: FlockParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """(q^r, q_1^r, q_2^r, mode for eq. 9): M1 without a bridge holds at its goal like M2.
 
     Under the demand allocation an M1 MAP bridges its own piece of the edge, where its chain needs it.
     """
     here = clusters.targets[mem.goal] if mem.goal != NO_GOAL else np.full(3, np.nan)
     if mem.mode == M1 and mem.bridge is not None:
-        if p.allocation == 'demand':
-            place = relay_place(agent_id, q, mem.bridge, nbr_q, told, clusters, p)
-            q1, q2 = relay_slot(place, mem.bridge, clusters, p)
+        if fp.allocation == 'demand':
+            place = relay_place(agent_id, q, mem.bridge, nbr_q, told, clusters, fp)
+            q1, q2 = relay_slot(place, mem.bridge, clusters, fp)
             return here, q1, q2, M1
         return here, clusters.targets[mem.bridge[0]], clusters.targets[mem.bridge[1]], M1
     return here, here, here, (M2 if mem.mode == M1 else mem.mode)

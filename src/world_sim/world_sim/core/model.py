@@ -50,7 +50,7 @@ class World:
     """The physical world of one run: MSDs, MAP dynamics, failures and the run records."""
 
     def __init__(self, scenario: Scenario) -> None:
-        self.s = scenario
+        self.scenario = scenario
         rng = physics.streams(scenario.seed)
         self._fail_rng = rng['failure']
         self.users = physics.make_users(scenario, rng['users'])
@@ -67,9 +67,9 @@ class World:
 
     def scheduled_failures(self) -> np.ndarray:
         """Ids that fail at this step by the scenario's schedule (empty on other steps)."""
-        if self.fail_step is None or self.k != self.fail_step or self.s.fail_fraction <= 0:
+        if self.fail_step is None or self.k != self.fail_step or self.scenario.fail_fraction <= 0:
             return np.zeros(0, np.intp)
-        return physics.failure_ids(self.s, self.ids[self.alive], self._fail_rng)
+        return physics.failure_ids(self.scenario, self.ids[self.alive], self._fail_rng)
 
     def drop(self, ids: np.ndarray) -> None:
         """MAPs that stopped flying: they leave the graph and serve no one from now on."""
@@ -79,10 +79,10 @@ class World:
 
     def sense(self) -> Sensed:
         """Associate and measure at q(k)."""
-        fp = self.s.flock
+        fp = self.scenario.flock
         rows = self.ids[self.alive]
         q, p = self.q[rows], self.p[rows]
-        assoc = physics.associate(self.users, q, fp.r, self.s.association)
+        assoc = physics.associate(self.users, q, fp.r, self.scenario.association)
         return Sensed(self.k, rows, q, p, physics.user_counts(assoc, len(rows)),
                       physics.cluster_coverage(self.users, assoc), physics.neighbour_pairs(q, fp.r),
                       physics.coverage_ratio(assoc), assoc=assoc)
@@ -98,17 +98,17 @@ class World:
         n_comp = physics.components(sensed.pairs, len(rows))
         lam2 = physics.fiedler(sensed.pairs, len(rows), n_comp)
         counts = np.bincount(np.asarray(modes, dtype=np.intp), minlength=3)
-        t = self.k * self.s.dt
+        t = self.k * self.scenario.dt
         row = np.array([self.k, t, sensed.coverage_ratio, lam2, len(rows), n_comp, *counts[:3]], dtype=float)
         self._metrics.append(row)
         self._traj.append(np.column_stack([np.full(len(rows), self.k), np.full(len(rows), t), rows,
                                            sensed.q, sensed.p, modes, goals, sensed.n_users]))
         if integrate:
-            self.q[rows], self.p[rows] = physics.integrate(sensed.q, sensed.p, u, self.s.dt)
+            self.q[rows], self.p[rows] = physics.integrate(sensed.q, sensed.p, u, self.scenario.dt)
             self.k += 1
         return row
 
     def result(self) -> RunResult:
         traj = np.concatenate(self._traj) if self._traj else np.zeros((0, 12))
-        return RunResult(self.s, self.users, np.array(self._metrics).reshape(-1, 9), traj, self.failed,
-                         self.fail_step if self.s.fail_fraction > 0 else None)
+        return RunResult(self.scenario, self.users, np.array(self._metrics).reshape(-1, 9), traj, self.failed,
+                         self.fail_step if self.scenario.fail_fraction > 0 else None)
