@@ -10,7 +10,6 @@ its /map_<id>/state for step k. Then, by sync mode:
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from dataclasses import fields
@@ -30,7 +29,7 @@ from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, ST
 
 from .core.agent import Neighbourhood, agent_step
 from .core.modes import NO_GOAL, ClusterMap, Memory, Told, ids_of, mask_of
-from .core.params import FlockParams, check as check_params
+from .core.params import AgentNodeParams, FlockParams, check as check_params, check_node
 
 WATCH_PERIOD_S = 1.0
 WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long (after it was seen): it is gone
@@ -63,20 +62,16 @@ class AgentNode(Node):
         defaults = FlockParams()
         for f in fields(FlockParams):
             self.declare_parameter(f.name, getattr(defaults, f.name))
-        self.declare_parameter('hysteresis', 2.0)  # m beyond r before a neighbour's topic is dropped
-        self.declare_parameter('sync', 'lockstep')
-        # Many processes starting on few cores take a while to bring the world up: wait this long for it.
-        self.declare_parameter('world_start_timeout', 120.0)
+        node_defaults = AgentNodeParams()
+        for f in fields(AgentNodeParams):
+            self.declare_parameter(f.name, getattr(node_defaults, f.name))
         self.params = FlockParams(**{f.name: self.get_parameter(f.name).value for f in fields(FlockParams)})
         check_params(self.params, lambda name: f'parameter {name}')
-        self.hysteresis = float(self.get_parameter('hysteresis').value)
-        if not 0.0 <= self.hysteresis < math.inf:
-            raise ValueError(f'parameter hysteresis: must be non-negative and finite, got {self.hysteresis}')
-        self.realtime = is_realtime(str(self.get_parameter('sync').value))
-        self.world_start_timeout = float(self.get_parameter('world_start_timeout').value)
-        if not 0.0 < self.world_start_timeout < math.inf:
-            raise ValueError('parameter world_start_timeout: must be positive and finite, '
-                             f'got {self.world_start_timeout}')
+        node = AgentNodeParams(**{f.name: self.get_parameter(f.name).value for f in fields(AgentNodeParams)})
+        check_node(node, lambda name: f'parameter {name}')
+        self.hysteresis = float(node.hysteresis)
+        self.realtime = is_realtime(str(node.sync))
+        self.world_start_timeout = float(node.world_start_timeout)
         self.world_seen = False
 
         self.memory = Memory()

@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, Callable, NoReturn, Optional, Sequence
+from typing import TYPE_CHECKING, Any, Callable, NoReturn, Optional, Sequence
 
 if TYPE_CHECKING:
     from world_sim.core.scenario import Scenario
@@ -61,44 +61,34 @@ def key_value(text: str) -> tuple[str, object]:
         raise argparse.ArgumentTypeError(f'unreadable value in {text!r}') from None
 
 
-def _float_in(text: str, low: float, high: float, low_open: bool, what: str) -> float:
+def _number_in(text: str, integer: bool = False, **bounds: Any) -> Any:
+    """An option's value checked as a scenario's or a node's is (uav_agent.core.checks), in argparse's words."""
+    from uav_agent.core.checks import noun, number
     try:
-        v = float(text)
+        value: Any = int(text) if integer else float(text)
+        return number(value, 'option', integer=integer, **bounds)
     except ValueError:
-        v = float('nan')
-    if not (low < v if low_open else low <= v) or not v <= high:
-        raise argparse.ArgumentTypeError(f'expected {what}, got {text!r}')
-    return v
+        raise argparse.ArgumentTypeError(f'expected {noun(integer=integer, **bounds)}, got {text!r}') from None
 
 
 def positive_float(text: str) -> float:
-    return _float_in(text, 0.0, 1e300, True, 'a positive finite number')
+    return _number_in(text, low=0.0, low_open=True)
 
 
 def non_negative_float(text: str) -> float:
-    return _float_in(text, 0.0, 1e300, False, 'a non-negative finite number')
-
-
-def _int_in(text: str, low: int, high: Optional[int], what: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        v = low - 1
-    if v < low or high is not None and v > high:
-        raise argparse.ArgumentTypeError(f'expected {what}, got {text!r}')
-    return v
+    return _number_in(text, low=0.0)
 
 
 def positive_int(text: str) -> int:
-    return _int_in(text, 1, None, 'a positive integer')
+    return _number_in(text, integer=True, low=1)
 
 
 def non_negative_int(text: str) -> int:
-    return _int_in(text, 0, None, 'a non-negative integer')
+    return _number_in(text, integer=True, low=0)
 
 
 def fraction(text: str) -> float:
-    return _float_in(text, 0.0, 1.0, False, 'a number in [0, 1]')
+    return _number_in(text, low=0.0, high=1.0)
 
 
 # Fast DDS derives its ports from the domain: above 232 they pass 65535 (the DDS spec's port mapping).
@@ -106,7 +96,7 @@ MAX_DOMAIN_ID = 232
 
 
 def domain_id(text: str) -> int:
-    return _int_in(text, 0, MAX_DOMAIN_ID, f'an integer from 0 to {MAX_DOMAIN_ID}')
+    return _number_in(text, integer=True, low=0, high=MAX_DOMAIN_ID)
 
 
 def default_out(kind: str) -> Path:

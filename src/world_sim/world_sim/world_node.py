@@ -15,6 +15,7 @@ import os
 import signal
 import sys
 import time
+from dataclasses import fields
 from pathlib import Path
 from typing import Callable, Optional
 
@@ -30,6 +31,7 @@ from std_msgs.msg import Header, Int64
 from visualization_msgs.msg import MarkerArray
 from uav_flock_msgs.msg import Association, Clusters, Command, FailureEvent, Metrics, Sensing, Users
 
+from uav_agent.core.checks import check_fields
 from uav_agent.core.modes import NO_GOAL
 from uav_flock_ros import convert
 from uav_flock_ros.executors import StopSignals, spun_node
@@ -39,7 +41,7 @@ from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, RECORDER_MAX_LAG_STEPS, S
 from .core.model import Sensed, World
 from .markers import world_markers
 from .core import records
-from .core.scenario import ScenarioError
+from .core.scenario import ScenarioError, WorldNodeParams
 from .shipped import DEFAULT, load_scenario
 
 LIVENESS_PERIOD_S = 0.2  # how often the processes of MAPs we wait for are checked
@@ -70,30 +72,28 @@ class WorldNode(Node):
         # Told to stop (Ctrl-C on `up`, which stops the agents too): their deaths are not failures, and a
         # lockstep run must not go on to its end without them.
         self.stopping = stopping
-        for name, default in (('scenario', ''), *SCENARIO_OVERRIDES.items(), ('out', ''), ('pid_table', ''),
-                              ('start_timeout', 60.0), ('record', False), ('marker_period', 5), ('sync', 'lockstep'),
-                              ('rate', 1.0), ('command_ttl', 5)):
+        own = WorldNodeParams()
+        for name, default in (*((f.name, getattr(own, f.name)) for f in fields(WorldNodeParams)),
+                              *SCENARIO_OVERRIDES.items()):
             self.declare_parameter(name, default)
         get = lambda n: self.get_parameter(n).value  # noqa: E731
-        scenario = load_scenario(get('scenario') or DEFAULT)
+        params = WorldNodeParams(**{f.name: get(f.name) for f in fields(WorldNodeParams)})
+        check_fields(params, lambda name: f'parameter {name}')
+        scenario = load_scenario(params.scenario or DEFAULT)
         # A parameter left at its default keeps the scenario's value; any other value is checked as the file's.
         scenario = scenario.with_overrides(**{name: None if get(name) == unset else get(name)
                                               for name, unset in SCENARIO_OVERRIDES.items()})
         self.scenario = scenario
-        self.realtime = is_realtime(str(get('sync')))
-        self.rate = float(get('rate'))  # realtime: simulated seconds per wall second
-        if not (0.0 < self.rate < float('inf')):
-            raise ValueError(f'parameter rate: expected a positive number, got {self.rate!r}')
-        self.command_ttl = int(get('command_ttl'))  # realtime: steps a command is held at most
-        if self.command_ttl < 1:
-            raise ValueError(f'parameter command_ttl: expected at least 1 step, got {self.command_ttl}')
+        self.realtime = is_realtime(str(params.sync))
+        self.rate = float(params.rate)  # realtime: simulated seconds per wall second
+        self.command_ttl = int(params.command_ttl)  # realtime: steps a command is held at most
         self.world = World(scenario)
-        self.out = Path(get('out')) if get('out') else None
-        self.pid_table = Path(get('pid_table')) if get('pid_table') else None
-        self.start_timeout = float(get('start_timeout'))
+        self.out = Path(params.out) if params.out else None
+        self.pid_table = Path(params.pid_table) if params.pid_table else None
+        self.start_timeout = float(params.start_timeout)
         # With a recorder, the run waits for it at start and never gets more than
         # RECORDER_MAX_LAG_STEPS ahead of what it has written, so no sample leaves a writer unrecorded.
-        self.record = bool(get('record'))
+        self.record = bool(params.record)
         self.recorded = -2  # last /metrics step the recorder wrote; -1 once it is ready, -2 before
         self.recorder_moved = time.monotonic()
         self.held = False
@@ -110,7 +110,7 @@ class WorldNode(Node):
         self.assoc_pub = self.create_publisher(Association, '/association', STEP_QOS)
         self.metrics_pub = self.create_publisher(Metrics, '/metrics', STEP_QOS)
         self.failure_pub = self.create_publisher(FailureEvent, '/events/failure', STEP_QOS)
-        self.marker_period = int(get('marker_period'))  # steps between /markers frames; 0: none
+        self.marker_period = int(params.marker_period)  # steps between /markers frames; 0: none
         self.markers_pub = self.create_publisher(MarkerArray, '/markers', STEP_QOS)
         self.users_pub = self.create_publisher(Users, '/users', LATCHED_QOS)
         self.clusters_pub = self.create_publisher(Clusters, '/clusters', LATCHED_QOS)

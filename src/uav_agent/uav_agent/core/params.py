@@ -1,9 +1,10 @@
 """Parameters of the control law and mode switch (paper Section V), plus the choices the paper leaves open."""
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import Any, Callable
+
+from .checks import bound, check_fields, number
 
 # Names of the choices where the paper is ambiguous, with their allowed values; docs/choices.md explains them.
 POLICY_VALUES: dict[str, tuple[str, ...]] = {
@@ -64,10 +65,9 @@ def check(p: FlockParams, where: Callable[[str], str] = str) -> None:
             if v not in POLICY_VALUES[f.name]:
                 raise ValueError(f'{where(f.name)}: must be one of {", ".join(POLICY_VALUES[f.name])}, got {v!r}')
         elif isinstance(f.default, int):
-            if v < 0:
-                raise ValueError(f'{where(f.name)}: must be an integer >= 0, got {v!r}')
-        elif not math.isfinite(v) or v <= 0:
-            raise ValueError(f'{where(f.name)}: must be positive and finite, got {v!r}')
+            number(v, where(f.name), low=0, integer=True)
+        else:
+            number(v, where(f.name), low=0.0, low_open=True)
     if p.d >= p.r:
         raise ValueError(f'{where("d")}: must be below {where("r")} ({p.r}), got {p.d}')
     if p.a > p.b:
@@ -78,3 +78,17 @@ def check(p: FlockParams, where: Callable[[str], str] = str) -> None:
         raise ValueError(f'{where("n0")}: must not exceed {where("n1")} ({p.n1}), got {p.n0}')
     if p.r0 > 1.0:
         raise ValueError(f'{where("r0")}: a coverage ratio, must be at most 1, got {p.r0}')
+
+
+@dataclass(frozen=True)
+class AgentNodeParams:
+    """The agent node's own parameters, beside the FlockParams it also takes; checked by check_fields."""
+
+    hysteresis: float = field(default=2.0, metadata=bound(low=0.0))  # m beyond r before a neighbour is dropped
+    sync: str = 'lockstep'                                            # lockstep or realtime (uav_flock_ros.qos)
+    # Many processes starting on few cores take a while to bring the world up: wait this long for it (s).
+    world_start_timeout: float = field(default=120.0, metadata=bound(low=0.0, low_open=True))
+
+
+def check_node(p: AgentNodeParams, where: Callable[[str], str] = str) -> None:
+    check_fields(p, where)

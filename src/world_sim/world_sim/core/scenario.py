@@ -1,13 +1,13 @@
 """Scenarios: every parameter of a run in one YAML file, checked before anything starts."""
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Callable
 
 import yaml
 
+from uav_agent.core.checks import bound, number
 from uav_agent.core.params import POLICY_VALUES, FlockParams, check as check_flock
 
 
@@ -61,21 +61,17 @@ _FAILURE = {'at', 'fraction'}
 
 
 def _num(where: str, value: Any, *, positive: bool = True, allow_zero: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ScenarioError(f'{where}: expected a number, got {value!r}')
-    v = float(value)
-    if math.isnan(v) or math.isinf(v):
-        raise ScenarioError(f'{where}: must be finite, got {value!r}')
-    if positive and (v < 0 or (v == 0 and not allow_zero)):
-        raise ScenarioError(f'{where}: must be {"non-negative" if allow_zero else "positive"}, got {value!r}')
-    return v
+    try:
+        return float(number(value, where, low=0.0 if positive else None, low_open=not allow_zero))
+    except ValueError as exc:
+        raise ScenarioError(str(exc)) from None
 
 
 def _int(where: str, value: Any, *, minimum: int = 1) -> int:
-    v = _num(where, value, positive=False)
-    if v != int(v) or v < minimum:
-        raise ScenarioError(f'{where}: must be an integer >= {minimum}, got {value!r}')
-    return int(v)
+    try:
+        return int(number(value, where, low=minimum, integer=True))
+    except ValueError as exc:
+        raise ScenarioError(str(exc)) from None
 
 
 # The values a command line or a node parameter may override: one check for them and for the file's own.
@@ -230,3 +226,18 @@ def load(path: str | Path) -> Scenario:
         return parse(doc)
     except ScenarioError as exc:
         raise ScenarioError(f'{path}: {exc}') from None
+
+
+@dataclass(frozen=True)
+class WorldNodeParams:
+    """world_sim's own parameters, beside the scenario overrides; checked by uav_agent.core.checks."""
+
+    scenario: str = ''           # scenario file or shipped name ('' : the default, paper)
+    out: str = ''                # run folder for the records ('' : none)
+    pid_table: str = ''          # pids.json of the agent processes, for their liveness ('' : none)
+    start_timeout: float = field(default=60.0, metadata=bound(low=0.0, low_open=True))  # s to wait for every MAP
+    record: bool = False         # wait for a recorder and never outrun it
+    marker_period: int = field(default=5, metadata=bound(low=0, integer=True))  # steps between /markers; 0: none
+    sync: str = 'lockstep'       # lockstep or realtime
+    rate: float = field(default=1.0, metadata=bound(low=0.0, low_open=True))  # realtime: sim s per wall s
+    command_ttl: int = field(default=5, metadata=bound(low=1, integer=True))  # realtime: steps a command holds
