@@ -131,3 +131,10 @@ def test_a_small_random_layout_ends_covered_and_connected(paper_scenario_path: s
     o = outcome.judge(s, result.metrics, result.trajectory)
     assert o.success, o
     assert all(n >= f for n, f in zip(o.per_cluster, floor.per_cluster)), (o.per_cluster, floor.per_cluster)
+
+
+def test_without_the_clusters_extent_every_map_serves_a_cluster() -> None:
+    """A /clusters message without radii (by hand, or an old recording): equal shares, nobody relays blind."""
+    clusters = ClusterMap(np.array([[0.0, 0.0], [150.0, 0.0], [300.0, 0.0]]), P.height)
+    counts = role_counts(clusters, 30)
+    assert counts[3:].sum() == 0 and max(counts[:3]) - min(counts[:3]) <= 2, counts

@@ -135,12 +135,12 @@ class ClusterMap:
     def _roles_uncached(self, d: float) -> 'Roles':
         edges = self.mst(mask_of(range(self.count)))
         cell = math.sqrt(3.0) / 2.0 * d * d  # area per MAP of a hexagonal lattice of spacing d
-        demand = [math.pi * r * r / cell for r in self.radii]
+        demand = [max(math.pi * r * r / cell, 1.0) for r in self.radii]  # every cluster at least one server
         for e in edges:
             lo, hi = self.gap(e, d / 2)
             demand.append(float(np.linalg.norm(hi - lo)) / d)
-        weights = np.maximum(np.array(demand), 0.0)
-        if weights.sum() <= 0:  # nothing known of the clusters' extent: an equal share each
+        weights = np.array(demand)
+        if not np.any(self.radii > 0):  # nothing known of the clusters' extent: an equal share each, no relays
             weights = np.r_[np.ones(self.count), np.zeros(len(edges))]
         bounds = np.cumsum(weights) / weights.sum()
         starts = np.r_[0.0, bounds[:-1]]
