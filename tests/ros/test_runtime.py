@@ -226,8 +226,12 @@ def test_ctrl_c_twice_during_start_up_still_ends_cleanly(tmp_path: Path, ros_env
 
 
 def test_rogue_state_messages_change_nothing(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    """NaN, a wrong sender id and stale steps on /map_3/state from another process: every agent ignores them."""
-    args = ('--maps', '10', '--seed', '2', '--duration', '5')
+    """NaN, a wrong sender id and stale steps on /map_3/state from another process: every agent ignores them.
+
+    10 MAPs step about 100 times a second: 20 s of simulation give DDS a few wall seconds to match the rogue's
+    writer with the agents' readers on a loaded machine (5 s were not always enough in CI).
+    """
+    args = ('--maps', '10', '--seed', '2', '--duration', '20')
     rogue = helper('rogue', '3', env=ros_env)
     try:
         run = cli('up', *args, '--domain-id', ros_env['ROS_DOMAIN_ID'], '--out', str(tmp_path / 'up'), env=ros_env)
