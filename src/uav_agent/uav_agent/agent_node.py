@@ -29,7 +29,8 @@ from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, ST
 
 from .core.agent import Neighbourhood, agent_step
 from .core.modes import NO_GOAL, ClusterMap, Memory, Told, ids_of, mask_of
-from .core.params import AgentNodeParams, FlockParams, check as check_params, check_node
+from .core.checks import check_fields
+from .core.params import AgentNodeParams, FlockParams, check as check_params
 
 WATCH_PERIOD_S = 1.0
 WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long (after it was seen): it is gone
@@ -68,7 +69,7 @@ class AgentNode(Node):
         self.params = FlockParams(**{f.name: self.get_parameter(f.name).value for f in fields(FlockParams)})
         check_params(self.params, lambda name: f'parameter {name}')
         node = AgentNodeParams(**{f.name: self.get_parameter(f.name).value for f in fields(AgentNodeParams)})
-        check_node(node, lambda name: f'parameter {name}')
+        check_fields(node, lambda name: f'parameter {name}')
         self.hysteresis = float(node.hysteresis)
         self.realtime = is_realtime(str(node.sync))
         self.world_start_timeout = float(node.world_start_timeout)

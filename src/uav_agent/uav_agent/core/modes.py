@@ -79,6 +79,7 @@ class ClusterMap:
         self.targets = np.column_stack([self.xy, np.full(self.count, float(height))])
         self._mst = lru_cache(maxsize=None)(self._mst_uncached)
         self._roles = lru_cache(maxsize=None)(self._roles_uncached)
+        self._axes: dict[Edge, tuple[np.ndarray, np.ndarray, float]] = {}
 
     def mst(self, achieved: int) -> tuple[Edge, ...]:
         """Edges (a < b) of the minimum spanning tree T_c over the achieved clusters, by centroid distance."""
@@ -114,19 +115,25 @@ class ClusterMap:
         bounds = np.cumsum(lengths) / lengths.sum()
         return edges[min(int(np.searchsorted(bounds, key_of(agent_id), side='right')), len(edges) - 1)]
 
-    def gap(self, edge: Edge, inset: float) -> tuple[np.ndarray, np.ndarray]:
-        """The stretch of an edge between its clusters' outermost servers (the whole edge if they meet).
+    def axis(self, edge: Edge) -> tuple[np.ndarray, np.ndarray, float]:
+        """(first cluster's centre, unit vector to the second, length in m): what places along an edge are
+        measured on, once per edge."""
+        if edge not in self._axes:
+            a = self.xy[edge[0]]
+            length = float(np.linalg.norm(self.xy[edge[1]] - a))
+            self._axes[edge] = (a, (self.xy[edge[1]] - a) / max(length, 1e-12), length)
+        return self._axes[edge]
+
+    def gap(self, edge: Edge, inset: float) -> tuple[float, float]:
+        """Where along an edge (m from the first centre) the stretch between its clusters' outermost servers
+        starts and ends (the whole edge if they meet).
 
         Servers cover their cluster's 95 % disc from inside it: the outermost sit about inset (half a
         lattice spacing) inside the disc's edge, so that is where a relay chain must reach.
         """
-        a, b = self.xy[edge[0]], self.xy[edge[1]]
-        length = float(np.linalg.norm(b - a))
-        u = (b - a) / max(length, 1e-12)
+        length = self.axis(edge)[2]
         ra, rb = max(self.radii[edge[0]] - inset, 0.0), max(self.radii[edge[1]] - inset, 0.0)
-        if ra + rb >= length:
-            return a, b
-        return a + u * ra, b - u * rb
+        return (0.0, length) if ra + rb >= length else (ra, length - rb)
 
     def roles(self, d: float) -> 'Roles':
         """Every cluster and every edge of the MST over all clusters, with its demand in MAPs."""
@@ -137,8 +144,8 @@ class ClusterMap:
         cell = math.sqrt(3.0) / 2.0 * d * d  # area per MAP of a hexagonal lattice of spacing d
         demand = [max(math.pi * r * r / cell, 1.0) for r in self.radii]  # every cluster at least one server
         for e in edges:
-            lo, hi = self.gap(e, d / 2)
-            demand.append(float(np.linalg.norm(hi - lo)) / d)
+            start, stop = self.gap(e, d / 2)
+            demand.append((stop - start) / d)
         weights = np.array(demand)
         if not np.any(self.radii > 0):  # nothing known of the clusters' extent: an equal share each, no relays
             weights = np.r_[np.ones(self.count), np.zeros(len(edges))]
@@ -296,13 +303,11 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
     The chain of an edge (a, b) is its relays and the servers of a and b. Servers of a lie on the a side
     of every relay and servers of b on the b side, so the outermost server heard is each side's anchor.
     A relay that hears a chain member on each side aims midway between the nearest two, so the chain
-    relaxes to even spacing between the clusters' outermost servers wherever they are; with one side silent it reaches d beyond the other
-    towards the silent side; hearing none, it takes its own place in the gap by its key.
+    relaxes to even spacing between the clusters' outermost servers wherever they are; with one side
+    silent it reaches d beyond the other towards the silent side; hearing none, it takes its own place in
+    the gap by its key.
     """
-    a = clusters.xy[edge[0]]
-    u = clusters.xy[edge[1]] - a
-    length = float(np.linalg.norm(u))
-    u = u / max(length, 1e-12)
+    a, u, length = clusters.axis(edge)
     here = float(np.dot(np.asarray(q, dtype=float)[:2] - a, u))
     below, above = -math.inf, math.inf
     for qj, tj in zip(nbr_q, told):
@@ -317,10 +322,9 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
         return min(below + fp.d, length)
     if math.isfinite(above):
         return max(above - fp.d, 0.0)
-    role = clusters.count + clusters.roles(fp.d).edges.index(edge)
-    lo, hi = clusters.gap(edge, fp.d / 2)
-    start = float(np.dot(lo - a, u))
-    return start + clusters.roles(fp.d).place(key_of(agent_id), role) * float(np.linalg.norm(hi - lo))
+    roles = clusters.roles(fp.d)
+    start, stop = clusters.gap(edge, fp.d / 2)
+    return start + roles.place(key_of(agent_id), clusters.count + roles.edges.index(edge)) * (stop - start)
 
 
 def relay_slot(place: float, edge: Edge, clusters: ClusterMap, fp: FlockParams) -> tuple[np.ndarray, np.ndarray]:
@@ -328,10 +332,7 @@ def relay_slot(place: float, edge: Edge, clusters: ClusterMap, fp: FlockParams) 
 
     E_c pulls the relay onto that piece and is flat along it, so the flocking terms keep their say there.
     """
-    a = clusters.xy[edge[0]]
-    u = clusters.xy[edge[1]] - a
-    length = float(np.linalg.norm(u))
-    u = u / max(length, 1e-12)
+    a, u, length = clusters.axis(edge)
     place = min(max(place, 0.0), length)
     lo, hi = max(place - fp.d / 4, 0.0), min(place + fp.d / 4, length)
     return (np.array([a[0] + u[0] * lo, a[1] + u[1] * lo, fp.height]),

@@ -4,7 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import Any, Callable
 
-from .checks import bound, check_fields, number
+from .checks import bound, number
 
 # Names of the choices where the paper is ambiguous, with their allowed values; docs/choices.md explains them.
 POLICY_VALUES: dict[str, tuple[str, ...]] = {
@@ -88,7 +88,3 @@ class AgentNodeParams:
     sync: str = 'lockstep'                                            # lockstep or realtime (uav_flock_ros.qos)
     # Many processes starting on few cores take a while to bring the world up: wait this long for it (s).
     world_start_timeout: float = field(default=120.0, metadata=bound(low=0.0, low_open=True))
-
-
-def check_node(p: AgentNodeParams, where: Callable[[str], str] = str) -> None:
-    check_fields(p, where)
