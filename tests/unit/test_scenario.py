@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import yaml
 
@@ -38,12 +39,26 @@ def test_shipped_paper_scenario_has_the_papers_parameters(paper_scenario_path: s
     (lambda d: d['users']['clusters'][1].__setitem__('spread', -3), 'users.clusters[1].spread'),
     (lambda d: d['policies'].__setitem__('edge_choice', 'random'), 'policies.edge_choice'),
     (lambda d: d.pop('seed'), 'seed'),
+    (lambda d: d['radio'].__setitem__('eta', 0.0), 'radio.eta'),
+    (lambda d: d['radio'].__setitem__('rho', -1.0), 'radio.rho'),
 ])
 def test_bad_scenarios_name_the_key(doc: dict[str, Any], edit: Any, key: str) -> None:
     edit(doc)
     with pytest.raises(ScenarioError) as err:
         parse(doc)
     assert str(err.value).startswith(key + ':'), str(err.value)
+
+
+def test_radio_power_and_exponent_are_optional_and_do_not_change_association(doc: dict[str, Any]) -> None:
+    """Eq. 2's strongest signal is the nearest MAP for every rho, eta > 0, so both may be left out."""
+    from world_sim.batch import BatchSimulator
+    short = {'duration': 3.0, 'maps': 30}
+    doc['radio'].pop('rho'), doc['radio'].pop('eta')
+    default = parse(doc).with_overrides(**short)
+    assert (default.rho, default.eta) == (1.0, 3.5)
+    doc['radio'].update(rho=7.0, eta=2.0)
+    other = parse(doc).with_overrides(**short)
+    assert np.array_equal(BatchSimulator(default).run().metrics, BatchSimulator(other).run().metrics)
 
 
 @pytest.mark.parametrize('override, key', [

@@ -233,6 +233,23 @@ class ForkedAgent:
         return self.proc.exitcode
 
 
+def agent_argv(ids: Sequence[int], params: Path) -> list[str]:
+    """The agent node's command line: one process serving `ids`, parameters from the run's params file."""
+    return ['uav_agent_node', '--ids', ','.join(map(str, ids)), '--ros-args', '--params-file', str(params)]
+
+
+def start_agent(ids: Sequence[int], params: Path, env: dict[str, str], log: IO[str]) -> subprocess.Popen:
+    """Start one agent process as a direct child (replay's single MAP), where `start_agents` forks many.
+
+    A direct child, not a fork of the template, so the caller's pid is its parent's and a `kill` of the
+    caller ends it by the parent-death signal.
+    """
+    argv = agent_argv(ids, params)
+    return subprocess.Popen([executable('uav_agent', argv[0]), *argv[1:]], env=env, stdout=log,
+                            stderr=subprocess.STDOUT, start_new_session=True,
+                            preexec_fn=dies_with_parent(signal.SIGTERM))
+
+
 def start_agents(id_groups: list[list[int]], params: Path, env: dict[str, str], logs: Path,
                  into: list[ForkedAgent], stop_if: Callable[[], bool]) -> None:
     """Fork one agent process per group of MAP ids from the template process, into `into` as each starts.
@@ -245,7 +262,7 @@ def start_agents(id_groups: list[list[int]], params: Path, env: dict[str, str], 
     for ids in id_groups:
         if stop_if():
             return
-        argv = ['uav_agent_node', '--ids', ','.join(map(str, ids)), '--ros-args', '--params-file', str(params)]
+        argv = agent_argv(ids, params)
         proc = ctx.Process(target=agent_process, args=(argv, env, str(logs / f'agents_{ids[0]}.log'), os.getpid()),
                            name=f'agents_{ids[0]}')
         proc.start()

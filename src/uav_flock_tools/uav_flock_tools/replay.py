@@ -9,8 +9,6 @@ shows as a difference.
 from __future__ import annotations
 
 import os
-import signal
-import subprocess
 import tempfile
 import time
 from dataclasses import dataclass, field, fields
@@ -79,10 +77,7 @@ def replay(path: Path, agent: int, tolerance: float = 1e-9, timeout: float = 20.
         env = launcher.ros_env(domain)
         params = write_params(Path(tmp) / 'agent_params.yaml', inputs.params)
         log = open(Path(tmp) / 'agent.log', 'w')
-        proc = subprocess.Popen([launcher.executable('uav_agent', 'uav_agent_node'), '--ids', str(agent),
-                                 '--ros-args', '--params-file', str(params)],
-                                env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
-                                preexec_fn=launcher.dies_with_parent(signal.SIGTERM))
+        proc = launcher.start_agent([agent], params, env, log)
         saved = {k: os.environ.get(k) for k in env}
         os.environ.update(env)
 

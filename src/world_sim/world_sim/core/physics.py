@@ -75,7 +75,8 @@ def failure_ids(s: Scenario, alive_ids: NDArray[np.intp], rng: np.random.Generat
 def associate(users: Users, q: F64, r: float, mode: str = '3d') -> NDArray[np.intp]:
     """Eq. 2: each MSD joins the MAP with the strongest signal rho*||y - q||^-eta among those within r.
 
-    The signal falls with distance, so that is the nearest MAP in range; returns its row in q, or UNSERVED.
+    For any rho, eta > 0 (the scenario checks both) the signal falls with distance, so that is the nearest
+    MAP in range, found without rho and eta; returns its row in q, or UNSERVED.
     """
     if len(q) == 0:
         return np.full(len(users.xyz), UNSERVED, dtype=np.intp)

@@ -34,8 +34,10 @@ class Scenario:
     release_center: tuple[float, float]  # centre of the uniform release square (m)
     release_half_width: float            # half side of that square (m)
     initial_speed: float                 # initial velocity uniform in [-s, s]^2 (m/s)
-    rho: float = 1.0                     # transmit power (W), eq. 2
-    eta: float = 3.5                     # path-loss exponent, eq. 2
+    # Eq. 2's transmit power (W) and path-loss exponent. Optional and checked > 0: for any positive pair the
+    # strongest signal rho*d^-eta in range is the nearest MAP's, so they are recorded, never needed to associate.
+    rho: float = 1.0
+    eta: float = 3.5
     association: str = '3d'              # MSD-MAP range: '3d' (||y - q|| <= r) or 'horizontal'
     fail_at: float | None = None         # time of the random failure (s)
     fail_fraction: float = 0.0           # fraction of MAPs that fail then
@@ -162,8 +164,8 @@ def parse(doc: Any) -> Scenario:
         release_center=_pair('release.center', _need(release, 'release', 'center')),
         release_half_width=_num('release.half_width', _need(release, 'release', 'half_width')),
         initial_speed=_num('release.initial_speed', _need(release, 'release', 'initial_speed'), allow_zero=True),
-        rho=_num('radio.rho', _need(radio, 'radio', 'rho')),
-        eta=_num('radio.eta', _need(radio, 'radio', 'eta')),
+        rho=_num('radio.rho', radio.get('rho', Scenario.rho)),
+        eta=_num('radio.eta', radio.get('eta', Scenario.eta)),
         association=association,
         fail_at=_OVERRIDABLE['fail_at'](failure['at']) if failure.get('at') is not None else None,
         fail_fraction=_OVERRIDABLE['fail_fraction'](failure.get('fraction', 0.0)),
