@@ -16,9 +16,10 @@ HDR = Header(frame_id='world')
 @settings(max_examples=30, deadline=None)
 @given(arrays(np.float64, st.tuples(st.integers(0, 20), st.just(3)), elements=FINITE), st.integers(1, 5))
 def test_users_round_trip(xyz: np.ndarray, k: int) -> None:
-    cluster = np.arange(len(xyz)) % k
-    back_xyz, back_cluster = convert.users_arrays(convert.users(HDR, xyz, cluster))
-    assert np.array_equal(back_xyz, xyz) and np.array_equal(back_cluster, cluster)
+    cluster = np.arange(len(xyz)) % (k + 1) - 1  # -1: an MSD in no cluster
+    msg = convert.users(HDR, 42, xyz, cluster)
+    back_xyz, back_cluster = convert.users_arrays(msg)
+    assert msg.step == 42 and np.array_equal(back_xyz, xyz) and np.array_equal(back_cluster, cluster)
 
 
 @settings(max_examples=30, deadline=None)
@@ -26,11 +27,23 @@ def test_users_round_trip(xyz: np.ndarray, k: int) -> None:
 def test_clusters_round_trip_with_and_without_radii(xy: np.ndarray) -> None:
     sizes = np.arange(1, len(xy) + 1)
     radii = np.linspace(10.0, 40.0, len(xy))
-    back_xy, back_sizes, back_radii = convert.clusters_arrays(convert.clusters(HDR, xy, sizes, radii))
-    assert np.array_equal(back_xy, xy) and np.array_equal(back_sizes, sizes) and np.array_equal(back_radii, radii)
-    msg = convert.clusters(HDR, xy, sizes, radii)
+    back = convert.clusters_arrays(convert.clusters(HDR, 0, xy, sizes, radii))
+    assert np.array_equal(back.xy, xy) and np.array_equal(back.sizes, sizes) and np.array_equal(back.radii, radii)
+    assert back.version == 0 and back.active.all() and not back.velocities.any()
+    msg = convert.clusters(HDR, 0, xy, sizes, radii)
     msg.radii = []  # an older recording: no radii, and the reader says so rather than inventing them
-    assert convert.clusters_arrays(msg)[2] is None
+    assert convert.clusters_arrays(msg).radii is None
+
+
+@settings(max_examples=30, deadline=None)
+@given(arrays(np.float64, st.tuples(st.integers(1, 8), st.just(2)), elements=FINITE), st.integers(0, 1000))
+def test_clusters_of_a_survey_round_trip_with_ended_ids_and_velocities(xy: np.ndarray, version: int) -> None:
+    sizes = np.arange(len(xy)) * 10
+    active = sizes > 0
+    vel = xy[::-1] / 100.0
+    back = convert.clusters_arrays(convert.clusters(HDR, version, xy, sizes, np.ones(len(xy)), active, vel))
+    assert back.version == version and np.array_equal(back.active, active)
+    assert np.array_equal(back.velocities, vel if np.any(vel) else np.zeros_like(vel))
 
 
 def test_association_and_sensing_carry_what_they_were_built_from() -> None:
@@ -39,8 +52,8 @@ def test_association_and_sensing_carry_what_they_were_built_from() -> None:
         (7, [0, 2, 5], [3, 0, 9], [0.5, 1.0], 0.75)
     q, p = np.array([1.0, 2.0, 20.0]), np.array([0.5, -0.5, 0.0])
     nq = np.array([[4.0, 6.0, 20.0], [1.0, 2.0, 30.0]])
-    s = convert.sensing(HDR, 3, 7, q, p, 12, 0.9, np.array([1, 4]), nq)
-    assert (s.id, s.step, s.user_count, s.goal_coverage) == (3, 7, 12, 0.9)
+    s = convert.sensing(HDR, 3, 7, q, p, 12, 0.9, np.array([1, 4]), nq, clusters_version=5)
+    assert (s.id, s.step, s.user_count, s.goal_coverage, s.clusters_version) == (3, 7, 12, 0.9, 5)
     assert np.array_equal(convert.xyz(s.position), q) and np.array_equal(convert.xyz(s.velocity), p)
     assert list(s.neighbors.ids) == [1, 4] and np.allclose(s.neighbors.distances, [5.0, 10.0])
 

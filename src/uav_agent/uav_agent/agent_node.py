@@ -77,6 +77,7 @@ class AgentNode(Node):
 
         self.memory = Memory()
         self.clusters: Optional[ClusterMap] = None
+        self.clusters_version = 0  # of the clusters held; a step waits for the version its sensing names
         self.pending: Optional[Sensing] = None
         self.step = -1  # the last step the world sensed for us
         self.own_q = np.zeros(3)
@@ -123,14 +124,20 @@ class AgentNode(Node):
             self.get_logger().info(f'ignored {sum(self.repeats.values())} late copies of past steps ({told})')
 
     def on_clusters(self, msg: Clusters) -> None:
-        xy, _, radii = convert.clusters_arrays(msg)
-        if not np.all(np.isfinite(xy)) or len(xy) == 0:
+        c = convert.clusters_arrays(msg)
+        if not np.all(np.isfinite(c.xy)) or len(c.xy) == 0:
             self.reject('/clusters', 'no or non-finite centroids')
             return
-        if (radii is None and len(msg.radii)) or (radii is not None and not np.all(np.isfinite(radii) & (radii >= 0))):
-            self.reject('/clusters', f'{len(msg.radii)} radii for {len(xy)} centroids, or a negative or non-finite one')
+        if (c.radii is None and len(msg.radii)) or (c.radii is not None and not np.all(np.isfinite(c.radii) & (c.radii >= 0))):
+            self.reject('/clusters', f'{len(msg.radii)} radii for {len(c.xy)} centroids, or a negative or non-finite one')
             return
-        self.clusters = ClusterMap(xy, self.params.height, radii)
+        if not np.all(np.isfinite(c.velocities)):
+            self.reject('/clusters', 'non-finite velocities')
+            return
+        if self.clusters is not None and c.version < self.clusters_version:
+            return  # an older picture arriving late
+        self.clusters = ClusterMap(c.xy, self.params.height, c.radii, c.active, c.velocities)
+        self.clusters_version = c.version
         self.try_step()
 
     def on_finished(self, msg: Int64) -> None:
@@ -231,7 +238,7 @@ class AgentNode(Node):
     def try_step(self) -> None:
         """Compute the pending step's command once what the sync mode needs from the neighbours is here."""
         s = self.pending
-        if s is None or self.clusters is None:
+        if s is None or self.clusters is None or self.clusters_version < s.clusters_version:
             return
         needed = [j for j in s.neighbors.ids if j not in self.dead]
         if self.realtime:

@@ -7,7 +7,7 @@ duck-typed: they read rclpy messages and the ones rosbags deserializes from a ba
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable, Optional
+from typing import Any, Iterable, NamedTuple, Optional
 
 import numpy as np
 from geometry_msgs.msg import Point, Vector3
@@ -47,25 +47,48 @@ def role(msg: AgentState) -> tuple[int, int, Optional[tuple[int, int]]]:
     return int(msg.mode), int(msg.goal), (bridge[0], bridge[1]) if len(bridge) == 2 else None
 
 
-def users(header: Header, xyz_all: np.ndarray, cluster: np.ndarray) -> Users:
-    return Users(header=header, positions=[point(y) for y in xyz_all], cluster=np.asarray(cluster, np.uint32).tolist())
+def users(header: Header, step: int, xyz_all: np.ndarray, cluster: np.ndarray) -> Users:
+    return Users(header=header, step=int(step), positions=[point(y) for y in xyz_all],
+                 cluster=np.asarray(cluster, np.int32).tolist())
 
 
 def users_arrays(msg: Any) -> tuple[np.ndarray, np.ndarray]:
-    """(positions (M, 3) in m, cluster index per MSD)."""
+    """(positions (M, 3) in m, cluster id per MSD, -1 for none)."""
     return xyz_rows(msg.positions), np.asarray(msg.cluster, dtype=np.intp)
 
 
-def clusters(header: Header, centroids: np.ndarray, sizes: np.ndarray, radii: np.ndarray) -> Clusters:
-    return Clusters(header=header, centroids=[point(np.array([c[0], c[1], 0.0])) for c in centroids],
-                    sizes=np.asarray(sizes, np.uint32).tolist(), radii=np.asarray(radii, dtype=float).tolist())
+def clusters(header: Header, version: int, centroids: np.ndarray, sizes: np.ndarray, radii: np.ndarray,
+             active: Optional[np.ndarray] = None, velocities: Optional[np.ndarray] = None) -> Clusters:
+    """The survey's clusters; `active` and `velocities` are left empty when every cluster exists and stands
+    still, as before users could move."""
+    moving = velocities is not None and np.any(velocities)
+    return Clusters(header=header, version=int(version),
+                    centroids=[point(np.array([c[0], c[1], 0.0])) for c in centroids],
+                    sizes=np.asarray(sizes, np.uint32).tolist(), radii=np.asarray(radii, dtype=float).tolist(),
+                    active=[] if active is None or np.all(active) else [bool(a) for a in active],
+                    velocities=[vector(np.array([v[0], v[1], 0.0])) for v in velocities] if moving else [])
 
 
-def clusters_arrays(msg: Any) -> tuple[np.ndarray, np.ndarray, Optional[np.ndarray]]:
-    """(centroids (K, 2) in m, sizes, radii (K,) in m or None when the message has none for every cluster)."""
+class ClusterArrays(NamedTuple):
+    """A /clusters message as arrays; radii None when the message has none for every cluster."""
+
+    version: int
+    xy: np.ndarray                  # (K, 2) m
+    sizes: np.ndarray               # (K,)
+    radii: Optional[np.ndarray]     # (K,) m
+    active: np.ndarray              # (K,) bool
+    velocities: np.ndarray          # (K, 2) m/s
+
+
+def clusters_arrays(msg: Any) -> ClusterArrays:
     xy = xyz_rows(msg.centroids)[:, :2]
     radii = np.asarray(getattr(msg, 'radii', []), dtype=float)
-    return xy, np.asarray(msg.sizes, dtype=np.intp), radii if len(radii) == len(xy) else None
+    active = np.asarray(getattr(msg, 'active', []), dtype=bool)
+    vel = getattr(msg, 'velocities', [])
+    return ClusterArrays(int(getattr(msg, 'version', 0)), xy, np.asarray(msg.sizes, dtype=np.intp),
+                         radii if len(radii) == len(xy) else None,
+                         active if len(active) == len(xy) else np.ones(len(xy), dtype=bool),
+                         xyz_rows(vel)[:, :2] if len(vel) == len(xy) else np.zeros((len(xy), 2)))
 
 
 def association(header: Header, step: int, ids: np.ndarray, n_users: np.ndarray, cluster_coverage: np.ndarray,
@@ -77,9 +100,11 @@ def association(header: Header, step: int, ids: np.ndarray, n_users: np.ndarray,
 
 
 def sensing(header: Header, map_id: int, step: int, q: np.ndarray, p: np.ndarray, n_users: int,
-            goal_coverage: float, neighbour_ids: np.ndarray, neighbour_q: np.ndarray) -> Sensing:
+            goal_coverage: float, neighbour_ids: np.ndarray, neighbour_q: np.ndarray,
+            clusters_version: int = 0) -> Sensing:
     """One MAP's sensing of a step: its own q, p, N_u and r_g, and its neighbours with their distances."""
     return Sensing(header=header, id=int(map_id), step=int(step), position=point(q), velocity=vector(p),
                    user_count=int(n_users), goal_coverage=float(goal_coverage),
+                   clusters_version=int(clusters_version),
                    neighbors=NeighborList(id=int(map_id), ids=np.asarray(neighbour_ids, np.uint32).tolist(),
                                           distances=np.linalg.norm(neighbour_q - q, axis=1).tolist()))

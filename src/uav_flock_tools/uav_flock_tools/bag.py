@@ -73,12 +73,23 @@ class BagRun:
     metrics: np.ndarray                      # (S, 9) records.METRICS_COLUMNS, from /metrics
     trajectory: np.ndarray                   # (R, 12) records.TRAJECTORY_COLUMNS, from the states
     sensed: dict[int, dict[int, np.ndarray]]  # step -> id -> q measured by the world
-    users: Optional[physics.Users]
+    users: Optional[physics.Users]           # the MSDs and clusters before the first step
     failures: list[tuple[int, list[int], str]]  # (step, ids, cause)
     association: dict[int, tuple[np.ndarray, float]]  # step -> (map ids, recorded R_c)
     heard: dict[str, dict[int, set[int]]] = field(default_factory=dict)  # sensing|state|cmd -> step -> ids
     params: dict[str, Any] = field(default_factory=dict)
     scenario: dict[str, Any] = field(default_factory=dict)
+    users_at: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # step -> (xyz, cluster)
+
+    def users_of(self, step: int) -> Optional[physics.Users]:
+        """The MSDs as last published at or before step (users that move are published every survey)."""
+        if self.users is None:
+            return None
+        known = [k for k in self.users_at if k <= step]
+        if not known:
+            return self.users
+        xyz, cluster = self.users_at[max(known)]
+        return physics.Users(xyz, cluster, self.users.centroids, self.users.radii)
 
     @property
     def dt(self) -> float:
@@ -156,7 +167,8 @@ def _read(path: Path, reader: AnyReader) -> BagRun:
     failures: list[tuple[int, list[int], str]] = []
     association: dict[int, tuple[np.ndarray, float]] = {}
     heard: dict[str, dict[int, set[int]]] = {kind: defaultdict(set) for kind in MAP_TOPICS}
-    users_msg = clusters_msg = None
+    users_msgs: list[Any] = []
+    clusters_msg = None
     wanted = [c for c in reader.connections if c.msgtype.startswith(f'{MSG_PACKAGE}/')]
     for conn, _, raw in reader.messages(connections=wanted):
         counts[conn.topic] += 1
@@ -178,8 +190,8 @@ def _read(path: Path, reader: AnyReader) -> BagRun:
         elif conn.topic == '/association':
             association[int(msg.step)] = (np.asarray(msg.map_ids, dtype=np.intp), float(msg.coverage_ratio))
         elif conn.topic == '/users':
-            users_msg = msg
-        elif conn.topic == '/clusters':
+            users_msgs.append(msg)
+        elif conn.topic == '/clusters' and clusters_msg is None:
             clusters_msg = msg
     if not metrics and not traj:
         if wanted:  # our topics are there, but the run never stepped
@@ -194,22 +206,26 @@ def _read(path: Path, reader: AnyReader) -> BagRun:
     t = np.array(sorted(traj), dtype=float).reshape(-1, len(records.TRAJECTORY_COLUMNS))
     t[:, 1] = t[:, 0] * run.dt
     run.trajectory = t
-    if users_msg is not None and clusters_msg is not None:
-        xyz, cluster = convert.users_arrays(users_msg)
-        centroids, _, radii = convert.clusters_arrays(clusters_msg)
-        run.users = physics.Users(xyz, cluster, centroids, radii)
+    if users_msgs and clusters_msg is not None:
+        xyz, cluster = convert.users_arrays(users_msgs[0])
+        c = convert.clusters_arrays(clusters_msg)
+        run.users = physics.Users(xyz, cluster, c.xy, c.radii)
+        run.users_at = {int(getattr(m, 'step', 0)): convert.users_arrays(m) for m in users_msgs}
     return run
 
 
 def recompute(run: BagRun, association: str = '3d') -> np.ndarray:
-    """(step, R_c, Fiedler) per step from the positions the world measured, with the world's functions."""
+    """(step, R_c, Fiedler) per step from the positions the world measured, with the world's functions.
+
+    Users that move are in the bag every survey period, so between two of those R_c is recomputed with
+    the users as last published: exact for users that stand still, close for users that move."""
     if run.users is None:
         raise BagError(f'{run.path}: no /users or /clusters message, cannot recompute coverage')
     rows = []
     for k in sorted(run.sensed):
         ids = sorted(run.sensed[k])
         q = np.array([run.sensed[k][i] for i in ids]).reshape(-1, 3)
-        assoc = physics.associate(run.users, q, run.r, association)
+        assoc = physics.associate(run.users_of(k), q, run.r, association)
         pairs = physics.neighbour_pairs(q, run.r)
         rows.append([k, physics.coverage_ratio(assoc), physics.fiedler(pairs, len(ids))])
     return np.array(rows, dtype=float).reshape(-1, 3)
@@ -248,8 +264,8 @@ class ReplayInputs:
 
     agent: int
     params: dict[str, Any]
-    clusters: bytes
-    sensing: dict[int, tuple[bytes, list[int]]]           # step -> (raw Sensing, neighbour ids)
+    clusters: dict[int, bytes]                            # version -> raw Clusters
+    sensing: dict[int, tuple[bytes, list[int], int]]      # step -> (raw Sensing, neighbour ids, clusters version)
     states: dict[int, dict[int, bytes]]                   # MAP id -> step -> raw AgentState
     commands: dict[int, tuple[np.ndarray, int, int]]      # step -> (u, mode, goal)
     failures: list[tuple[int, str, bytes]]                # (step, cause, raw FailureEvent)
@@ -258,11 +274,11 @@ class ReplayInputs:
 def replay_inputs(path: Path, agent: int) -> ReplayInputs:
     """One MAP's recorded inputs and commands, for `replay`."""
     path = find_bag(path)
-    sensing: dict[int, tuple[bytes, list[int]]] = {}
+    sensing: dict[int, tuple[bytes, list[int], int]] = {}
     states: dict[int, dict[int, bytes]] = defaultdict(dict)
     commands: dict[int, tuple[np.ndarray, int, int]] = {}
     failures: list[tuple[int, str, bytes]] = []
-    clusters = b''
+    clusters: dict[int, bytes] = {}
     mine = {f'/map_{agent}/sensing', f'/map_{agent}/cmd', '/clusters', '/events/failure'}
     with _reader(path) as reader:
         wanted = [c for c in reader.connections if c.topic in mine or _map_topic(c.topic)[1] == 'state']
@@ -274,12 +290,13 @@ def replay_inputs(path: Path, agent: int) -> ReplayInputs:
                 continue
             msg = reader.deserialize(raw, conn.msgtype)
             if kind == 'sensing':
-                sensing[int(msg.step)] = (raw, [int(j) for j in msg.neighbors.ids])
+                sensing[int(msg.step)] = (raw, [int(j) for j in msg.neighbors.ids],
+                                          int(getattr(msg, 'clusters_version', 0)))
             elif kind == 'cmd':
                 a = msg.accel
                 commands[int(msg.step)] = (np.array([a.x, a.y, a.z]), int(msg.mode), int(msg.goal))
             elif conn.topic == '/clusters':
-                clusters = raw
+                clusters.setdefault(int(getattr(msg, 'version', 0)), raw)
             else:
                 failures.append((int(msg.step), str(msg.cause), raw))
     if not sensing:

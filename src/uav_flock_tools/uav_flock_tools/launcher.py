@@ -607,7 +607,8 @@ def read_result(run: Path, scenario: Scenario) -> Optional[RunResult]:
     metrics = records.rows(m, records.METRICS_COLUMNS)
     traj = records.rows(t, records.TRAJECTORY_COLUMNS)
     failed, fail_step = records.read_failures(run / records.FAILURES_FILE)
-    return RunResult(scenario, records.read_users(run / records.USERS_FILE), metrics, traj, failed, fail_step)
+    return RunResult(scenario, records.read_users(run / records.USERS_FILE), metrics, traj, failed, fail_step,
+                     records.read_motion(run / records.USERS_FILE))
 
 
 def kill(run: Path, ids: Optional[list[int]], fraction: Optional[float], whole_processes: bool = False

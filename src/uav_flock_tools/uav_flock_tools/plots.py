@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import matplotlib
 
@@ -10,6 +10,8 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+# The MSDs (xy, cluster id) at a time, for runs whose users move.
+UsersAt = Callable[[float], tuple[np.ndarray, np.ndarray]]
 MODE_COLOURS = ('tab:blue', 'tab:orange', 'tab:green')
 MODE_NAMES = ('M0 dynamic', 'M1 connectivity', 'M2 static')
 
@@ -102,12 +104,20 @@ def formation(ax: plt.Axes, users_xy: np.ndarray, users_cluster: np.ndarray, cen
 
 
 def formation_snapshots(traj: dict[str, np.ndarray], users_xy: np.ndarray, users_cluster: np.ndarray,
-                        centroids: np.ndarray, r: float, times: Sequence[float], title: str, path: Path) -> Path:
-    """Formation at several times, side by side, sharing one legend."""
+                        centroids: np.ndarray, r: float, times: Sequence[float], title: str, path: Path,
+                        users_at: UsersAt | None = None) -> Path:
+    """Formation at several times, side by side, sharing one legend; users_at gives the MSDs at a time
+    when they move (their centroids are then those of each cluster at that time)."""
     all_t = np.unique(traj['t'])
     shown = [all_t[np.argmin(np.abs(all_t - want))] for want in times]
+    panels = {t: (users_xy, users_cluster, centroids) for t in shown}
+    if users_at is not None:
+        for t in shown:
+            xy, cl = users_at(float(t))
+            ids = np.unique(cl[cl >= 0])
+            panels[t] = (xy, cl, np.array([xy[cl == k].mean(axis=0) for k in ids]).reshape(-1, 2))
     # One frame for every panel, fitted to what they show, so the panels fill the figure.
-    pts = np.vstack([users_xy, np.column_stack([traj['x'][np.isin(traj['t'], shown)],
+    pts = np.vstack([*(v[0] for v in panels.values()), np.column_stack([traj['x'][np.isin(traj['t'], shown)],
                                                 traj['y'][np.isin(traj['t'], shown)]])])
     lo, hi = pts.min(axis=0) - 10.0, pts.max(axis=0) + 10.0
     width = 3.6 * (hi[0] - lo[0]) / max(hi[1] - lo[1], 1e-9)
@@ -116,7 +126,7 @@ def formation_snapshots(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
     for ax, t in zip(axes[0], shown):
         sel = traj['t'] == t
         q = np.column_stack([traj['x'][sel], traj['y'][sel]])
-        formation(ax, users_xy, users_cluster, centroids, q, traj['mode'][sel].astype(int), r, f't = {t:.1f} s')
+        formation(ax, *panels[t], q, traj['mode'][sel].astype(int), r, f't = {t:.1f} s')
         ax.set_xlim(lo[0], hi[0])
         ax.set_ylim(lo[1], hi[1])
     # The legend in reading order, with every mode whether or not a panel shows it.
@@ -134,7 +144,7 @@ def formation_snapshots(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
 
 def run_figures(metrics: np.ndarray, traj: dict[str, np.ndarray], users_xy: np.ndarray | None,
                 users_cluster: np.ndarray | None, centroids: np.ndarray | None, r: float, label: str,
-                folder: Path, events: Sequence[float] = ()) -> list[Path]:
+                folder: Path, events: Sequence[float] = (), users_at: UsersAt | None = None) -> list[Path]:
     """The four figures of one run: coverage, Fiedler value, mode counts and formation snapshots.
 
     metrics rows follow the METRICS_COLUMNS order; without MSDs the formation snapshots are left out.
@@ -150,5 +160,5 @@ def run_figures(metrics: np.ndarray, traj: dict[str, np.ndarray], users_xy: np.n
         end = float(traj['t'].max())
         times = sorted({0.0, round(end / 4, 1), round(end / 2, 1), end})
         out.append(formation_snapshots(traj, users_xy, users_cluster, centroids, r, times,
-                                       f'Formation, {label}', folder / 'formation.png'))
+                                       f'Formation, {label}', folder / 'formation.png', users_at))
     return out

@@ -128,7 +128,9 @@ def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
         failures = node.create_publisher(FailureEvent, '/events/failure', STEP_QOS)
         states = {j: node.create_publisher(AgentState, f'/map_{j}/state', STATE_QOS)
                   for j in inputs.states if j != i}
-        clusters.publish(inputs.clusters)
+        first = min(inputs.clusters)
+        clusters.publish(inputs.clusters[first])
+        told_version = first
 
         deadline = time.monotonic() + READY_TIMEOUT_S
         while sensing.get_subscription_count() == 0 or node.count_publishers(f'/map_{i}/cmd') == 0:
@@ -145,7 +147,10 @@ def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
             while pending_failures and (pending_failures[0][0] < k or
                                         (pending_failures[0][0] == k and pending_failures[0][1] == 'scheduled')):
                 failures.publish(pending_failures.pop(0)[2])
-            raw, neighbours = inputs.sensing[k]
+            raw, neighbours, version = inputs.sensing[k]
+            if version != told_version and version in inputs.clusters:
+                clusters.publish(inputs.clusters[version])  # the survey's new picture, as world_sim sent it
+                told_version = version
             sensing.publish(raw)
             for j in neighbours:
                 if k in inputs.states.get(j, {}):

@@ -4,6 +4,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Optional
 
+import numpy as np
+
 from world_sim.core import records
 
 from . import bag, plots
@@ -40,8 +42,13 @@ def report(path: Path, out: Path) -> tuple[dict[str, Any], list[Path]]:
     label = f'{s["maps_start"]} MAPs, {name}'
     traj = records.columns(run.trajectory)
     u = run.users
+    moving = None
+    if len(run.users_at) > 1:  # users that move: each snapshot draws them where they were then
+        def moving(t: float) -> tuple[np.ndarray, np.ndarray]:
+            now = run.users_of(int(round(t / run.dt)))
+            return now.xyz[:, :2], now.cluster
     files = plots.run_figures(run.metrics, traj, None if u is None else u.xyz[:, :2], None if u is None else u.cluster,
                               None if u is None else u.centroids, run.r, label, out,
-                              sorted({f['t_s'] for f in s['failures']}))
+                              sorted({f['t_s'] for f in s['failures']}), moving)
     (out / 'summary.md').write_text(f'# Run recorded in {path}\n\n{summary_table(s)}\n')
     return s, files + [out / 'summary.md']

@@ -12,6 +12,7 @@ import numpy as np
 from world_sim.batch import BatchSimulator
 from world_sim.core.model import RunResult
 from world_sim.core import records
+from world_sim.core.crowd import events as events_of
 from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario  # noqa: F401 (the CLI, paper and benchmarks read it here)
 
@@ -27,12 +28,14 @@ def write_run(result: RunResult, folder: Path, label: str) -> list[Path]:
     folder.mkdir(parents=True, exist_ok=True)
     records.write_metrics(folder / 'metrics.csv', result.metrics)
     records.write_trajectory(folder / 'trajectory.csv', result.trajectory)
-    records.write_users(folder / records.USERS_FILE, result.users)
+    records.write_users(folder / records.USERS_FILE, result.users, result.motion)
     records.write_failures(folder / records.FAILURES_FILE, result.failed, result.fail_step)
     events = [result.fail_step * result.scenario.dt] if result.fail_step is not None and len(result.failed) else []
-    u = result.users
+    u, dt = result.users, result.scenario.dt
+    moving = None if result.motion is None else (lambda t: result.motion.at(int(round(t / dt))))
     return plots.run_figures(result.metrics, trajectory_columns(result), u.xyz[:, :2], u.cluster, u.centroids,
-                             result.scenario.flock.r, label, folder, events)
+                             result.scenario.flock.r, label, folder, events + [t for t, _ in events_of(result.scenario)],
+                             moving)
 
 
 def simulate(scenario: Scenario, progress: Optional[Callable[[int], None]] = None) -> tuple[RunResult, bool]:

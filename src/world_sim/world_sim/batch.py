@@ -13,7 +13,7 @@ import numpy as np
 from uav_agent.core.control import control_input
 from uav_agent.core.modes import Memory, Told, apart_links, decide, reference
 
-from .core.model import RunResult, World
+from .core.model import RunResult, Sensed, World
 from .core.scenario import Scenario
 
 
@@ -33,8 +33,8 @@ class BatchSimulator:
     ids = property(lambda self: self.world.ids)
     alive = property(lambda self: self.world.alive)
 
-    def step(self, integrate: bool = True) -> None:
-        """Record step k and, unless told otherwise, advance to k + 1."""
+    def step(self, integrate: bool = True) -> Sensed:
+        """Record step k and, unless told otherwise, advance to k + 1; returns what was sensed at step k."""
         w, fp = self.world, self.scenario.flock
         failing = w.scheduled_failures()
         if len(failing):
@@ -55,14 +55,16 @@ class BatchSimulator:
             refs.append(reference(mem, i, sensed.q[n], sensed.q[near], heard_roles, w.clusters, fp))
             apart += apart_links(mem, heard_roles, fp)
         target, qa, qb = (np.array([ref[c] for ref in refs]).reshape(-1, 3) for c in range(3))
-        mode = np.array([ref[3] for ref in refs], dtype=np.intp)
+        mode = np.array([ref.mode for ref in refs], dtype=np.intp)
+        ref_vel = np.array([ref.velocity for ref in refs]).reshape(-1, 3, 3)
         pairs = sensed.pairs
         u = control_input(sensed.q, sensed.p, sensed.n_users.astype(float), mode, target, qa, qb, pairs[:, 0],
                           sensed.q[pairs[:, 1]], sensed.p[pairs[:, 1]], sensed.n_users[pairs[:, 1]].astype(float), fp,
-                          np.array(apart, dtype=bool))
+                          np.array(apart, dtype=bool), ref_vel)
         modes = np.array([self.memory[i].mode for i in rows], dtype=np.intp)
         goals = np.array([self.memory[i].goal for i in rows], dtype=np.intp)
         w.advance(sensed, u, modes, goals, integrate)
+        return sensed
 
     def run(self, progress: Optional[Callable[[int], None]] = None) -> RunResult:
         """Steps 0..N (N = duration / dt), inclusive, so the record ends at t = duration."""

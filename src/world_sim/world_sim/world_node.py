@@ -138,9 +138,20 @@ class WorldNode(Node):
         return Header(stamp=sim_time(self.world.k * self.scenario.dt), frame_id='world')
 
     def publish_fixed(self) -> None:
+        """/users and /clusters as they are before the first step."""
+        self.publish_users()
+        self.publish_clusters()
+
+    def publish_users(self) -> None:
         u = self.world.users
-        self.users_pub.publish(convert.users(self.header(), u.xyz, u.cluster))
-        self.clusters_pub.publish(convert.clusters(self.header(), u.centroids, u.cluster_sizes, u.radii))
+        self.users_pub.publish(convert.users(self.header(), self.world.k, u.xyz, u.cluster))
+
+    def publish_clusters(self) -> None:
+        w = self.world
+        c = w.clusters
+        active = np.array([bool(c.live >> k & 1) for k in range(c.count)])
+        self.clusters_pub.publish(convert.clusters(self.header(), w.clusters_version, c.xy, w.users.cluster_sizes,
+                                                   c.radii, active, c.velocities[:, :2]))
 
     # ------------------------------------------------------------------ lockstep
     def tick(self) -> None:
@@ -183,6 +194,11 @@ class WorldNode(Node):
         if len(failing):
             self.drop(failing, 'scheduled')
             self.kill_processes(failing)
+        clusters_changed, users_moved = w.place_users()
+        if clusters_changed:
+            self.publish_clusters()  # before the sensing that names its version
+        if users_moved and w.k > 0:
+            self.publish_users()
         self.sensed = s = w.sense()
         if not self.realtime:
             self.commands = {}
@@ -205,7 +221,8 @@ class WorldNode(Node):
             goal = int(w.goal[i])
             self.sensing_pubs[i].publish(convert.sensing(
                 hdr, i, s.k, s.q[row], s.p[row], int(s.n_users[row]),
-                float(s.cluster_coverage[goal]) if goal != NO_GOAL else 0.0, s.ids[nbr], s.q[nbr]))
+                float(s.cluster_coverage[goal]) if goal != NO_GOAL else 0.0, s.ids[nbr], s.q[nbr],
+                w.clusters_version))
 
     def on_command(self, sender: int, msg: Command) -> None:
         s = self.sensed
@@ -415,7 +432,7 @@ class WorldNode(Node):
             self.out.mkdir(parents=True, exist_ok=True)
             records.write_metrics(self.out / 'metrics.csv', result.metrics)
             records.write_trajectory(self.out / 'trajectory.csv', result.trajectory)
-            records.write_users(self.out / records.USERS_FILE, result.users)
+            records.write_users(self.out / records.USERS_FILE, result.users, result.motion)
             records.write_failures(self.out / records.FAILURES_FILE, result.failed, result.fail_step)
 
 

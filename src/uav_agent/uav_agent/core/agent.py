@@ -29,10 +29,10 @@ def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_u
                nbrs: Neighbourhood, clusters: ClusterMap, params: FlockParams) -> tuple[np.ndarray, Memory]:
     """Algorithm 1 lines 3-6 for one MAP: gossip, mode switch (Alg. 2), control input (eq. 9)."""
     mem = decide(mem, agent_id, n_users, cluster_coverage, q, nbrs.achieved, clusters, params)
-    target, q1, q2, mode = reference(mem, agent_id, q, nbrs.q, nbrs.told, clusters, params)
+    ref = reference(mem, agent_id, q, nbrs.q, nbrs.told, clusters, params)
     owner = np.zeros(len(nbrs.q), dtype=np.intp)
-    u = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([mode]),
-                      target[None, :], q1[None, :], q2[None, :], owner, nbrs.q, nbrs.p,
+    u = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([ref.mode]),
+                      ref.target[None, :], ref.q1[None, :], ref.q2[None, :], owner, nbrs.q, nbrs.p,
                       np.asarray(nbrs.n_users, dtype=float), params,
-                      np.array(apart_links(mem, nbrs.told, params), dtype=bool))
+                      np.array(apart_links(mem, nbrs.told, params), dtype=bool), ref.velocity[None])
     return u[0], mem

@@ -63,19 +63,20 @@ def flocking_terms(own_q: F64, own_p: F64, own_nu: F64, owner: NDArray[np.intp],
     return sum_edges(f_edges + g_edges, owner, m)
 
 
-def goal_term(q: F64, p_vel: F64, q_ref: F64, fp: FlockParams) -> F64:
-    """h_i for M0 and M2, eq. 12: a spring to the goal q^r with damping to its (zero) velocity."""
-    return fp.c1 * (q_ref - q) + fp.c2 * (0.0 - p_vel)
+def goal_term(q: F64, p_vel: F64, q_ref: F64, fp: FlockParams, v_ref: F64 | float = 0.0) -> F64:
+    """h_i for M0 and M2, eq. 12: a spring to the goal q^r with damping to its velocity p^r (zero for a
+    cluster that stands still, the survey's estimate for one that moves)."""
+    return fp.c1 * (q_ref - q) + fp.c2 * (v_ref - p_vel)
 
 
-def bridge_term(q: F64, p_vel: F64, q1: F64, q2: F64, fp: FlockParams) -> F64:
-    """h_i for M1, eq. 13: descend E_c toward the segment q1-q2, damped toward the clusters' zero velocity."""
+def bridge_term(q: F64, p_vel: F64, q1: F64, q2: F64, fp: FlockParams,
+                v1: F64 | float = 0.0, v2: F64 | float = 0.0) -> F64:
+    """h_i for M1, eq. 13: descend E_c toward the segment q1-q2, damped toward the two clusters' velocities."""
     d1, d2 = q1 - q, q2 - q
     pull = (fp.k * d1 / (1.0 + fp.epsilon * sigma_norm(d1, fp.epsilon))[..., None]
             + fp.k * d2 / (1.0 + fp.epsilon * sigma_norm(d2, fp.epsilon))[..., None])
-    # Eq. 13 damps toward each of the two clusters' velocities with half of c2; both are zero (the
-    # clusters stand still), so the two halves are equal, kept as written for bit-equal results.
-    return pull + 0.5 * fp.c2 * (0.0 - p_vel) + 0.5 * fp.c2 * (0.0 - p_vel)
+    # Eq. 13 damps toward each of the two clusters' velocities with half of c2 (zero while they stand still).
+    return pull + 0.5 * fp.c2 * (v1 - p_vel) + 0.5 * fp.c2 * (v2 - p_vel)
 
 
 def connectivity_potential(q: F64, q1: F64, q2: F64, fp: FlockParams) -> F64:
@@ -85,14 +86,18 @@ def connectivity_potential(q: F64, q1: F64, q2: F64, fp: FlockParams) -> F64:
 
 def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer], target: F64,
                   bridge_a: F64, bridge_b: F64, owner: NDArray[np.intp], nbr_q: F64, nbr_p: F64,
-                  nbr_nu: F64, fp: FlockParams, apart: NDArray[np.bool_] | None = None) -> F64:
+                  nbr_nu: F64, fp: FlockParams, apart: NDArray[np.bool_] | None = None,
+                  ref_vel: F64 | None = None) -> F64:
     """u_i of eq. 9 for every own MAP: flocking terms plus the goal term its mode selects.
 
-    target is q^r for M0/M2 rows; bridge_a/bridge_b are q_1^r/q_2^r for M1 rows (ignored elsewhere).
+    target is q^r for M0/M2 rows; bridge_a/bridge_b are q_1^r/q_2^r for M1 rows (ignored elsewhere);
+    ref_vel (n, 3, 3) the velocities of target, bridge_a and bridge_b (None: all still).
     """
     u = flocking_terms(own_q, own_p, own_nu, owner, nbr_q, nbr_p, nbr_nu, fp, apart)
     bridging = np.asarray(mode) == M1
-    h = goal_term(own_q, own_p, target, fp)
+    v = np.zeros((len(own_q), 3, 3)) if ref_vel is None else ref_vel
+    h = goal_term(own_q, own_p, target, fp, v[:, 0])
     if np.any(bridging):
-        h[bridging] = bridge_term(own_q[bridging], own_p[bridging], bridge_a[bridging], bridge_b[bridging], fp)
+        h[bridging] = bridge_term(own_q[bridging], own_p[bridging], bridge_a[bridging], bridge_b[bridging], fp,
+                                  v[bridging, 1], v[bridging, 2])
     return u + h

@@ -71,27 +71,35 @@ def segment_distance(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
 class ClusterMap:
     """Cluster centroids known to every MAP (from an aerial survey, Section IV-B), with cached MSTs."""
 
-    def __init__(self, centroids_xy: np.ndarray, height: float, radii: Optional[np.ndarray] = None) -> None:
+    def __init__(self, centroids_xy: np.ndarray, height: float, radii: Optional[np.ndarray] = None,
+                 active: Optional[np.ndarray] = None, velocities: Optional[np.ndarray] = None) -> None:
         self.xy = np.asarray(centroids_xy, dtype=float).reshape(-1, 2)
         self.count = len(self.xy)
         # R_k: radius of the disc holding 95 % of cluster k's MSDs (m), from the survey; 0 if unknown.
         self.radii = np.zeros(self.count) if radii is None else np.asarray(radii, dtype=float).reshape(self.count)
+        # Clusters that exist now, as a mask: an online survey keeps an ended cluster's id (and its index
+        # here) so that no other cluster's index moves, but nobody is sent to it.
+        self.live = mask_of(range(self.count)) if active is None else mask_of(np.flatnonzero(active))
         self.targets = np.column_stack([self.xy, np.full(self.count, float(height))])
+        # p^r of eqs. 12-13: each cluster's velocity (m/s) as the survey estimates it; zero when still.
+        vxy = np.zeros((self.count, 2)) if velocities is None else np.asarray(velocities, dtype=float).reshape(-1, 2)
+        self.velocities = np.column_stack([vxy, np.zeros(self.count)])
         self._mst = lru_cache(maxsize=None)(self._mst_uncached)
         self._roles = lru_cache(maxsize=None)(self._roles_uncached)
         self._axes: dict[Edge, tuple[np.ndarray, np.ndarray, float]] = {}
 
     def mst(self, achieved: int) -> tuple[Edge, ...]:
-        """Edges (a < b) of the minimum spanning tree T_c over the achieved clusters, by centroid distance."""
-        return self._mst(achieved)
+        """Edges (a < b) of the minimum spanning tree T_c over the achieved clusters that exist, by centroid
+        distance."""
+        return self._mst(achieved & self.live)
 
     def _mst_uncached(self, achieved: int) -> tuple[Edge, ...]:
         ids = ids_of(achieved)
         return tuple(sorted((min(ids[i], ids[j]), max(ids[i], ids[j])) for i, j in mst_edges(self.xy[ids])))
 
     def nearest(self, q: np.ndarray, exclude: int) -> int:
-        """Nearest cluster centre not in the mask exclude, or NO_GOAL if every cluster is in it."""
-        free = [k for k in range(self.count) if not exclude >> k & 1]
+        """Nearest existing cluster centre not in the mask exclude, or NO_GOAL if every cluster is in it."""
+        free = [k for k in range(self.count) if not exclude >> k & 1 and self.live >> k & 1]
         if not free:
             return NO_GOAL
         dist = np.linalg.norm(self.xy[free] - np.asarray(q, dtype=float)[:2], axis=1)
@@ -140,15 +148,18 @@ class ClusterMap:
         return self._roles(float(d))
 
     def _roles_uncached(self, d: float) -> 'Roles':
-        edges = self.mst(mask_of(range(self.count)))
+        edges = self.mst(self.live)
         cell = math.sqrt(3.0) / 2.0 * d * d  # area per MAP of a hexagonal lattice of spacing d
-        demand = [max(math.pi * r * r / cell, 1.0) for r in self.radii]  # every cluster at least one server
+        demand = [max(math.pi * r * r / cell, 1.0) if self.live >> k & 1 else 0.0  # every cluster at least one
+                  for k, r in enumerate(self.radii)]
         for e in edges:
             start, stop = self.gap(e, d / 2)
             demand.append((stop - start) / d)
         weights = np.array(demand)
         if not np.any(self.radii > 0):  # nothing known of the clusters' extent: an equal share each, no relays
-            weights = np.r_[np.ones(self.count), np.zeros(len(edges))]
+            weights = np.r_[[float(self.live >> k & 1) for k in range(self.count)], np.zeros(len(edges))]
+        if not weights.sum() > 0:  # no cluster exists (none has arrived yet, or all have left)
+            return Roles(edges, tuple(demand), (0.0,) * len(weights), (0.0,) * len(weights))
         bounds = np.cumsum(weights) / weights.sum()
         starts = np.r_[0.0, bounds[:-1]]
         return Roles(edges, tuple(demand), tuple(starts), tuple(bounds))
@@ -191,8 +202,11 @@ def mode_switch(mem: Memory, n_users: int, goal_coverage: float, q: np.ndarray,
                 clusters: ClusterMap, fp: FlockParams) -> Memory:
     """Algorithm 2 for one MAP at one step, with the paper's open cases resolved by the policies in fp.
 
-    goal_coverage is r_g^i, the served fraction of the current goal cluster.
+    goal_coverage is r_g^i, the served fraction of the current goal cluster. A MAP whose goal cluster
+    has left (an online survey ended it) starts over in M0 towards the nearest uncovered cluster.
     """
+    if mem.goal != NO_GOAL and not clusters.live >> mem.goal & 1:
+        mem = mem._replace(mode=M0, goal=NO_GOAL, bridge=None)
     if mem.goal == NO_GOAL:  # first step: the nearest uncovered cluster (any cluster if all are covered)
         nxt = clusters.nearest(q, mem.achieved)
         return mem._replace(goal=nxt if nxt != NO_GOAL else clusters.nearest(q, 0))
@@ -259,6 +273,8 @@ def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, cluster
     its edge in M1 from the start, so the tree never waits for clusters to be achieved.
     """
     roles = clusters.roles(fp.d)
+    if not clusters.live:  # no cluster to serve or bridge: hold where it is until one appears
+        return mem if mem.goal == NO_GOAL and mem.mode == M2 else Memory(mode=M2, achieved=mem.achieved)
     role = roles.of(key_of(agent_id))
     if role < clusters.count:
         if mem.goal != role:
@@ -360,17 +376,34 @@ def apart_links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[boo
     return [not related(own, t) for t in heard]
 
 
+class Reference(NamedTuple):
+    """What eq. 9's goal term aims at: q^r (M0/M2), q_1^r and q_2^r (M1), the mode that picks between
+    them, and the velocities the damping of eqs. 12-13 matches (rows: q^r, q_1^r, q_2^r)."""
+
+    target: np.ndarray
+    q1: np.ndarray
+    q2: np.ndarray
+    mode: int
+    velocity: np.ndarray  # (3, 3)
+
+
 def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],
-              clusters: ClusterMap, fp: FlockParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """(q^r, q_1^r, q_2^r, mode for eq. 9): M1 without a bridge holds at its goal like M2.
+              clusters: ClusterMap, fp: FlockParams) -> Reference:
+    """The goal term's reference: M1 without a bridge holds at its goal like M2; a MAP with no goal (no
+    cluster exists) holds where it is.
 
     Under the demand allocation an M1 MAP bridges its own piece of the edge, where its chain needs it.
     """
-    here = clusters.targets[mem.goal] if mem.goal != NO_GOAL else np.full(3, np.nan)
+    if mem.goal != NO_GOAL:
+        here, v = clusters.targets[mem.goal], clusters.velocities[mem.goal]
+    else:
+        here, v = np.asarray(q, dtype=float), np.zeros(3)
     if mem.mode == M1 and mem.bridge is not None:
+        va, vb = clusters.velocities[mem.bridge[0]], clusters.velocities[mem.bridge[1]]
         if fp.allocation == 'demand':
             place = relay_place(agent_id, q, mem.bridge, nbr_q, told, clusters, fp)
             q1, q2 = relay_slot(place, mem.bridge, clusters, fp)
-            return here, q1, q2, M1
-        return here, clusters.targets[mem.bridge[0]], clusters.targets[mem.bridge[1]], M1
-    return here, here, here, (M2 if mem.mode == M1 else mem.mode)
+            return Reference(here, q1, q2, M1, np.array([v, va, vb]))
+        return Reference(here, clusters.targets[mem.bridge[0]], clusters.targets[mem.bridge[1]], M1,
+                         np.array([v, va, vb]))
+    return Reference(here, here, here, (M2 if mem.mode == M1 else mem.mode), np.array([v, v, v]))

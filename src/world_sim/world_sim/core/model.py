@@ -10,7 +10,10 @@ import numpy as np
 from uav_agent.core.modes import NO_GOAL, ClusterMap
 
 from . import physics
+from .records import Motion
+from .crowd import Crowd
 from .scenario import Scenario
+from .survey import NONE, Tracks, settle, survey
 
 
 @dataclass
@@ -21,6 +24,7 @@ class RunResult:
     trajectory: np.ndarray                   # rows in records.TRAJECTORY_COLUMNS order
     failed: np.ndarray = field(default_factory=lambda: np.zeros(0, np.intp))
     fail_step: Optional[int] = None
+    motion: Optional[Motion] = None          # users that move: their positions at each survey step
 
 
 @dataclass
@@ -53,8 +57,17 @@ class World:
         self.scenario = scenario
         rng = physics.streams(scenario.seed)
         self._fail_rng = rng['failure']
-        self.users = physics.make_users(scenario, rng['users'])
-        self.clusters = ClusterMap(self.users.centroids, scenario.flock.height, self.users.radii)
+        self.drawn = physics.make_users(scenario, rng['users'])  # the MSDs as drawn at t = 0
+        self.users = self.drawn                                    # as they are at step k (present ones)
+        self.clusters = ClusterMap(self.drawn.centroids, scenario.flock.height, self.drawn.radii)
+        self.clusters_version = 0  # grows whenever the clusters the MAPs know change (Sensing says which)
+        self.crowd = Crowd(scenario, self.drawn.xyz[:, :2], self.drawn.cluster, rng['walk']) \
+            if scenario.users_move else None
+        self.tracks: Optional[Tracks] = None    # the last survey's clusters
+        self.reported: Optional[Tracks] = None  # what the MAPs were told of them (survey.settle)
+        self.label = self.drawn.cluster.copy()
+        self._placed = -1
+        self._motion: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
         self.q, self.p = physics.release(scenario, rng['release'])
         self.ids = np.arange(scenario.maps, dtype=np.intp)
         self.alive = np.ones(scenario.maps, dtype=bool)
@@ -64,6 +77,51 @@ class World:
         self.failed = np.zeros(0, np.intp)
         self._metrics: list[np.ndarray] = []
         self._traj: list[np.ndarray] = []
+        self.place_users()
+        self.clusters_version = 0  # what the MAPs are given before the first step
+
+    def place_users(self) -> tuple[bool, bool]:
+        """The MSDs at step k, surveyed when a survey is due: (clusters changed, users' positions due).
+
+        Users that stand still under a given survey never change; an online survey of them runs once.
+        """
+        if self._placed == self.k:
+            return False, False
+        self._placed = self.k
+        s = self.scenario
+        if self.crowd is None and (s.survey == 'given' or self.k > 0):
+            return False, False
+        due = self.k % s.survey_steps == 0
+        xy, present = self.crowd.at(self.k) if self.crowd else (self.drawn.xyz[:, :2], np.ones(len(self.label), bool))
+        changed = False
+        if s.survey == 'online' and due:
+            tracks, labels = survey(xy[present], self.tracks, s.survey_steps * s.dt)
+            self.label[:] = NONE
+            self.label[present] = labels
+            report = settle(self.reported, tracks)
+            if self.reported is None or not report.same(self.reported):
+                self.clusters = ClusterMap(report.centroids, s.flock.height, report.radii, report.active,
+                                           report.velocities)
+                self.clusters_version += 1
+                changed = True
+            self.tracks, self.reported = tracks, report
+        elif s.survey == 'given':
+            self.label = np.where(present, self.drawn.cluster, NONE)
+        xyz = np.column_stack([xy[present], np.zeros(int(present.sum()))])
+        self.users = physics.Users(xyz, self.label[present], self.clusters.xy, self.clusters.radii)
+        moved = due and self.crowd is not None
+        if moved:
+            self._motion.append((self.k, xy.astype(np.float32), present.copy(), self.label.astype(np.int16)))
+        return changed, moved
+
+    def true_coverage(self, sensed: 'Sensed') -> np.ndarray:
+        """Served fraction of each cluster as drawn (the scenario's clusters, whatever the survey found);
+        NaN for one with no MSD present. What a benchmark judges arrivals by."""
+        present = np.ones(len(self.label), bool) if self.crowd is None else self.crowd.at(sensed.k)[1]
+        drawn = self.drawn.cluster[present]
+        served = np.bincount(drawn[sensed.assoc != physics.UNSERVED], minlength=len(self.scenario.clusters))
+        size = np.bincount(drawn, minlength=len(self.scenario.clusters))
+        return np.where(size > 0, served / np.maximum(size, 1), np.nan)
 
     def scheduled_failures(self) -> np.ndarray:
         """Ids that fail at this step by the scenario's schedule (empty on other steps)."""
@@ -78,7 +136,8 @@ class World:
         self.failed = np.union1d(self.failed, ids).astype(np.intp)
 
     def sense(self) -> Sensed:
-        """Associate and measure at q(k)."""
+        """Associate and measure at q(k), with the MSDs where they are at step k."""
+        self.place_users()
         fp = self.scenario.flock
         rows = self.ids[self.alive]
         q, p = self.q[rows], self.p[rows]
@@ -105,10 +164,16 @@ class World:
                                            sensed.q, sensed.p, modes, goals, sensed.n_users]))
         if integrate:
             self.q[rows], self.p[rows] = physics.integrate(sensed.q, sensed.p, u, self.scenario.dt)
+            if self.crowd is not None:
+                self.crowd.walk()
             self.k += 1
         return row
 
     def result(self) -> RunResult:
         traj = np.concatenate(self._traj) if self._traj else np.zeros((0, 12))
-        return RunResult(self.scenario, self.users, np.array(self._metrics).reshape(-1, 9), traj, self.failed,
-                         self.fail_step if self.scenario.fail_fraction > 0 else None)
+        motion = None
+        if self._motion:
+            steps, xy, present, label = zip(*self._motion)
+            motion = Motion(np.array(steps), np.stack(xy), np.stack(present), np.stack(label))
+        return RunResult(self.scenario, self.drawn, np.array(self._metrics).reshape(-1, 9), traj, self.failed,
+                         self.fail_step if self.scenario.fail_fraction > 0 else None, motion)

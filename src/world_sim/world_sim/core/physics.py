@@ -21,20 +21,20 @@ class Users:
     """The MSDs of a run: positions on the ground (z = 0) and the cluster each was drawn from."""
 
     xyz: F64                # (M, 3)
-    cluster: NDArray[np.intp]  # (M,)
+    cluster: NDArray[np.intp]  # (M,) the cluster each MSD belongs to, or -1 (the online survey's stragglers)
     centroids: F64          # (K, 2): the empirical centroid C_k of each cluster
     radii: F64 | None = None  # (K,): radius R_k about C_k holding 95 % of cluster k's MSDs (m)
 
     @property
     def cluster_sizes(self) -> NDArray[np.intp]:
-        return np.bincount(self.cluster, minlength=len(self.centroids))
+        return np.bincount(self.cluster[self.cluster >= 0], minlength=len(self.centroids))
 
 
 def streams(seed: int) -> dict[str, np.random.Generator]:
     """Independent random streams per purpose, so e.g. a failure fraction never moves the users."""
-    users, release, failure = np.random.SeedSequence(seed).spawn(3)
+    users, release, failure, walk = np.random.SeedSequence(seed).spawn(4)  # the first three as before 'walk'
     return {'users': np.random.default_rng(users), 'release': np.random.default_rng(release),
-            'failure': np.random.default_rng(failure)}
+            'failure': np.random.default_rng(failure), 'walk': np.random.default_rng(walk)}
 
 
 def make_users(s: Scenario, rng: np.random.Generator) -> Users:
@@ -96,7 +96,7 @@ def user_counts(assoc: NDArray[np.intp], n_maps: int) -> NDArray[np.intp]:
 
 def cluster_coverage(users: Users, assoc: NDArray[np.intp]) -> F64:
     """Fraction of each cluster's MSDs that are served: r_g when the cluster is a MAP's goal."""
-    served = np.bincount(users.cluster[assoc != UNSERVED], minlength=len(users.centroids))
+    served = np.bincount(users.cluster[(assoc != UNSERVED) & (users.cluster >= 0)], minlength=len(users.centroids))
     return served / np.maximum(users.cluster_sizes, 1)
 
 

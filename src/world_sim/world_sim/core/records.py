@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
@@ -47,16 +48,40 @@ def read_csv(path: Path) -> dict[str, np.ndarray]:
     return {name: data[name] for name in data.dtype.names}
 
 
-def write_users(path: Path, users: Users) -> None:
-    """The run's MSDs (users.npz), so that nothing after the run has to draw them again from the seed."""
+@dataclass
+class Motion:
+    """Where the MSDs were at every survey step of a run whose users move."""
+
+    steps: np.ndarray      # (S,) step k of each record
+    xy: np.ndarray         # (S, M, 2) every drawn MSD's position (m), float32
+    present: np.ndarray    # (S, M) whether it was there
+    label: np.ndarray      # (S, M) its cluster as the MAPs knew it (-1: none)
+
+    def at(self, step: int) -> tuple[np.ndarray, np.ndarray]:
+        """(xy, cluster) of the MSDs present at the last record at or before step."""
+        i = max(int(np.searchsorted(self.steps, step, side='right')) - 1, 0)
+        return self.xy[i][self.present[i]].astype(float), self.label[i][self.present[i]].astype(np.intp)
+
+
+def write_users(path: Path, users: Users, motion: Optional[Motion] = None) -> None:
+    """The run's MSDs (users.npz), so that nothing after the run has to draw them again from the seed;
+    with their motion when they moved."""
     radii = np.full(len(users.centroids), np.nan) if users.radii is None else users.radii
-    np.savez(path, xyz=users.xyz, cluster=users.cluster, centroids=users.centroids, radii=radii)
+    extra = {} if motion is None else {f'motion_{k}': v for k, v in vars(motion).items()}
+    np.savez(path, xyz=users.xyz, cluster=users.cluster, centroids=users.centroids, radii=radii, **extra)
 
 
 def read_users(path: Path) -> Users:
     with np.load(path) as f:
         radii = f['radii']
         return Users(f['xyz'], f['cluster'].astype(np.intp), f['centroids'], None if np.isnan(radii).any() else radii)
+
+
+def read_motion(path: Path) -> Optional[Motion]:
+    with np.load(path) as f:
+        if 'motion_steps' not in f:
+            return None
+        return Motion(f['motion_steps'], f['motion_xy'], f['motion_present'], f['motion_label'])
 
 
 def write_failures(path: Path, failed: np.ndarray, fail_step: Optional[int]) -> None:

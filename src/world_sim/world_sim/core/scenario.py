@@ -20,6 +20,19 @@ class Cluster:
     center: tuple[float, float]   # centroid of the Gaussian (m)
     spread: float                 # standard deviation per axis (m)
     size: int                     # number of MSDs
+    # How the cluster moves (docs/dynamics.md); the defaults are a cluster that stands still all run.
+    velocity: tuple[float, float] = (0.0, 0.0)   # drift of the whole cluster (m/s), from `start` on
+    waypoints: tuple[tuple[float, float], ...] = ()  # or: a path from `center` through these (m) ...
+    speed: float = 0.0                           # ... flown at this speed (m/s), then held at the last
+    start: float = 0.0                           # the cluster's MSDs appear at this time (s)
+    end: float | None = None                     # and leave at this one (s); None: they stay
+    walk: float = 0.0                            # each MSD's own random walk: walk * sqrt(t) m per axis (m/√s)
+
+    @property
+    def moves(self) -> bool:
+        """Whether anything about the cluster changes during a run."""
+        return (self.velocity != (0.0, 0.0) or bool(self.waypoints) or self.start > 0 or self.end is not None
+                or self.walk > 0)
 
 
 @dataclass(frozen=True)
@@ -41,6 +54,19 @@ class Scenario:
     association: str = '3d'              # MSD-MAP range: '3d' (||y - q|| <= r) or 'horizontal'
     fail_at: float | None = None         # time of the random failure (s)
     fail_fraction: float = 0.0           # fraction of MAPs that fail then
+    # What MAPs know of the clusters: 'given' (the clusters as drawn, known before the flight and fixed) or
+    # 'online' (re-estimated from where the MSDs are every survey_period s, world_sim/core/survey.py).
+    survey: str = 'given'
+    survey_period: float = 2.0
+
+    @property
+    def users_move(self) -> bool:
+        return any(c.moves for c in self.clusters)
+
+    @property
+    def survey_steps(self) -> int:
+        """Steps between surveys, and between the users' positions published and recorded."""
+        return max(int(round(self.survey_period / self.dt)), 1)
 
     @property
     def steps(self) -> int:
@@ -58,7 +84,8 @@ class Scenario:
 _TOP = {'name', 'seed', 'maps', 'duration', 'dt', 'flock', 'policies', 'radio', 'release', 'users', 'failure'}
 _RADIO = {'rho', 'eta', 'association'}
 _RELEASE = {'center', 'half_width', 'initial_speed'}
-_CLUSTER = {'center', 'spread', 'size'}
+_CLUSTER = {'center', 'spread', 'size', 'velocity', 'waypoints', 'speed', 'start', 'end', 'walk'}
+_USERS = {'clusters', 'survey', 'survey_period'}
 _FAILURE = {'at', 'fraction'}
 
 
@@ -112,6 +139,30 @@ def _pair(where: str, value: Any) -> tuple[float, float]:
     return (_num(f'{where}[0]', value[0], positive=False), _num(f'{where}[1]', value[1], positive=False))
 
 
+def _cluster(where: str, c: dict[str, Any]) -> Cluster:
+    """One entry of users.clusters; every motion key optional, with its unit in the Cluster's comments."""
+    waypoints = c.get('waypoints', [])
+    if not isinstance(waypoints, list):
+        raise ScenarioError(f'{where}.waypoints: expected a list of [x, y], got {waypoints!r}')
+    path = tuple(_pair(f'{where}.waypoints[{i}]', w) for i, w in enumerate(waypoints))
+    if path and 'velocity' in c:
+        raise ScenarioError(f'{where}.waypoints: give either velocity or waypoints, not both')
+    if path and 'speed' not in c:
+        raise ScenarioError(f'{where}.speed: missing (waypoints are flown at this speed, m/s)')
+    start = _num(f'{where}.start', c.get('start', 0.0), allow_zero=True)
+    end = _num(f'{where}.end', c['end']) if c.get('end') is not None else None
+    if end is not None and end <= start:
+        raise ScenarioError(f'{where}.end: must be after start ({start:g} s), got {end:g}')
+    return Cluster(_pair(f'{where}.center', _need(c, where, 'center')),
+                   _num(f'{where}.spread', _need(c, where, 'spread')),
+                   _int(f'{where}.size', _need(c, where, 'size')),
+                   velocity=_pair(f'{where}.velocity', c.get('velocity', [0.0, 0.0])),
+                   waypoints=path,
+                   speed=_num(f'{where}.speed', c['speed']) if path else 0.0,
+                   start=start, end=end,
+                   walk=_num(f'{where}.walk', c.get('walk', 0.0), allow_zero=True))
+
+
 def parse(doc: Any) -> Scenario:
     """Check a scenario document and build the Scenario; raise ScenarioError naming the bad key."""
     if not isinstance(doc, dict):
@@ -132,7 +183,7 @@ def parse(doc: Any) -> Scenario:
 
     radio = _section(doc, 'radio', _RADIO)
     release = _section(doc, 'release', _RELEASE)
-    users = _section(doc, 'users', {'clusters'})
+    users = _section(doc, 'users', _USERS)
     clusters_doc = _need(users, 'users', 'clusters')
     if not isinstance(clusters_doc, list) or not clusters_doc:
         raise ScenarioError('users.clusters: at least one cluster is needed')
@@ -146,10 +197,11 @@ def parse(doc: Any) -> Scenario:
         bad = sorted(set(c) - _CLUSTER)
         if bad:
             raise ScenarioError(f'{where}.{bad[0]}: unknown key')
-        clusters.append(Cluster(_pair(f'{where}.center', _need(c, where, 'center')),
-                                _num(f'{where}.spread', _need(c, where, 'spread')),
-                                _int(f'{where}.size', _need(c, where, 'size'))))
+        clusters.append(_cluster(where, c))
     failure = _section(doc, 'failure', _FAILURE, required=False)
+    survey = users.get('survey', Scenario.survey)
+    if survey not in ('given', 'online'):
+        raise ScenarioError(f"users.survey: must be 'given' or 'online', got {survey!r}")
     association = _need(radio, 'radio', 'association')
     if association not in ('3d', 'horizontal'):
         raise ScenarioError(f"radio.association: must be '3d' or 'horizontal', got {association!r}")
@@ -169,6 +221,8 @@ def parse(doc: Any) -> Scenario:
         association=association,
         fail_at=_OVERRIDABLE['fail_at'](failure['at']) if failure.get('at') is not None else None,
         fail_fraction=_OVERRIDABLE['fail_fraction'](failure.get('fraction', 0.0)),
+        survey=survey,
+        survey_period=_num('users.survey_period', users.get('survey_period', Scenario.survey_period)),
     )
     _check(scenario)
     return scenario
@@ -201,10 +255,28 @@ def to_doc(s: Scenario, policies: bool = True) -> dict[str, Any]:
     doc['radio'] = {'rho': s.rho, 'eta': s.eta, 'association': s.association}
     doc['release'] = {'center': list(s.release_center), 'half_width': s.release_half_width,
                       'initial_speed': s.initial_speed}
-    doc['users'] = {'clusters': [{'center': list(c.center), 'spread': c.spread, 'size': c.size} for c in s.clusters]}
+    doc['users'] = {'clusters': [_cluster_doc(c) for c in s.clusters]}
+    if s.survey != Scenario.survey or s.survey_period != Scenario.survey_period:
+        doc['users'].update(survey=s.survey, survey_period=s.survey_period)
     if s.fail_at is not None:
         doc['failure'] = {'at': s.fail_at, 'fraction': s.fail_fraction}
     return doc
+
+
+def _cluster_doc(c: Cluster) -> dict[str, Any]:
+    """A cluster as its file entry, with only the motion keys it uses (a still cluster reads as before)."""
+    out: dict[str, Any] = {'center': list(c.center), 'spread': c.spread, 'size': c.size}
+    if c.waypoints:
+        out.update(waypoints=[list(w) for w in c.waypoints], speed=c.speed)
+    elif c.velocity != (0.0, 0.0):
+        out['velocity'] = list(c.velocity)
+    if c.start > 0:
+        out['start'] = c.start
+    if c.end is not None:
+        out['end'] = c.end
+    if c.walk > 0:
+        out['walk'] = c.walk
+    return out
 
 
 def load(path: str | Path) -> Scenario:
