@@ -1,0 +1,132 @@
+"""Users that move: the crowd's motion, the online survey's stable ids, and MAPs whose cluster left."""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from uav_agent.core.control import M0, M1, M2
+from uav_agent.core.modes import NO_GOAL, ClusterMap, Memory, demand_switch, key_of, mode_switch
+from uav_agent.core.params import FlockParams
+from world_sim.batch import BatchSimulator
+from world_sim.core.crowd import center_at
+from world_sim.core.scenario import Cluster, ScenarioError, parse
+from world_sim.core.survey import NONE, settle, survey
+
+
+def blobs(rng: np.random.Generator, centres: np.ndarray, size: int = 200, spread: float = 10.0) -> np.ndarray:
+    return np.concatenate([rng.normal(c, spread, size=(size, 2)) for c in centres])
+
+
+# Cluster centres on a 150 m grid, so any two are far apart next to their spread, in any number.
+CENTRES = st.lists(st.tuples(st.integers(-4, 4), st.integers(-4, 4)), min_size=1, max_size=6, unique=True)
+
+
+@settings(max_examples=40, deadline=None)
+@given(CENTRES, st.lists(st.tuples(st.floats(-8, 8), st.floats(-8, 8)), min_size=6, max_size=6), st.integers(0, 99))
+def test_survey_ids_follow_clusters_that_drift(cells: list[tuple[int, int]], v: list[tuple[float, float]],
+                                               seed: int) -> None:
+    """Every cluster moving at up to 8 m/s for one 2 s period keeps its id, and its velocity is measured."""
+    rng = np.random.default_rng(seed)
+    centres = np.array(cells, dtype=float) * 150.0
+    before = blobs(rng, centres)
+    tracks, labels = survey(before, None, 2.0)
+    shift = np.array(v[:len(centres)]) * 2.0
+    after = before + np.repeat(shift, 200, axis=0)
+    moved, labels2 = survey(after, tracks, 2.0)
+    assert len(moved.sizes) == len(centres), 'no cluster was taken for a new one'
+    ids = [int(np.bincount(labels[k * 200:(k + 1) * 200][labels[k * 200:(k + 1) * 200] >= 0]).argmax())
+           for k in range(len(centres))]
+    for k, i in enumerate(ids):
+        mine = labels2[k * 200:(k + 1) * 200]
+        assert np.mean(mine == i) > 0.9, f'cluster {k} kept id {i}'
+        assert np.allclose(moved.velocities[i], shift[k] / 2.0, atol=0.5)
+
+
+@settings(max_examples=30, deadline=None)
+@given(CENTRES, st.integers(0, 99))
+def test_survey_gives_an_arrival_a_new_id_and_keeps_an_ended_clusters_id(cells: list[tuple[int, int]],
+                                                                         seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    centres = np.array(cells, dtype=float) * 150.0
+    first, _ = survey(blobs(rng, centres), None, 2.0)
+    newcomer = np.array([[1000.0, 1000.0]])
+    grown, labels = survey(blobs(rng, np.vstack([centres[1:], newcomer])), first, 2.0)
+    assert len(grown.sizes) == len(centres) + 1, 'the arrival took a new id'
+    assert np.all(labels[-200:][labels[-200:] != NONE] == len(centres))
+    assert grown.sizes[0] == 0 and not grown.active[0], 'the first cluster left: its id ended, not reused'
+    assert np.allclose(grown.centroids[1:len(centres)], first.centroids[1:], atol=5.0), 'the others kept theirs'
+
+
+def test_settle_reports_a_cluster_again_only_when_it_changed_enough() -> None:
+    rng = np.random.default_rng(0)
+    xy = blobs(rng, np.array([[0.0, 0.0], [200.0, 0.0]]))
+    first, _ = survey(xy, None, 2.0)
+    jittered, _ = survey(xy + rng.normal(0.0, 0.3, xy.shape), first, 2.0)
+    assert settle(first, jittered).same(first), 'wandering users do not change the report'
+    moved, _ = survey(xy + np.r_[np.zeros((200, 2)), np.tile([5.0, 0.0], (200, 1))], first, 2.0)
+    report = settle(first, moved)
+    assert np.array_equal(report.centroids[0], first.centroids[0]) and report.centroids[1, 0] > first.centroids[1, 0] + 4
+
+
+def test_a_cluster_follows_its_waypoints_then_holds() -> None:
+    c = Cluster((0.0, 0.0), 10.0, 100, waypoints=((30.0, 0.0), (30.0, 40.0)), speed=2.0, start=5.0)
+    assert np.allclose(center_at(c, 3.0), [0.0, 0.0]), 'still before it starts'
+    assert np.allclose(center_at(c, 5.0 + 10.0), [20.0, 0.0])
+    assert np.allclose(center_at(c, 5.0 + 25.0), [30.0, 20.0])
+    assert np.allclose(center_at(c, 500.0), [30.0, 40.0])
+
+
+def test_a_map_whose_cluster_left_takes_another_role() -> None:
+    fp = FlockParams()
+    xy, radii = np.array([[0.0, 0.0], [150.0, 0.0], [0.0, 150.0]]), np.array([30.0, 30.0, 30.0])
+    everyone = ClusterMap(xy, fp.height, radii)
+    mine = next(i for i in range(200) if everyone.roles(fp.d).of(key_of(i)) == 1)
+    mem = demand_switch(Memory(), mine, 0.0, np.array([150.0, 0.0, 20.0]), everyone, fp)
+    assert mem.goal == 1 and mem.mode == M0
+    left = ClusterMap(xy, fp.height, radii, active=np.array([True, False, True]))
+    after = demand_switch(mem._replace(mode=M2, achieved=0b010), mine, 0.0, np.array([150.0, 0.0, 20.0]), left, fp)
+    assert after.goal != 1 and (after.mode == M1 and 1 not in after.bridge or after.mode == M0 and after.goal in (0, 2))
+    paper = dataclasses.replace(fp, allocation='algorithm2')
+    stranded = mode_switch(Memory(mode=M2, goal=1, achieved=0b010), 0, 0.0, np.array([150.0, 0.0, 20.0]), left, paper)
+    assert stranded.mode == M0 and stranded.goal in (0, 2), 'Algorithm 2 sends it to the nearest cluster left'
+    nothing = ClusterMap(xy, fp.height, radii, active=np.zeros(3, dtype=bool))
+    idle = demand_switch(after, mine, 0.0, np.array([150.0, 0.0, 20.0]), nothing, fp)
+    assert idle.goal == NO_GOAL and idle.mode == M2, 'with no cluster at all it holds where it is'
+
+
+def test_users_that_stand_still_are_never_moved_or_resurveyed(paper_scenario_path: str) -> None:
+    sim = BatchSimulator(parse(yaml.safe_load(Path(paper_scenario_path).read_text())).with_overrides(duration=3.0))
+    before = sim.world.users
+    sim.run()
+    assert sim.world.users is before and sim.world.clusters_version == 0 and sim.result().motion is None
+
+
+@pytest.mark.parametrize('edit, key', [
+    (lambda c: c.__setitem__('velocity', [1.0]), 'users.clusters[0].velocity'),
+    (lambda c: c.__setitem__('waypoints', [[1.0, 2.0]]), 'users.clusters[0].speed'),
+    (lambda c: c.update(waypoints=[[1.0, 2.0]], speed=2.0, velocity=[1.0, 0.0]), 'users.clusters[0].waypoints'),
+    (lambda c: c.__setitem__('speed', -2.0) or c.__setitem__('waypoints', [[0, 0]]), 'users.clusters[0].speed'),
+    (lambda c: c.update(start=10.0, end=5.0), 'users.clusters[0].end'),
+    (lambda c: c.__setitem__('walk', -0.5), 'users.clusters[0].walk'),
+    (lambda c: c.__setitem__('start', 'soon'), 'users.clusters[0].start'),
+])
+def test_bad_motion_keys_name_the_key(paper_scenario_path: str, edit: Any, key: str) -> None:
+    doc = yaml.safe_load(Path(paper_scenario_path).read_text())
+    edit(doc['users']['clusters'][0])
+    with pytest.raises(ScenarioError) as err:
+        parse(doc)
+    assert str(err.value).startswith(key + ':'), str(err.value)
+
+
+def test_survey_mode_is_checked(paper_scenario_path: str) -> None:
+    doc = yaml.safe_load(Path(paper_scenario_path).read_text())
+    doc['users']['survey'] = 'sometimes'
+    with pytest.raises(ScenarioError, match=r'^users.survey:'):
+        parse(doc)
