@@ -26,6 +26,8 @@ FAIL_FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5)
 FAIL_AT = 18.0
 SETTLE = 10.0  # "after convergence": the mean over the last SETTLE seconds of a run
 
+DYNAMICS_HEADING = '## Users that move'  # results.md's last section, from benchmarks/bench_dynamics.py
+
 
 def settled(m: np.ndarray, column: int) -> float:
     t = m[:, 1]
@@ -276,4 +278,7 @@ def write_results(docs: Path, out: Path, base: Scenario, seeds: int, metrics: di
                               ('paper', "The paper's Algorithm 2 (paper.yaml)")):
             lines += [f'**{title}**', '', *layouts.table(ended, policy, list(LAYOUT_FACTORS)), '']
     docs.parent.mkdir(parents=True, exist_ok=True)
-    docs.write_text('\n'.join(lines) + '\n')
+    kept = ''  # the section benchmarks/bench_dynamics.py measures is not this command's to regenerate
+    if docs.exists() and DYNAMICS_HEADING in docs.read_text():
+        kept = '\n' + DYNAMICS_HEADING + docs.read_text().split(DYNAMICS_HEADING, 1)[1]
+    docs.write_text('\n'.join(lines) + '\n' + kept)

@@ -15,7 +15,6 @@ from typing import Optional
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
-from sklearn.cluster import DBSCAN
 
 from .physics import survey_radii
 
@@ -56,6 +55,7 @@ def find_clusters(xy: NDArray[np.float64]) -> NDArray[np.intp]:
     """DBSCAN labels 0..C-1 (in order of each cluster's first MSD) or NONE; groups under MIN_SIZE are NONE."""
     if len(xy) < MIN_SIZE:
         return np.full(len(xy), NONE, dtype=np.intp)
+    from sklearn.cluster import DBSCAN  # here, not at the top: every command that reads a run imports this module
     labels = DBSCAN(eps=EPS, min_samples=MIN_SAMPLES).fit_predict(xy).astype(np.intp)
     found = labels[labels >= 0]
     big = np.flatnonzero(np.bincount(found, minlength=labels.max() + 1) >= MIN_SIZE) if len(found) else []
