@@ -3,7 +3,7 @@
 Run: ./uav-flock exec python benchmarks/bench_dynamics.py [--seeds 5 --speeds 1,2,3,4,5,6,7,8 --out docs/figures]
 Prints the tables of docs/results.md ("Users that move") and writes coverage and Fiedler plots per scenario,
 every seed drawn, with arrivals and departures marked. All runs are batch runs (the oracle the distributed
-system equals byte for byte, tests/ros/test_dynamics.py).
+system equals byte for byte, tests/ros/test_moving_users_dds.py).
 """
 from __future__ import annotations
 
