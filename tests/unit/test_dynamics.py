@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from uav_agent.core.control import M0, M1, M2
-from uav_agent.core.modes import NO_GOAL, ClusterMap, Memory, demand_switch, key_of, mode_switch
+from uav_agent.core.modes import NO_GOAL, ClusterMap, Memory, demand_switch, key_of, mode_switch, reference
 from uav_agent.core.params import FlockParams
 from world_sim.batch import BatchSimulator
 from world_sim.core.crowd import center_at
@@ -130,3 +130,19 @@ def test_survey_mode_is_checked(paper_scenario_path: str) -> None:
     doc['users']['survey'] = 'sometimes'
     with pytest.raises(ScenarioError, match=r'^users.survey:'):
         parse(doc)
+
+
+def test_a_map_in_transit_to_a_new_role_flies_along_the_tree() -> None:
+    """A MAP that leaves a settled place for a new role passes the clusters between, where relays are."""
+    fp = FlockParams()
+    xy = np.array([[0.0, 0.0], [100.0, 0.0], [200.0, 0.0], [100.0, 120.0]])  # tree: 0-1, 1-2, 1-3
+    clusters = ClusterMap(xy, fp.height, np.full(4, 25.0))
+    at_0 = np.array([5.0, 3.0, 20.0])
+    moving = Memory(mode=M0, goal=2, settled=True, transit=True)
+    ref = reference(moving, 7, at_0, np.zeros((0, 3)), [], clusters, fp)
+    assert np.allclose(ref.target[:2], xy[1]), 'from cluster 0 to 2 it heads for cluster 1 first'
+    first_flight = reference(moving._replace(settled=False, transit=False), 7, at_0, np.zeros((0, 3)), [],
+                             clusters, fp)
+    assert np.allclose(first_flight.target[:2], xy[2]), 'before it ever settled it flies straight, as always'
+    near_2 = reference(moving, 7, np.array([160.0, 0.0, 20.0]), np.zeros((0, 3)), [], clusters, fp)
+    assert np.allclose(near_2.target[:2], xy[2]), 'once its goal is the nearest cluster it flies to it'

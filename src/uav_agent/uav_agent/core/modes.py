@@ -86,6 +86,7 @@ class ClusterMap:
         self.velocities = np.column_stack([vxy, np.zeros(self.count)])
         self._mst = lru_cache(maxsize=None)(self._mst_uncached)
         self._roles = lru_cache(maxsize=None)(self._roles_uncached)
+        self._hops = lru_cache(maxsize=None)(self._hops_uncached)
         self._axes: dict[Edge, tuple[np.ndarray, np.ndarray, float]] = {}
 
     def mst(self, achieved: int) -> tuple[Edge, ...]:
@@ -104,6 +105,25 @@ class ClusterMap:
             return NO_GOAL
         dist = np.linalg.norm(self.xy[free] - np.asarray(q, dtype=float)[:2], axis=1)
         return free[int(np.argmin(dist))]
+
+    def tree_hop(self, here: int, there: int) -> int:
+        """The next cluster after `here` on the path to `there` in the MST over the existing clusters."""
+        return self._hops(here, there)
+
+    def _hops_uncached(self, here: int, there: int) -> int:
+        links: dict[int, list[int]] = {}
+        for a, b in self.mst(self.live):
+            links.setdefault(a, []).append(b)
+            links.setdefault(b, []).append(a)
+        came = {there: there}
+        todo = [there]
+        while todo:  # breadth first from `there`: each cluster learns its next step towards it
+            c = todo.pop(0)
+            for n in links.get(c, []):
+                if n not in came:
+                    came[n] = c
+                    todo.append(n)
+        return came.get(here, there)
 
     def segment_distance(self, q: np.ndarray, edge: Edge) -> float:
         """Horizontal distance from q to the segment between the centres of edge."""
@@ -188,7 +208,9 @@ class Roles(NamedTuple):
 
 class Memory(NamedTuple):
     """What a MAP carries from step to step: its mode M_i, goal g_c^i, known achieved goals and bridge,
-    and (demand allocation) the best coverage of its goal so far and the steps since it last grew."""
+    and (demand allocation) the best coverage of its goal so far, the steps since it last grew, and
+    whether it has reached its role's place once, and whether it is on its way to a new role since
+    (transit: a role change after settling, flown along the tree)."""
 
     mode: int = M0
     goal: int = NO_GOAL
@@ -196,6 +218,8 @@ class Memory(NamedTuple):
     bridge: Optional[Edge] = None
     best: float = 0.0
     flat: int = 0
+    settled: bool = False
+    transit: bool = False
 
 
 def mode_switch(mem: Memory, n_users: int, goal_coverage: float, q: np.ndarray,
@@ -274,20 +298,26 @@ def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, cluster
     """
     roles = clusters.roles(fp.d)
     if not clusters.live:  # no cluster to serve or bridge: hold where it is until one appears
-        return mem if mem.goal == NO_GOAL and mem.mode == M2 else Memory(mode=M2, achieved=mem.achieved)
+        return mem if mem.goal == NO_GOAL and mem.mode == M2 else \
+            Memory(mode=M2, achieved=mem.achieved, settled=mem.settled)
     role = roles.of(key_of(agent_id))
     if role < clusters.count:
-        if mem.goal != role:
-            mem = Memory(mode=M0, goal=role, achieved=mem.achieved)
+        if mem.goal != role or mem.mode == M1:
+            mem = Memory(mode=M0, goal=role, achieved=mem.achieved, settled=mem.settled, transit=mem.settled)
             r_g = 0.0
         arrived = float(np.hypot(*(np.asarray(q, dtype=float)[:2] - clusters.xy[role]))) <= clusters.radii[role]
+        if arrived and (mem.transit or not mem.settled):
+            mem = mem._replace(settled=True, transit=False)
         mem = served(mem, r_g, arrived, fp)
         if mem.mode == M0 and mem.achieved >> mem.goal & 1:
             mem = mem._replace(mode=M2)
         return mem
     edge = roles.edges[role - clusters.count]
     if mem.mode != M1 or mem.bridge != edge:
-        mem = Memory(mode=M1, goal=edge[0], achieved=mem.achieved, bridge=edge)
+        mem = Memory(mode=M1, goal=edge[0], achieved=mem.achieved, bridge=edge, settled=mem.settled,
+                     transit=mem.settled)
+    if (mem.transit or not mem.settled) and clusters.segment_distance(q, edge) <= fp.d:
+        mem = mem._replace(settled=True, transit=False)
     return mem
 
 
@@ -376,6 +406,31 @@ def apart_links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[boo
     return [not related(own, t) for t in heard]
 
 
+def en_route(mem: Memory, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) -> int:
+    """The cluster a MAP in transit heads for first: the next one along the tree from the cluster it is at,
+    or NO_GOAL to go straight to its role.
+
+    A MAP in transit (demand allocation) left a place in a covered, connected formation because the clusters
+    changed; flown straight to its new role it would cross empty ground out of everyone's range. Along the
+    tree it passes clusters and relay chains. Roles never change while the clusters stand still, so then
+    nothing is ever in transit.
+    """
+    if fp.allocation != 'demand' or not mem.transit or mem.goal == NO_GOAL:
+        return NO_GOAL
+    if mem.mode == M1 and mem.bridge is not None:
+        if clusters.segment_distance(q, mem.bridge) <= fp.d:
+            return NO_GOAL
+        a, b = clusters.xy[mem.bridge[0]], clusters.xy[mem.bridge[1]]
+        xy = np.asarray(q, dtype=float)[:2]
+        dest = mem.bridge[0] if np.linalg.norm(xy - a) <= np.linalg.norm(xy - b) else mem.bridge[1]
+    else:
+        dest = mem.goal
+    at = clusters.nearest(q, 0)
+    if at == NO_GOAL or at == dest:
+        return NO_GOAL
+    return clusters.tree_hop(at, dest)
+
+
 class Reference(NamedTuple):
     """What eq. 9's goal term aims at: q^r (M0/M2), q_1^r and q_2^r (M1), the mode that picks between
     them, and the velocities the damping of eqs. 12-13 matches (rows: q^r, q_1^r, q_2^r)."""
@@ -398,6 +453,10 @@ def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told
         here, v = clusters.targets[mem.goal], clusters.velocities[mem.goal]
     else:
         here, v = np.asarray(q, dtype=float), np.zeros(3)
+    hop = en_route(mem, q, clusters, fp)
+    if hop != NO_GOAL:
+        at, v = clusters.targets[hop], clusters.velocities[hop]
+        return Reference(at, at, at, M0, np.array([v, v, v]))
     if mem.mode == M1 and mem.bridge is not None:
         va, vb = clusters.velocities[mem.bridge[0]], clusters.velocities[mem.bridge[1]]
         if fp.allocation == 'demand':
