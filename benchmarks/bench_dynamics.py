@@ -127,7 +127,7 @@ def main() -> int:
                   f'{pct(float(np.mean(con)))} ({pct(min(con))}–{pct(max(con))}) | {arr_txt} |')
         else:
             print(f'| {name} | 0/{len(f)} | — | — | — | {arr_txt} |')
-        marks = [t for t, _ in events(s)]
+        marks = events(s)
         plots.time_series([(f'seed {j[2]}', r['metrics'][:, 1], 100 * r['metrics'][:, 2])
                            for j, r in zip(jobs, results) if j[0] == name],
                           'coverage ratio R_c (%)', f'Coverage, {name} (90 MAPs)', args.out / f'dynamics_{name}_coverage.png',

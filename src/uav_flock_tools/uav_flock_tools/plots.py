@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Sequence, Union
 
 import matplotlib
 
@@ -11,6 +11,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 # The MSDs (xy, cluster id) at a time, for runs whose users move.
+# An event to mark on a time axis: a time (a failure) or (time, what happened).
+Event = Union[float, tuple[float, str]]
 UsersAt = Callable[[float], tuple[np.ndarray, np.ndarray]]
 MODE_COLOURS = ('tab:blue', 'tab:orange', 'tab:green')
 MODE_NAMES = ('M0 dynamic', 'M1 connectivity', 'M2 static')
@@ -24,11 +26,12 @@ def save(fig: plt.Figure, path: Path) -> Path:
     return path
 
 
-def finish(ax: plt.Axes, xlabel: str, ylabel: str, title: str, events: Sequence[float] = ()) -> None:
-    """Event marks (e.g. failures), axis labels with units, title, grid, and a legend when there is
-    more than one thing to tell apart."""
+def finish(ax: plt.Axes, xlabel: str, ylabel: str, title: str, events: Sequence[Event] = ()) -> None:
+    """Event marks (a bare time is a failure), axis labels with units, title, grid, and a legend when there
+    is more than one thing to tell apart."""
     for e in events:
-        ax.axvline(e, color='grey', ls='--', lw=1, label=f'failure at t = {e:g} s')
+        t, what = e if isinstance(e, tuple) else (e, 'failure')
+        ax.axvline(t, color='grey', ls='--', lw=1, label=f'{what} at t = {t:g} s')
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=10)
@@ -45,7 +48,7 @@ def fiedler_axis(ax: plt.Axes, t: np.ndarray | None = None, fiedler: np.ndarray 
     one run's series, its disconnected spans are shaded."""
     ax.set_yscale('symlog', linthresh=FIEDLER_LINEAR_BELOW)
     ax.set_ylim(bottom=0.0)
-    ax.axhline(0.0, color='tab:red', lw=1.2, label='λ2 = 0: disconnected')
+    ax.axhline(0.0, color='k', lw=1.2, label='λ2 = 0: disconnected')
     if t is not None and fiedler is not None and len(t):
         off = np.asarray(fiedler) <= 0
         edges = np.flatnonzero(np.diff(np.r_[0, off.astype(int), 0]))
@@ -55,7 +58,7 @@ def fiedler_axis(ax: plt.Axes, t: np.ndarray | None = None, fiedler: np.ndarray 
 
 
 def time_series(series: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: str, title: str,
-                path: Path, events: Sequence[float] = ()) -> Path:
+                path: Path, events: Sequence[Event] = ()) -> Path:
     """One line per (label, t, y)."""
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for label, t, y in series:
@@ -65,7 +68,7 @@ def time_series(series: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: st
 
 
 def fiedler_series(series: Sequence[tuple[str, np.ndarray, np.ndarray]], title: str, path: Path,
-                   events: Sequence[float] = ()) -> Path:
+                   events: Sequence[Event] = ()) -> Path:
     """lambda2 over time on the Fiedler axis; one run's disconnected spans shaded."""
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for label, t, y in series:
@@ -144,7 +147,7 @@ def formation_snapshots(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
 
 def run_figures(metrics: np.ndarray, traj: dict[str, np.ndarray], users_xy: np.ndarray | None,
                 users_cluster: np.ndarray | None, centroids: np.ndarray | None, r: float, label: str,
-                folder: Path, events: Sequence[float] = (), users_at: UsersAt | None = None) -> list[Path]:
+                folder: Path, events: Sequence[Event] = (), users_at: UsersAt | None = None) -> list[Path]:
     """The four figures of one run: coverage, Fiedler value, mode counts and formation snapshots.
 
     metrics rows follow the METRICS_COLUMNS order; without MSDs the formation snapshots are left out.

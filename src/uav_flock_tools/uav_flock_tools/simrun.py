@@ -34,7 +34,7 @@ def write_run(result: RunResult, folder: Path, label: str) -> list[Path]:
     u, dt = result.users, result.scenario.dt
     moving = None if result.motion is None else (lambda t: result.motion.at(int(round(t / dt))))
     return plots.run_figures(result.metrics, trajectory_columns(result), u.xyz[:, :2], u.cluster, u.centroids,
-                             result.scenario.flock.r, label, folder, events + [t for t, _ in events_of(result.scenario)],
+                             result.scenario.flock.r, label, folder, [*events, *events_of(result.scenario)],
                              moving)
 
 
