@@ -356,14 +356,27 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
     a, u, length = clusters.axis(edge)
     here = float(np.dot(np.asarray(q, dtype=float)[:2] - a, u))
     below, above = -math.inf, math.inf
+    # How far along the edge a relay may aim and stay within reach (r less 1 m) of some server of each
+    # cluster: a server off the axis reaches less far along it.
+    reach_a, reach_b = -math.inf, math.inf
     for qj, tj in zip(nbr_q, told):
         at = float(np.dot(qj[:2] - a, u))
+        if tj.mode != M1 and tj.goal in edge:
+            off = abs(float(u[0] * (qj[1] - a[1]) - u[1] * (qj[0] - a[0])))
+            reach = math.sqrt(max((fp.r - 1.0) ** 2 - off * off, 0.0))
+            if tj.goal == edge[0]:
+                reach_a = max(reach_a, at + reach)
+            else:
+                reach_b = min(reach_b, at - reach)
         if tj.mode != M1 and tj.goal == edge[0] or tj.mode == M1 and tj.bridge == edge and at < here:
             below = max(below, at)
         elif tj.mode != M1 and tj.goal == edge[1] or tj.mode == M1 and tj.bridge == edge and at > here:
             above = min(above, at)
     if math.isfinite(below) and math.isfinite(above):
-        return (below + above) / 2.0
+        mid = (below + above) / 2.0
+        if reach_b <= reach_a:  # both ends within reach: stay where both hold
+            return min(max(mid, reach_b), reach_a)
+        return mid
     if math.isfinite(below):
         return min(below + fp.d, length)
     if math.isfinite(above):
