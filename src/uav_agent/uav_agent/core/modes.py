@@ -467,12 +467,8 @@ def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told
     else:
         here, v = np.asarray(q, dtype=float), np.zeros(3)
     hop = en_route(mem, q, clusters, fp)
-    if hop != NO_GOAL:  # along the tree edge from the cluster it is at, a little ahead of where it is
-        start, end = clusters.xy[clusters.nearest(q, 0)], clusters.xy[hop]
-        span = max(float(np.linalg.norm(end - start)), 1e-9)
-        ahead = min(max(float(np.dot(np.asarray(q, dtype=float)[:2] - start, end - start)) / span + fp.d, 0.0), span)
-        at = np.r_[start + (end - start) * (ahead / span), fp.height]
-        v = clusters.velocities[hop]
+    if hop != NO_GOAL:
+        at, v = clusters.targets[hop], clusters.velocities[hop]
         return Reference(at, at, at, M0, np.array([v, v, v]))
     if mem.mode == M1 and mem.bridge is not None:
         va, vb = clusters.velocities[mem.bridge[0]], clusters.velocities[mem.bridge[1]]
