@@ -146,3 +146,22 @@ def test_a_map_in_transit_to_a_new_role_flies_along_the_tree() -> None:
     assert np.allclose(first_flight.target[:2], xy[2]), 'before it ever settled it flies straight, as always'
     near_2 = reference(moving, 7, np.array([160.0, 0.0, 20.0]), np.zeros((0, 3)), [], clusters, fp)
     assert np.allclose(near_2.target[:2], xy[2]), 'once its goal is the nearest cluster it flies to it'
+
+
+def test_a_map_keeps_its_role_while_the_shares_move_a_little() -> None:
+    """Radii re-surveyed by 2 m move every share boundary; a MAP just past one keeps its role, and changes
+    it once the boundary has moved past the hysteresis margin."""
+    fp = FlockParams()
+    xy = np.array([[0.0, 0.0], [150.0, 0.0]])
+    before = ClusterMap(xy, fp.height, np.array([30.0, 30.0]))
+    roles = before.roles(fp.d)
+    edge_start = roles.start[2]  # the relay role of the one edge
+    mine = min(range(2000), key=lambda i: abs(key_of(i) - (edge_start - 0.003)) if key_of(i) < edge_start else 9)
+    mem = demand_switch(Memory(), mine, 0.0, np.array([0.0, 0.0, 20.0]), before, fp)
+    assert roles.of(key_of(mine)) == mem.goal == 1 and mem.mode == M0
+    for shrunk, keeps in ((29.5, True), (25.0, False)):
+        after = ClusterMap(xy, fp.height, np.array([30.0, shrunk]))  # cluster 1's share shrinks below the key
+        new = after.roles(fp.d)
+        assert new.of(key_of(mine)) == 2, 'without hysteresis the MAP would now relay'
+        again = demand_switch(mem, mine, 0.0, np.array([0.0, 0.0, 20.0]), after, fp)
+        assert (again.goal == 1 and again.mode != M1) == keeps, (shrunk, new.start, new.end, key_of(mine))

@@ -26,6 +26,7 @@ Edge = tuple[int, int]
 GOLDEN = 0.6180339887498949  # frac(id * GOLDEN) spreads any set of ids evenly over [0, 1)
 STALL_STEPS = 50             # steps without a 1 % gain after which a goal's coverage counts as stalled
 STALL_GAIN = 0.01
+ROLE_HYSTERESIS = 0.01       # key-space margin a role's share must move past before a MAP leaves it
 
 
 def key_of(agent_id: int) -> float:
@@ -289,6 +290,15 @@ def served(mem: Memory, r_g: float, arrived: bool, fp: FlockParams) -> Memory:
     return mem
 
 
+def _held_role(mem: Memory, roles: 'Roles', clusters: ClusterMap) -> Optional[int]:
+    """The role a MAP holds now, if that role still exists (its share may have moved)."""
+    if mem.mode == M1 and mem.bridge in roles.edges:
+        return clusters.count + roles.edges.index(mem.bridge)
+    if mem.mode != M1 and mem.goal != NO_GOAL and clusters.live >> mem.goal & 1:
+        return mem.goal
+    return None
+
+
 def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
                   fp: FlockParams) -> Memory:
     """The demand allocation for one MAP at one step: its role from its key, then its mode.
@@ -300,7 +310,11 @@ def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, cluster
     if not clusters.live:  # no cluster to serve or bridge: hold where it is until one appears
         return mem if mem.goal == NO_GOAL and mem.mode == M2 else \
             Memory(mode=M2, achieved=mem.achieved, settled=mem.settled)
-    role = roles.of(key_of(agent_id))
+    key = key_of(agent_id)
+    role = roles.of(key)
+    held = _held_role(mem, roles, clusters)
+    if held is not None and held != role and roles.start[held] - ROLE_HYSTERESIS <= key < roles.end[held] + ROLE_HYSTERESIS:
+        role = held  # the shares moved a little: keep the role rather than fly off and back
     if role < clusters.count:
         if mem.goal != role or mem.mode == M1:
             mem = Memory(mode=M0, goal=role, achieved=mem.achieved, settled=mem.settled, transit=mem.settled)
