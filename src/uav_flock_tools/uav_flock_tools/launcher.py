@@ -582,17 +582,19 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
     r = Run(plan(scenario_path, scenario, run, agents_per_process, domain_id, discovery, record, sync, rate))
     old_int, old_term = signal.signal(signal.SIGINT, r.on_signal), signal.signal(signal.SIGTERM, r.on_signal)
     try:
-        r.start(r.write_files())
-        code = r.supervise()
-    except KeyboardInterrupt:
-        code = 130
-    finally:
         try:
-            r.stop_all()
+            r.start(r.write_files())
+            code = r.supervise()
+        except KeyboardInterrupt:
+            code = 130
         finally:
-            signal.signal(signal.SIGINT, old_int)
-            signal.signal(signal.SIGTERM, old_term)
-    return r.report(code), read_result(run, scenario)
+            r.stop_all()
+        # Still under our handler, which ignores a Ctrl-C from the stop on: one that came just after the
+        # processes ended must not cut the report short.
+        return r.report(code), read_result(run, scenario)
+    finally:
+        signal.signal(signal.SIGINT, old_int)
+        signal.signal(signal.SIGTERM, old_term)
 
 
 def read_result(run: Path, scenario: Scenario) -> Optional[RunResult]:
