@@ -7,6 +7,7 @@ Fiedler value from the raw positions with the world's own functions.
 """
 from __future__ import annotations
 
+import bisect
 import json
 from collections import Counter, defaultdict
 from contextlib import contextmanager
@@ -85,10 +86,11 @@ class BagRun:
         """The MSDs as last published at or before step (users that move are published every survey)."""
         if self.users is None:
             return None
-        known = [k for k in self.users_at if k <= step]
-        if not known:
+        steps = sorted(self.users_at)
+        i = bisect.bisect_right(steps, step)
+        if i == 0:
             return self.users
-        xyz, cluster = self.users_at[max(known)]
+        xyz, cluster = self.users_at[steps[i - 1]]
         return physics.Users(xyz, cluster, self.users.centroids, self.users.radii)
 
     @property

@@ -149,9 +149,8 @@ class WorldNode(Node):
     def publish_clusters(self) -> None:
         w = self.world
         c = w.clusters
-        active = np.array([bool(c.live >> k & 1) for k in range(c.count)])
         self.clusters_pub.publish(convert.clusters(self.header(), w.clusters_version, c.xy, w.users.cluster_sizes,
-                                                   c.radii, active, c.velocities[:, :2]))
+                                                   c.radii, c.active, c.velocities[:, :2]))
 
     # ------------------------------------------------------------------ lockstep
     def tick(self) -> None:

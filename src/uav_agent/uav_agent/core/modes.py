@@ -81,6 +81,7 @@ class ClusterMap:
         # Clusters that exist now, as a mask: an online survey keeps an ended cluster's id (and its index
         # here) so that no other cluster's index moves, but nobody is sent to it.
         self.live = mask_of(range(self.count)) if active is None else mask_of(np.flatnonzero(active))
+        self.active = np.array([bool(self.live >> k & 1) for k in range(self.count)], dtype=bool)
         self.targets = np.column_stack([self.xy, np.full(self.count, float(height))])
         # p^r of eqs. 12-13: each cluster's velocity (m/s) as the survey estimates it; zero when still.
         vxy = np.zeros((self.count, 2)) if velocities is None else np.asarray(velocities, dtype=float).reshape(-1, 2)
@@ -313,7 +314,7 @@ def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, cluster
     key = key_of(agent_id)
     role = roles.of(key)
     held = _held_role(mem, roles, clusters)
-    if held is not None and held != role and roles.start[held] - ROLE_HYSTERESIS <= key < roles.end[held] + ROLE_HYSTERESIS:
+    if held is not None and roles.start[held] - ROLE_HYSTERESIS <= key < roles.end[held] + ROLE_HYSTERESIS:
         role = held  # the shares moved a little: keep the role rather than fly off and back
     if role < clusters.count:
         if mem.goal != role or mem.mode == M1:

@@ -39,8 +39,9 @@ class Crowd:
         self.offset = xy0 - np.array([c.center for c in s.clusters], dtype=float).reshape(-1, 2)[cluster]
         self.start = np.array([c.start for c in s.clusters])[cluster]
         self.end = np.array([math.inf if c.end is None else c.end for c in s.clusters])[cluster]
-        self.walkers = np.flatnonzero(np.array([c.walk for c in s.clusters])[cluster] > 0)
-        self.walk_step = np.array([c.walk for c in s.clusters])[cluster][self.walkers] * math.sqrt(s.dt)
+        walk = np.array([c.walk for c in s.clusters])[cluster]
+        self.walkers = np.flatnonzero(walk > 0)
+        self.walk_step = walk[self.walkers] * math.sqrt(s.dt)
         self.rng = rng
 
     def at(self, k: int) -> tuple[F64, NDArray[np.bool_]]:

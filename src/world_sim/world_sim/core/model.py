@@ -66,6 +66,7 @@ class World:
         self.tracks: Optional[Tracks] = None    # the last survey's clusters
         self.reported: Optional[Tracks] = None  # what the MAPs were told of them (survey.settle)
         self.label = self.drawn.cluster.copy()
+        self.present = np.ones(len(self.label), dtype=bool)  # which drawn MSDs are there at the step placed
         self._placed = -1
         self._motion: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
         self.q, self.p = physics.release(scenario, rng['release'])
@@ -77,8 +78,7 @@ class World:
         self.failed = np.zeros(0, np.intp)
         self._metrics: list[np.ndarray] = []
         self._traj: list[np.ndarray] = []
-        self.place_users()
-        self.clusters_version = 0  # what the MAPs are given before the first step
+        self.place_users()  # the clusters the MAPs are given before the first step, as version 0
 
     def place_users(self) -> tuple[bool, bool]:
         """The MSDs at step k, surveyed when a survey is due: (clusters changed, users' positions due).
@@ -92,7 +92,7 @@ class World:
         if self.crowd is None and (s.survey == 'given' or self.k > 0):
             return False, False
         due = self.k % s.survey_steps == 0
-        xy, present = self.crowd.at(self.k) if self.crowd else (self.drawn.xyz[:, :2], np.ones(len(self.label), bool))
+        xy, present = self.crowd.at(self.k) if self.crowd else (self.drawn.xyz[:, :2], self.present)
         changed = False
         if s.survey == 'online' and due:
             tracks, labels = survey(xy[present], self.tracks, s.survey_steps * s.dt)
@@ -102,11 +102,12 @@ class World:
             if self.reported is None or not report.same(self.reported):
                 self.clusters = ClusterMap(report.centroids, s.flock.height, report.radii, report.active,
                                            report.velocities)
-                self.clusters_version += 1
-                changed = True
+                changed = self.reported is not None  # the first survey is what the MAPs start with
+                self.clusters_version += int(changed)
             self.tracks, self.reported = tracks, report
         elif s.survey == 'given':
             self.label = np.where(present, self.drawn.cluster, NONE)
+        self.present = present
         xyz = np.column_stack([xy[present], np.zeros(int(present.sum()))])
         self.users = physics.Users(xyz, self.label[present], self.clusters.xy, self.clusters.radii)
         moved = due and self.crowd is not None
@@ -116,9 +117,8 @@ class World:
 
     def true_coverage(self, sensed: 'Sensed') -> np.ndarray:
         """Served fraction of each cluster as drawn (the scenario's clusters, whatever the survey found);
-        NaN for one with no MSD present. What a benchmark judges arrivals by."""
-        present = np.ones(len(self.label), bool) if self.crowd is None else self.crowd.at(sensed.k)[1]
-        drawn = self.drawn.cluster[present]
+        NaN for one with no MSD present. What a benchmark judges arrivals by; sensed is the last step placed."""
+        drawn = self.drawn.cluster[self.present]
         served = np.bincount(drawn[sensed.assoc != physics.UNSERVED], minlength=len(self.scenario.clusters))
         size = np.bincount(drawn, minlength=len(self.scenario.clusters))
         return np.where(size > 0, served / np.maximum(size, 1), np.nan)
