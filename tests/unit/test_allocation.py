@@ -89,8 +89,13 @@ def test_a_relay_aims_midway_between_the_chain_members_it_hears() -> None:
     assert relay_place(5, q, edge, heard[:2], [servers_of_0, relay], clusters, P) == 80.0
     # a relay of another edge is not part of this chain; with the b side silent, reach d beyond the a side
     assert relay_place(5, q, edge, heard[[0, 2]], [servers_of_0, other_edge], clusters, P) == 40.0 + P.d
-    # a server of a is on the a side wherever it is: inside the cluster it pushes the relay outwards
-    assert relay_place(5, q, edge, heard[[1]], [servers_of_0], clusters, P) == 120.0 + P.d
+    # a server still on its way to its cluster (here out along the edge) is no anchor: the relay takes its
+    # own place by its key, as if it heard no one, rather than bend the chain towards it
+    alone = relay_place(5, q, edge, heard[:0], [], clusters, P)
+    assert relay_place(5, q, edge, heard[[1]], [servers_of_0], clusters, P) == alone != 120.0 + P.d
+    # so is a relay of this edge still flying in, farther than d from the edge
+    assert relay_place(5, q, edge, np.array([[40.0, 0.0, 20.0], [100.0, 2 * P.d, 20.0]]), [servers_of_0, relay],
+                       clusters, P) == 40.0 + P.d
 
 
 @settings(max_examples=60, deadline=None)

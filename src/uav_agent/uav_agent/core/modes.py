@@ -375,6 +375,8 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
     # cluster: a server off the axis reaches less far along it.
     reach_a, reach_b = -math.inf, math.inf
     for qj, tj in zip(nbr_q, told):
+        if not _in_place(qj, tj, edge, clusters, fp):
+            continue
         at = float(np.dot(qj[:2] - a, u))
         if tj.mode != M1 and tj.goal in edge:
             off = abs(float(u[0] * (qj[1] - a[1]) - u[1] * (qj[0] - a[0])))
@@ -399,6 +401,16 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
     roles = clusters.roles(fp.d)
     start, stop = clusters.gap(edge, fp.d / 2)
     return start + roles.place(key_of(agent_id), clusters.count + roles.edges.index(edge)) * (stop - start)
+
+
+def _in_place(qj: np.ndarray, tj: 'Told', edge: Edge, clusters: ClusterMap, fp: FlockParams) -> bool:
+    """Whether a neighbour is where its role holds it: a server within its cluster's disc (plus d/2), a relay
+    within d of its edge. One still on its way (to a new role, or first out) would bend the chain towards it."""
+    if tj.mode == M1:
+        return tj.bridge == edge and clusters.segment_distance(qj, edge) <= fp.d
+    if tj.goal not in edge:
+        return False
+    return float(np.hypot(*(qj[:2] - clusters.xy[tj.goal]))) <= clusters.radii[tj.goal] + fp.d / 2
 
 
 def relay_slot(place: float, edge: Edge, clusters: ClusterMap, fp: FlockParams) -> tuple[np.ndarray, np.ndarray]:
@@ -490,7 +502,10 @@ def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told
         if fp.allocation == 'demand':
             place = relay_place(agent_id, q, mem.bridge, nbr_q, told, clusters, fp)
             q1, q2 = relay_slot(place, mem.bridge, clusters, fp)
-            return Reference(here, q1, q2, M1, np.array([v, va, vb]))
+            # The slot moves as its point of the edge does: at the velocity interpolated between the ends.
+            length = clusters.axis(mem.bridge)[2]
+            vs = va + (min(max(place / length, 0.0), 1.0) if length > 0 else 0.5) * (vb - va)
+            return Reference(here, q1, q2, M1, np.array([v, vs, vs]))
         return Reference(here, clusters.targets[mem.bridge[0]], clusters.targets[mem.bridge[1]], M1,
                          np.array([v, va, vb]))
     return Reference(here, here, here, (M2 if mem.mode == M1 else mem.mode), np.array([v, v, v]))
