@@ -19,7 +19,7 @@ from scipy.optimize import linear_sum_assignment
 from .physics import survey_radii
 
 EPS = 10.0            # m: DBSCAN's neighbourhood radius
-MIN_SAMPLES = 5       # MSDs within EPS that make a core point
+MIN_SAMPLES = 10      # MSDs within EPS that make a core point (5 chained dense neighbours into one)
 MIN_SIZE = 20         # fewer MSDs than this are stragglers, not a cluster to serve
 GATE_MARGIN = 10.0    # m added to the two radii within which a new cluster continues an old one
 # What the survey reports changes only when it matters: a cluster is reported anew when its centroid or
