@@ -45,6 +45,23 @@ def int_list(text: str) -> list[int]:
     return _ints_from(text, 0, 'non-negative integers')
 
 
+def id_list(text: str) -> list[int]:
+    """MAP ids as ranges and single ids: 30-89, or 0,1,2, or 0-9,20-29."""
+    ids: list[int] = []
+    for part in (p.strip() for p in text.split(',') if p.strip()):
+        lo, sep, hi = part.partition('-')
+        try:
+            first, last = int(lo), int(hi if sep else lo)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f'expected ids such as 30-89 or 0,1,2, got {text!r}') from None
+        if first < 0 or last < first:
+            raise argparse.ArgumentTypeError(f'expected non-negative ids, ranges low-high, got {part!r}')
+        ids += range(first, last + 1)
+    if not ids or len(set(ids)) != len(ids):
+        raise argparse.ArgumentTypeError(f'expected distinct ids such as 30-89, got {text!r}')
+    return sorted(ids)
+
+
 def count_list(text: str) -> list[int]:
     return _ints_from(text, 1, 'positive integers')
 
@@ -238,11 +255,13 @@ def cmd_up(args: argparse.Namespace) -> int:
                             fail_fraction=args.fail_fraction)
     if args.rate != 1.0 and args.sync != 'realtime':
         raise UsageError('up: --rate sets the pace of --sync realtime; lockstep runs as fast as it can')
+    if args.listen is not None:
+        listen_address(args.listen)
     out = run_folder(Path(args.out) if args.out else default_out('up'), 'up: --out', args.replace)
     try:
         code, result = launcher.up(path.resolve(), s, out.resolve(), args.agents_per_process, args.domain_id,
-                                   args.discovery, args.record, args.sync, args.rate)
-    except (FileExistsError, launcher.DomainInUse) as exc:
+                                   args.discovery, args.record, args.sync, args.rate, args.listen, args.agents_here)
+    except (FileExistsError, ValueError, launcher.DomainInUse) as exc:
         raise UsageError(f'up: {exc}') from None
     if result is None:
         return code or 1
@@ -251,6 +270,30 @@ def cmd_up(args: argparse.Namespace) -> int:
     print(f'{s.maps} MAPs, seed {s.seed}: t = {m[-1, 1]:.1f} s, R_c = {100 * m[-1, 2]:.1f} %, '
           f'Fiedler = {m[-1, 3]:.4f}, alive = {int(m[-1, 4])}; results in {out}')
     return code
+
+
+def listen_address(host: str) -> None:
+    """An IPv4 address of this host (the discovery server binds it): one line if it is not."""
+    import ipaddress
+    import socket
+    try:
+        ipaddress.IPv4Address(host)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            sock.bind((host, 0))
+    except ValueError:
+        raise UsageError(f'up: --listen: expected an IPv4 address of this host, got {host!r}') from None
+    except OSError as exc:
+        raise UsageError(f'up: --listen: {host} is not an address of this host ({exc.strerror})') from None
+
+
+def cmd_agents(args: argparse.Namespace) -> int:
+    """Agent processes on this host that join a run listening on another (`up --listen`)."""
+    from . import join
+    out = run_folder(Path(args.out) if args.out else default_out('agents'), 'agents: --out', args.replace)
+    try:
+        return join.join(args.join, args.ids, out.resolve(), args.agents_per_process, args.timeout)
+    except join.JoinError as exc:
+        raise UsageError(f'agents: {exc}') from None
 
 
 def cmd_kill(args: argparse.Namespace) -> int:
@@ -366,7 +409,21 @@ def build_parser() -> argparse.ArgumentParser:
                    help='realtime: simulated seconds per wall second (default: 1)')
     p.add_argument('--out', help='run folder (default: runs/up-<time>)')
     p.add_argument('--replace', action='store_true', help='replace the earlier run in --out (refused otherwise)')
+    p.add_argument('--listen', metavar='ADDRESS', help='an IPv4 address of this host where agents of other hosts '
+                   'join (the discovery server listens there; see `agents --join`)')
+    p.add_argument('--agents-here', type=non_negative_int, metavar='N',
+                   help='with --listen: run MAPs 0..N-1 here and wait for the others to join (default: all here)')
     p.set_defaults(func=cmd_up)
+    p = sub.add_parser('agents', help='agent processes on this host that join a run of `up --listen` on another')
+    p.add_argument('--join', required=True, metavar='HOST:PORT', help='the address `up --listen` printed')
+    p.add_argument('--ids', type=id_list, required=True, help='MAP ids to run here, e.g. 30-89')
+    p.add_argument('--agents-per-process', type=positive_int, default=1, help='pack K agent nodes into one process')
+    p.add_argument('--timeout', type=positive_float, default=20.0,
+                   help='wait this long for the run to answer (s, default: 20)')
+    p.add_argument('--out', help='folder for this host\'s logs and pids (default: runs/agents-<time>)')
+    p.add_argument('--replace', action='store_true', help='replace an earlier folder in --out (refused otherwise)')
+    p.set_defaults(func=cmd_agents)
+
     p = sub.add_parser('kill', help='SIGKILL agent processes of a running `up`')
     p.add_argument('--run', required=True, help='the run folder of `up`')
     p.add_argument('--ids', type=int_list, help='MAP ids to kill, e.g. 3,7')

@@ -43,6 +43,7 @@ DISCOVERY_BASE_PORT = 11811
 # cores come up at about one per 0.6 s of CPU, so the wait grows with their number.
 START_TIMEOUT_MIN_S = 60.0
 START_TIMEOUT_PER_PROCESS_S = 1.5
+JOIN_TIMEOUT_S = 300.0  # a run that listens for agents of other hosts waits this long for them to appear
 
 
 def executable(package: str, name: str) -> str:
@@ -72,9 +73,9 @@ def ros_env(domain_id: int, discovery_server: Optional[str] = None, discovery_ra
     return env
 
 
-def discovery_server_address(domain_id: int) -> str:
+def discovery_server_address(domain_id: int, host: str = '127.0.0.1') -> str:
     """One port per domain, so that runs in different domains each have their own server."""
-    return f'127.0.0.1:{DISCOVERY_BASE_PORT + domain_id}'
+    return f'{host}:{DISCOVERY_BASE_PORT + domain_id}'
 
 
 PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
@@ -119,10 +120,10 @@ def end_with(pid: int, signum: int) -> None:
 
 
 def start_discovery_server(address: str, env: dict[str, str], log: Path) -> subprocess.Popen:
-    """The Fast DDS discovery server the wheels ship, on 127.0.0.1:<port of address>, in its own session."""
-    port = address.rsplit(':', 1)[1]
+    """The Fast DDS discovery server the wheels ship, on address (host:port), in its own session."""
+    host, port = address.rsplit(':', 1)
     with open(log, 'w') as out:
-        return subprocess.Popen(['fast-discovery-server', '-i', '0', '-l', '127.0.0.1', '-p', port],
+        return subprocess.Popen(['fast-discovery-server', '-i', '0', '-l', host, '-p', port],
                                 env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
                                 preexec_fn=dies_with_parent(signal.SIGTERM))
 
@@ -405,7 +406,8 @@ class Plan:
     discovery_range: str
     env: dict[str, str]
     start_timeout: float
-    groups: list[list[int]]   # MAP ids per agent process
+    groups: list[list[int]]   # MAP ids per agent process on this host
+    remote: list[int]         # MAP ids whose agents join from other hosts (`agents --join`)
 
     @property
     def bag_path(self) -> Path:
@@ -417,21 +419,33 @@ class Plan:
 
 
 def plan(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: int, domain_id: Optional[int],
-         discovery: str, record: bool, sync: str, rate: float) -> Plan:
-    """Stage 1: decide the run (and claim its ROS_DOMAIN_ID, held until every process of it has ended)."""
+         discovery: str, record: bool, sync: str, rate: float, listen: Optional[str] = None,
+         agents_here: Optional[int] = None) -> Plan:
+    """Stage 1: decide the run (and claim its ROS_DOMAIN_ID, held until every process of it has ended).
+
+    With listen (an address of this host that the others reach), the discovery server listens there and
+    MAPs agents_here.. are left to agents that join from other hosts.
+    """
     if record and (run / 'bag').exists():
         raise FileExistsError(f'{run / "bag"} exists already: give a new --out folder')
-    groups = [list(range(first, min(first + agents_per_process, scenario.maps)))
-              for first in range(0, scenario.maps, agents_per_process)]
+    here = scenario.maps if agents_here is None else agents_here
+    if here > scenario.maps:
+        raise ValueError(f'--agents-here {here}: the run has {scenario.maps} MAPs')
+    if agents_here is not None and listen is None:
+        raise ValueError('--agents-here leaves MAPs to agents on other hosts: give --listen ADDRESS for them to join')
+    groups = [list(range(first, min(first + agents_per_process, here))) for first in range(0, here, agents_per_process)]
     processes = len(groups) + 1 + int(record)
-    use_server = discovery == 'server' or (discovery == 'auto' and (processes > LOCALHOST_LIMIT
-                                                                     or scenario.maps > LOCALHOST_MAPS_LIMIT))
+    use_server = listen is not None or discovery == 'server' or (
+        discovery == 'auto' and (processes > LOCALHOST_LIMIT or scenario.maps > LOCALHOST_MAPS_LIMIT))
     claim = claim_domain(domain_id)
-    server_address = discovery_server_address(claim.domain) if use_server else None
+    server_address = discovery_server_address(claim.domain, listen or '127.0.0.1') if use_server else None
     discovery_range = 'SUBNET' if discovery == 'subnet' else 'LOCALHOST'
+    timeout = max(START_TIMEOUT_MIN_S, START_TIMEOUT_PER_PROCESS_S * processes)
+    if listen is not None:  # time for someone to start the agents on the other hosts
+        timeout = max(timeout, JOIN_TIMEOUT_S)
     return Plan(scenario_path, scenario, run, agents_per_process, record, sync, rate, claim, server_address,
-                discovery_range, ros_env(claim.domain, server_address, discovery_range),
-                max(START_TIMEOUT_MIN_S, START_TIMEOUT_PER_PROCESS_S * processes), groups)
+                discovery_range, ros_env(claim.domain, server_address, discovery_range), timeout, groups,
+                list(range(here, scenario.maps)))
 
 
 class Run:
@@ -458,20 +472,30 @@ class Run:
         """agent_params.yaml, run.json and logs/; returns the agents' parameter file."""
         p, s = self.p, self.p.scenario
         p.run.mkdir(parents=True, exist_ok=True)
-        params = write_params(p.run / 'agent_params.yaml', {**s.flock.as_dict(), 'sync': p.sync,
-                                                            'world_start_timeout': 2 * p.start_timeout})
+        agent_params = {**s.flock.as_dict(), 'sync': p.sync, 'world_start_timeout': 2 * p.start_timeout}
+        params = write_params(p.run / 'agent_params.yaml', agent_params)
         self.info = {'domain_id': p.claim.domain, 'discovery_server': p.server_address,
                      'discovery_range': None if p.server_address else p.discovery_range,
                      'scenario': str(p.scenario_path), 'maps': s.maps, 'seed': s.seed,
                      'agents_per_process': p.agents_per_process, 'sync': p.sync,
                      'rate': p.rate if p.sync == 'realtime' else None,
                      'bag': str(p.bag_path) if p.record else None}
+        if p.remote:
+            self.info['remote_ids'] = [p.remote[0], p.remote[-1]]
+            # What `agents --join` fetches from /run_info: the MAPs it may serve and the agents' parameters.
+            (p.run / 'join.json').write_text(json.dumps({
+                'maps': s.maps, 'remote_ids': [p.remote[0], p.remote[-1]], 'domain_id': p.claim.domain,
+                'agent_params': agent_params}))
         self.write_info()
         p.logs.mkdir(exist_ok=True)
         pace = f'realtime x{p.rate:g}' if p.sync == 'realtime' else 'lockstep'
         print(f'uav-flock up: {s.maps} MAPs in {len(p.groups)} processes, {pace}, ROS_DOMAIN_ID={p.claim.domain}, '
               f'discovery {"server " + p.server_address if p.server_address else p.discovery_range}, '
               f'run folder {p.run}', flush=True)
+        if p.remote:
+            print(f'uav-flock up: MAPs {p.remote[0]}-{p.remote[-1]} join from other hosts: ./uav-flock agents '
+                  f'--join {p.server_address} --ids {p.remote[0]}-{p.remote[-1]} (waiting {p.start_timeout:.0f} s)',
+                  flush=True)
         return params
 
     def write_info(self) -> None:
@@ -519,6 +543,8 @@ class Run:
             world_args += ['-p', 'record:=true']
         if s.fail_at is not None:
             world_args += ['-p', f'fail_at:={float(s.fail_at)}', '-p', f'fail_fraction:={float(s.fail_fraction)}']
+        if p.remote:
+            world_args += ['-p', f'run_info:={p.run / "join.json"}']
         self.world = subprocess.Popen(world_args, env=p.env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                       text=True, start_new_session=True, preexec_fn=dies_with_parent(signal.SIGINT))
         self.world_log = relay_log(self.world.stderr, p.logs / 'world.log')  # type: ignore[arg-type]
@@ -577,9 +603,11 @@ class Run:
 
 def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: int = 1,
        domain_id: Optional[int] = None, discovery: str = 'auto', record: bool = False,
-       sync: str = 'lockstep', rate: float = 1.0) -> tuple[int, Optional[RunResult]]:
+       sync: str = 'lockstep', rate: float = 1.0, listen: Optional[str] = None,
+       agents_here: Optional[int] = None) -> tuple[int, Optional[RunResult]]:
     """Run the scenario distributed, in stages; returns (exit code, result read back from the run folder)."""
-    r = Run(plan(scenario_path, scenario, run, agents_per_process, domain_id, discovery, record, sync, rate))
+    r = Run(plan(scenario_path, scenario, run, agents_per_process, domain_id, discovery, record, sync, rate,
+                 listen, agents_here))
     old_int, old_term = signal.signal(signal.SIGINT, r.on_signal), signal.signal(signal.SIGTERM, r.on_signal)
     try:
         try:

@@ -27,7 +27,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import Header, Int64
+from std_msgs.msg import Header, Int64, String
 from visualization_msgs.msg import MarkerArray
 from uav_flock_msgs.msg import Association, Clusters, Command, FailureEvent, Metrics, Sensing, Users
 
@@ -118,6 +118,9 @@ class WorldNode(Node):
         for i in range(n):
             self.create_subscription(Command, f'/map_{i}/cmd', lambda m, i=i: self.on_command(i, m),
                                      LATEST_QOS if self.realtime else STEP_QOS)
+        if params.run_info:  # what agents joining from another host need: MAP count, ids, their parameters
+            self.run_info_pub = self.create_publisher(String, '/run_info', LATCHED_QOS)
+            self.run_info_pub.publish(String(data=Path(params.run_info).read_text()))
         self.publish_fixed()
 
         self.sensed: Optional[Sensed] = None
@@ -384,9 +387,11 @@ class WorldNode(Node):
         waiting = [i for i in s.ids.tolist() if self.world.alive[i] and (self.realtime or i not in self.commands)]
         if not waiting:
             return
+        # A MAP of this host: its process is gone. One on another host (no pid here): DDS no longer matches
+        # its reader, once its participant left or its lease expired (link down).
         table = self.pids()
         gone = [i for i in waiting if (i in table and not process_alive(table[i]))
-                or (not table and self.sensing_pubs[i].get_subscription_count() == 0)]
+                or (i not in table and self.sensing_pubs[i].get_subscription_count() == 0)]
         if gone:
             self.drop(np.array(gone), 'killed')
             if not self.realtime:

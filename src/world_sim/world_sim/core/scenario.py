@@ -309,6 +309,7 @@ class WorldNodeParams:
     scenario: str = ''           # scenario file or shipped name ('' : the default, paper)
     out: str = ''                # run folder for the records ('' : none)
     pid_table: str = ''          # pids.json of the agent processes, for their liveness ('' : none)
+    run_info: str = ''           # JSON file published on /run_info, for agents that join from other hosts
     start_timeout: float = field(default=60.0, metadata=bound(low=0.0, low_open=True))  # s to wait for every MAP
     record: bool = False         # wait for a recorder and never outrun it
     marker_period: int = field(default=5, metadata=bound(low=0, integer=True))  # steps between /markers; 0: none

@@ -1,0 +1,113 @@
+"""`agents --join`: agent processes on this host that join a run whose world listens on another.
+
+The world's host runs `up --listen ADDRESS --agents-here N`: its discovery server listens on ADDRESS and
+world_sim publishes /run_info (latched), which says how many MAPs the run has, which of them join from other
+hosts and the agents' parameters. A joining host needs nothing from the world's files: it fetches /run_info
+through the discovery server, checks the ids it was asked for, and forks its agents as `up` does. Its
+folder holds its own logs, parameters and pids.json, so `kill --run FOLDER` works on it as on a run of `up`.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+from pathlib import Path
+from typing import Optional
+
+from uav_flock_ros.processes import write_params
+
+from .launcher import (DISCOVERY_BASE_PORT, ForkedAgent, ros_env, start_agents, stop, write_pid_table)
+
+RUN_INFO_TIMEOUT_S = 20.0  # default wait for a run's /run_info
+POLL_S = 0.5
+
+
+class JoinError(Exception):
+    """A join that cannot go ahead: no run at that address, or ids it does not have. One line, exit 2."""
+
+
+def parse_address(text: str) -> tuple[str, int]:
+    """HOST:PORT of a run's discovery server, and the ROS_DOMAIN_ID its port stands for."""
+    host, sep, port = text.rpartition(':')
+    if not sep or not host or not port.isdigit():
+        raise JoinError(f'--join: expected HOST:PORT as `up --listen` prints it, got {text!r}')
+    domain = int(port) - DISCOVERY_BASE_PORT
+    if not 0 <= domain <= 232:
+        raise JoinError(f'--join: port {port} is no run\'s (`up` listens on {DISCOVERY_BASE_PORT} + its domain id)')
+    return host, domain
+
+
+def fetch_run_info(address: str, domain: int, timeout: float) -> dict[str, object]:
+    """The run's /run_info, read through its discovery server; JoinError if nothing answers in time."""
+    os.environ.update(ros_env(domain, address))
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+    from std_msgs.msg import String
+
+    from uav_flock_ros.qos import LATCHED_QOS
+    got: list[str] = []
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        node = rclpy.create_node('uav_flock_join')
+        node.create_subscription(String, '/run_info', lambda m: got.append(m.data), LATCHED_QOS)
+        end = time.monotonic() + timeout
+        while not got and time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=POLL_S)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+    if not got:
+        raise JoinError(f'no run answers at {address}: nothing on /run_info within {timeout:g} s (is `up --listen` '
+                        f'running there, and UDP port {address.rpartition(":")[2]} open to this host?)')
+    return json.loads(got[0])
+
+
+def check_ids(ids: list[int], info: dict[str, object]) -> None:
+    first, last = info['remote_ids']  # type: ignore[misc]
+    outside = [i for i in ids if not first <= i <= last]
+    if outside:
+        raise JoinError(f'--ids: MAP {outside[0]} is not one this run waits for from other hosts (it has '
+                        f'{info["maps"]} MAPs; {first}-{last} join from other hosts)')
+
+
+def join(address: str, ids: list[int], out: Path, agents_per_process: int, timeout: float) -> int:
+    """Fetch the run, start its agents `ids` here, and wait until they end (with the run, or on Ctrl-C)."""
+    host, domain = parse_address(address)
+    info = fetch_run_info(address, domain, timeout)
+    check_ids(ids, info)
+    env = ros_env(domain, address)
+    out.mkdir(parents=True, exist_ok=True)
+    params = write_params(out / 'agent_params.yaml', dict(info['agent_params']))  # type: ignore[arg-type]
+    (out / 'run.json').write_text(json.dumps({'domain_id': domain, 'discovery_server': address, 'join': address,
+                                              'maps': info['maps'], 'ids': ids}, indent=1))
+    logs = out / 'logs'
+    logs.mkdir(exist_ok=True)
+    groups = [ids[k:k + agents_per_process] for k in range(0, len(ids), agents_per_process)]
+    agents: list[ForkedAgent] = []
+    interrupted = False
+
+    def on_signal(signum: int, frame: object) -> None:
+        nonlocal interrupted
+        interrupted = True
+
+    old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        print(f'uav-flock agents: MAPs {ids[0]}-{ids[-1]} ({len(ids)}) in {len(groups)} processes join the run at '
+              f'{address} (ROS_DOMAIN_ID={domain}); logs in {logs}', flush=True)
+        start_agents(groups, params, env, logs, agents, lambda: interrupted)
+        write_pid_table(out / 'pids.json', {i: a.pid for g, a in zip(groups, agents) for i in g})
+        while not interrupted and any(a.poll() is None for a in agents):
+            time.sleep(POLL_S)
+    finally:
+        stop(agents)
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+    codes = [a.poll() for a in agents]
+    if interrupted:
+        print(f'uav-flock agents: interrupted; every agent process of this host ended', flush=True)
+        return 130
+    failed = [g[0] for g, c in zip(groups, codes) if c not in (0, None)]
+    print(f'uav-flock agents: the run ended; {len(groups) - len(failed)} of {len(groups)} processes ended cleanly'
+          + (f' (see {logs}/agents_<first id>.log for {failed})' if failed else ''), flush=True)
+    return 0 if not failed else 1
