@@ -1,0 +1,153 @@
+"""One run over three hosts: real network namespaces joined by veth pairs on a bridge, DDS over UDP only.
+
+The world (`up --listen`) runs in one namespace, two agent hosts (`agents --join`) in two others; each has
+its own network stack, so nothing passes by loopback or shared memory between them (the run's transport is
+UDPv4 only). The namespaces and links are removed at the end, also when the test fails.
+"""
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any, Iterator
+
+import pytest
+import yaml
+from helpers.runs import cli
+
+SUBNET = '10.231.7'
+HOSTS = {'world': 1, 'a': 2, 'b': 3}
+
+
+def ip(*args: str) -> None:
+    done = subprocess.run(['ip', *args], capture_output=True, text=True)
+    assert done.returncode == 0, f'ip {" ".join(args)}: {done.stderr.strip()}'
+
+
+@pytest.fixture
+def hosts() -> Iterator[dict[str, str]]:
+    """Three namespaces (world, a, b) on a bridge that lives in a fourth; {role: namespace}."""
+    if os.geteuid() != 0:
+        pytest.fail('this test makes network namespaces (ip netns add), which needs root; run the suite as root')
+    tag = f'uavf{os.getpid() % 100000}'
+    bridge, names = f'{tag}br', {role: f'{tag}{role}' for role in HOSTS}
+    made: list[str] = []
+    try:
+        ip('netns', 'add', bridge)
+        made.append(bridge)
+        ip('-n', bridge, 'link', 'add', 'br0', 'type', 'bridge')
+        ip('-n', bridge, 'link', 'set', 'br0', 'up')
+        for role, host in HOSTS.items():
+            ns = names[role]
+            ip('netns', 'add', ns)
+            made.append(ns)
+            ip('-n', ns, 'link', 'set', 'lo', 'up')
+            ip('-n', ns, 'link', 'add', 'eth0', 'type', 'veth', 'peer', 'name', f'p{role}', 'netns', bridge)
+            ip('-n', bridge, 'link', 'set', f'p{role}', 'master', 'br0', 'up')
+            ip('-n', ns, 'addr', 'add', f'{SUBNET}.{host}/24', 'dev', 'eth0')
+            ip('-n', ns, 'link', 'set', 'eth0', 'up')
+        yield names
+    finally:
+        for ns in reversed(made):
+            subprocess.run(['ip', 'netns', 'del', ns], capture_output=True)
+
+
+def in_ns(ns: str, *args: str, env: dict[str, str], out: Path) -> subprocess.Popen[str]:
+    """The CLI in a namespace, its output to a file (read while it runs)."""
+    return subprocess.Popen(['ip', 'netns', 'exec', ns, sys.executable, '-m', 'uav_flock_tools.cli', *args],
+                            stdout=open(out, 'w'), stderr=subprocess.STDOUT, text=True, env=env)
+
+
+def wait_for(path: Path, pattern: str, proc: subprocess.Popen[str], timeout: float) -> re.Match[str]:
+    """The first line of a growing output file that matches pattern; fails if the process ends first."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        m = re.search(pattern, path.read_text() if path.exists() else '', re.M)
+        if m:
+            return m
+        assert proc.poll() is None, f'ended before {pattern!r}:\n{path.read_text()}'
+        time.sleep(0.2)
+    raise AssertionError(f'no {pattern!r} within {timeout:g} s:\n{path.read_text()}')
+
+
+def small_scenario(paper_scenario_path: str, out: Path) -> Path:
+    """Two small clusters that 8 MAPs cover whole: what the formation must recover after losing 4 of 12."""
+    doc: dict[str, Any] = yaml.safe_load(Path(paper_scenario_path).read_text())
+    doc.pop('policies')  # the demand allocation
+    doc['users'] = {'clusters': [{'center': [-60.0, 40.0], 'spread': 8.0, 'size': 120},
+                                 {'center': [-20.0, 40.0], 'spread': 8.0, 'size': 120}]}
+    path = out / 'small.yaml'
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def start(hosts: dict[str, str], tmp_path: Path, env: dict[str, str], scenario: Path, duration: str,
+          here: int, a: str, b: str) -> tuple[subprocess.Popen[str], list[subprocess.Popen[str]]]:
+    world = in_ns(hosts['world'], 'up', '--scenario', str(scenario), '--maps', '12', '--duration', duration,
+                  '--listen', f'{SUBNET}.1', '--agents-here', str(here), '--out', str(tmp_path / 'world'),
+                  env=env, out=tmp_path / 'world.out')
+    address = wait_for(tmp_path / 'world.out', r'--join (\S+)', world, 120).group(1)
+    joined = [in_ns(hosts[role], 'agents', '--join', address, '--ids', ids, '--out', str(tmp_path / role),
+                    env=env, out=tmp_path / f'{role}.out') for role, ids in (('a', a), ('b', b))]
+    return world, joined
+
+
+def end(procs: list[subprocess.Popen[str]]) -> None:
+    for p in procs:
+        if p.poll() is None:
+            p.terminate()
+    for p in procs:
+        try:
+            p.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def test_a_run_over_three_hosts_equals_sim(hosts: dict[str, str], tmp_path: Path, ros_env: dict[str, str],
+                                           paper_scenario_path: str) -> None:
+    scenario = small_scenario(paper_scenario_path, tmp_path)
+    world, joined = start(hosts, tmp_path, ros_env, scenario, '6', 4, '4-7', '8-11')
+    try:
+        assert world.wait(timeout=300) == 0, (tmp_path / 'world.out').read_text()
+        for role, p in zip('ab', joined):
+            assert p.wait(timeout=60) == 0, (tmp_path / f'{role}.out').read_text()
+    finally:
+        end([world, *joined])
+    assert cli('sim', '--scenario', str(scenario), '--maps', '12', '--duration', '6',
+               '--out', str(tmp_path / 'sim')).returncode == 0
+    for name in ('trajectory.csv', 'metrics.csv'):
+        assert (tmp_path / 'world' / name).read_bytes() == (tmp_path / 'sim' / name).read_bytes(), name
+    assert sorted(p.name for p in (tmp_path / 'a' / 'logs').iterdir()) == [f'agents_{i}.log' for i in range(4, 8)]
+
+
+def test_losing_a_host_by_kill_and_by_link_leaves_the_exact_alive_count_and_the_rest_recovers(
+        hosts: dict[str, str], tmp_path: Path, ros_env: dict[str, str], paper_scenario_path: str) -> None:
+    world, joined = start(hosts, tmp_path, ros_env, small_scenario(paper_scenario_path, tmp_path), '240', 8,
+                          '8,9', '10,11')
+    out = tmp_path / 'world.out'
+    try:
+        wait_for(out, r'^t = +10\.0 s', world, 180)
+        killed = subprocess.run(['ip', 'netns', 'exec', hosts['a'], sys.executable, '-m', 'uav_flock_tools.cli',
+                                 'kill', '--run', str(tmp_path / 'a'), '--ids', '8,9'],
+                                capture_output=True, text=True, env=ros_env)
+        assert killed.returncode == 0, killed.stderr
+        # No pid of host a is known here: DDS says when its participants are gone (their lease ends).
+        wait_for(out, r'alive = 10 ', world, 90)  # lockstep: the world waited for them, then went on
+        ip('-n', hosts['b'], 'link', 'set', 'eth0', 'down')  # host b falls off the network, its agents live on
+        cut = time.monotonic()
+        wait_for(out, r'alive = 8 ', world, 60)
+        print(f'host b dropped {time.monotonic() - cut:.1f} s after its link went down')
+        assert world.wait(timeout=300) == 0, out.read_text()
+    finally:
+        end([world, *joined])
+    metrics = [line.split(',') for line in (tmp_path / 'world' / 'metrics.csv').read_text().splitlines()[1:]]
+    alive = [int(float(row[4])) for row in metrics]
+    assert alive[0] == 12 and alive[-1] == 8 and min(alive) == 8, 'exactly the MAPs of the two hosts lost'
+    assert all(a >= b for a, b in zip(alive, alive[1:])) and alive[alive.index(10) - 1] == 12, \
+        'the kill took host a\'s two MAPs at once, and no other'
+    rc = float(metrics[-1][2])
+    assert rc >= 0.95, f'the 8 MAPs left cover the users again: R_c {rc:.3f} at the end'
