@@ -6,7 +6,6 @@ UDPv4 only). The namespaces and links are removed at the end, also when the test
 """
 from __future__ import annotations
 
-import os
 import re
 import subprocess
 import sys
@@ -17,42 +16,21 @@ from typing import Any, Iterator
 import pytest
 import yaml
 from helpers.runs import cli
+from uav_flock_tools import netns
 
 SUBNET = '10.231.7'
-HOSTS = {'world': 1, 'a': 2, 'b': 3}
-
-
-def ip(*args: str) -> None:
-    done = subprocess.run(['ip', *args], capture_output=True, text=True)
-    assert done.returncode == 0, f'ip {" ".join(args)}: {done.stderr.strip()}'
+HOSTS = ['world', 'a', 'b']  # at SUBNET.1, .2, .3
 
 
 @pytest.fixture
 def hosts() -> Iterator[dict[str, str]]:
-    """Three namespaces (world, a, b) on a bridge that lives in a fourth; {role: namespace}."""
-    if os.geteuid() != 0:
-        pytest.fail('this test makes network namespaces (ip netns add), which needs root; run the suite as root')
-    tag = f'uavf{os.getpid() % 100000}'
-    bridge, names = f'{tag}br', {role: f'{tag}{role}' for role in HOSTS}
-    made: list[str] = []
+    """Three hosts (world, a, b) at SUBNET.1-3; {role: namespace}."""
     try:
-        ip('netns', 'add', bridge)
-        made.append(bridge)
-        ip('-n', bridge, 'link', 'add', 'br0', 'type', 'bridge')
-        ip('-n', bridge, 'link', 'set', 'br0', 'up')
-        for role, host in HOSTS.items():
-            ns = names[role]
-            ip('netns', 'add', ns)
-            made.append(ns)
-            ip('-n', ns, 'link', 'set', 'lo', 'up')
-            ip('-n', ns, 'link', 'add', 'eth0', 'type', 'veth', 'peer', 'name', f'p{role}', 'netns', bridge)
-            ip('-n', bridge, 'link', 'set', f'p{role}', 'master', 'br0', 'up')
-            ip('-n', ns, 'addr', 'add', f'{SUBNET}.{host}/24', 'dev', 'eth0')
-            ip('-n', ns, 'link', 'set', 'eth0', 'up')
-        yield names
-    finally:
-        for ns in reversed(made):
-            subprocess.run(['ip', 'netns', 'del', ns], capture_output=True)
+        with netns.hosts(HOSTS, SUBNET) as names:
+            yield names
+    except netns.NetnsError as exc:
+        pytest.fail(f'this test runs hosts as network namespaces, which cannot be made here: {exc}; '
+                    'run the suite as root')
 
 
 def in_ns(ns: str, *args: str, env: dict[str, str], out: Path) -> subprocess.Popen[str]:
@@ -137,7 +115,7 @@ def test_losing_a_host_by_kill_and_by_link_leaves_the_exact_alive_count_and_the_
         assert killed.returncode == 0, killed.stderr
         # No pid of host a is known here: DDS says when its participants are gone (their lease ends).
         wait_for(out, r'alive = 10 ', world, 90)  # lockstep: the world waited for them, then went on
-        ip('-n', hosts['b'], 'link', 'set', 'eth0', 'down')  # host b falls off the network, its agents live on
+        netns.ip('-n', hosts['b'], 'link', 'set', 'eth0', 'down')  # host b falls off the network, its agents live on
         cut = time.monotonic()
         wait_for(out, r'alive = 8 ', world, 60)
         print(f'host b dropped {time.monotonic() - cut:.1f} s after its link went down')
