@@ -63,11 +63,18 @@ def small_scenario(paper_scenario_path: str, out: Path) -> Path:
 
 
 def start(hosts: dict[str, str], tmp_path: Path, env: dict[str, str], scenario: Path, duration: str,
-          here: int, a: str, b: str) -> tuple[subprocess.Popen[str], list[subprocess.Popen[str]]]:
+          here: int, a: str, b: str, refuse: bool = False) -> tuple[subprocess.Popen[str], list[subprocess.Popen[str]]]:
     world = in_ns(hosts['world'], 'up', '--scenario', str(scenario), '--maps', '12', '--duration', duration,
                   '--listen', f'{SUBNET}.1', '--agents-here', str(here), '--out', str(tmp_path / 'world'),
                   env=env, out=tmp_path / 'world.out')
     address = wait_for(tmp_path / 'world.out', r'--join (\S+)', world, 120).group(1)
+    if refuse:  # ids the run does not leave to other hosts: one line, exit 2, while the run waits on
+        wrong = subprocess.run(['ip', 'netns', 'exec', hosts['a'], sys.executable, '-m', 'uav_flock_tools.cli',
+                                'agents', '--join', address, '--ids', '11-12', '--out', str(tmp_path / 'wrong')],
+                               capture_output=True, text=True, env=env, timeout=120)
+        assert wrong.returncode == 2 and wrong.stderr.strip().splitlines() == [
+            'uav-flock: error: agents: --ids: MAP 12 is not one this run waits for from other hosts (it has 12 '
+            'MAPs; 4-11 join from other hosts)'], wrong.stderr
     joined = [in_ns(hosts[role], 'agents', '--join', address, '--ids', ids, '--out', str(tmp_path / role),
                     env=env, out=tmp_path / f'{role}.out') for role, ids in (('a', a), ('b', b))]
     return world, joined
@@ -88,7 +95,7 @@ def end(procs: list[subprocess.Popen[str]]) -> None:
 def test_a_run_over_three_hosts_equals_sim(hosts: dict[str, str], tmp_path: Path, ros_env: dict[str, str],
                                            paper_scenario_path: str) -> None:
     scenario = small_scenario(paper_scenario_path, tmp_path)
-    world, joined = start(hosts, tmp_path, ros_env, scenario, '6', 4, '4-7', '8-11')
+    world, joined = start(hosts, tmp_path, ros_env, scenario, '6', 4, '4-7', '8-11', refuse=True)
     try:
         assert world.wait(timeout=300) == 0, (tmp_path / 'world.out').read_text()
         for role, p in zip('ab', joined):

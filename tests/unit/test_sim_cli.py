@@ -71,6 +71,14 @@ def test_same_seed_same_run(tmp_path: Path) -> None:
     (('up', '--seed', '0,1', '--out', '{folder}/run'), 'argument --seed: expected a non-negative integer'),
     (('replay', '{folder}', '--agent', '-1'), 'expected a non-negative integer'),
     (('replay', '{folder}', '--agent', '3', '--tolerance', '-0.5'), 'expected a non-negative finite number'),
+    (('up', '--listen', '192.0.2.77', '--out', '{folder}/run'), 'is not an address of this host'),
+    (('up', '--listen', 'myhost', '--out', '{folder}/run'), 'expected an IPv4 address'),
+    (('up', '--agents-here', '5', '--out', '{folder}/run'), 'give --listen'),
+    (('up', '--listen', '127.0.0.1', '--agents-here', '95', '--out', '{folder}/run'), 'the run has 90 MAPs'),
+    (('agents', '--join', 'myhost', '--ids', '3', '--out', '{folder}/run'), 'expected HOST:PORT'),
+    (('agents', '--join', '127.0.0.1:11900', '--ids', '5-3', '--out', '{folder}/run'), 'ranges low-high'),
+    (('agents', '--join', '127.0.0.1:11811', '--ids', '3', '--timeout', '1', '--out', '{folder}/run'),
+     'no run answers at 127.0.0.1:11811'),
 ])
 def test_a_user_mistake_is_one_line_and_exit_2(tmp_path: Path, args: tuple[str, ...], says: str) -> None:
     """Caught before any work starts: a bad --out found only at the end would lose the run."""

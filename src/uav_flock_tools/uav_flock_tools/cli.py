@@ -257,6 +257,10 @@ def cmd_up(args: argparse.Namespace) -> int:
         raise UsageError('up: --rate sets the pace of --sync realtime; lockstep runs as fast as it can')
     if args.listen is not None:
         listen_address(args.listen)
+    if args.agents_here is not None and args.listen is None:
+        raise UsageError('up: --agents-here leaves MAPs to agents of other hosts: give --listen ADDRESS for them')
+    if args.agents_here is not None and args.agents_here > s.maps:
+        raise UsageError(f'up: --agents-here {args.agents_here}: the run has {s.maps} MAPs')
     out = run_folder(Path(args.out) if args.out else default_out('up'), 'up: --out', args.replace)
     try:
         code, result = launcher.up(path.resolve(), s, out.resolve(), args.agents_per_process, args.domain_id,
@@ -289,10 +293,16 @@ def listen_address(host: str) -> None:
 def cmd_agents(args: argparse.Namespace) -> int:
     """Agent processes on this host that join a run listening on another (`up --listen`)."""
     from . import join
+    try:
+        join.parse_address(args.join)
+    except join.JoinError as exc:
+        raise UsageError(f'agents: {exc}') from None
     out = run_folder(Path(args.out) if args.out else default_out('agents'), 'agents: --out', args.replace)
     try:
         return join.join(args.join, args.ids, out.resolve(), args.agents_per_process, args.timeout)
     except join.JoinError as exc:
+        if out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # nothing joined: leave no empty folder behind
         raise UsageError(f'agents: {exc}') from None
 
 

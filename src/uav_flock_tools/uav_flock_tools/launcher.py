@@ -428,11 +428,7 @@ def plan(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process:
     """
     if record and (run / 'bag').exists():
         raise FileExistsError(f'{run / "bag"} exists already: give a new --out folder')
-    here = scenario.maps if agents_here is None else agents_here
-    if here > scenario.maps:
-        raise ValueError(f'--agents-here {here}: the run has {scenario.maps} MAPs')
-    if agents_here is not None and listen is None:
-        raise ValueError('--agents-here leaves MAPs to agents on other hosts: give --listen ADDRESS for them to join')
+    here = scenario.maps if agents_here is None else min(agents_here, scenario.maps)
     groups = [list(range(first, min(first + agents_per_process, here))) for first in range(0, here, agents_per_process)]
     processes = len(groups) + 1 + int(record)
     use_server = listen is not None or discovery == 'server' or (
