@@ -131,8 +131,10 @@ def test_losing_a_host_by_kill_and_by_link_leaves_the_exact_alive_count_and_the_
         end([world, *joined])
     metrics = [line.split(',') for line in (tmp_path / 'world' / 'metrics.csv').read_text().splitlines()[1:]]
     alive = [int(float(row[4])) for row in metrics]
-    assert alive[0] == 12 and alive[-1] == 8 and min(alive) == 8, 'exactly the MAPs of the two hosts lost'
-    assert all(a >= b for a, b in zip(alive, alive[1:])) and alive[alive.index(10) - 1] == 12, \
-        'the kill took host a\'s two MAPs at once, and no other'
+    # Each agent process is its own DDS participant: the two of a host may be dropped a step apart.
+    dropped = sorted(int(i) for ids in re.findall(r'dropped MAPs \[([\d, ]+)\]', out.read_text())
+                     for i in ids.split(','))
+    assert dropped == [8, 9, 10, 11], f'exactly the MAPs of hosts a and b were dropped: {dropped}'
+    assert alive[0] == 12 and alive[-1] == 8 and 10 in alive and all(a >= b for a, b in zip(alive, alive[1:]))
     rc = float(metrics[-1][2])
     assert rc >= 0.95, f'the 8 MAPs left cover the users again: R_c {rc:.3f} at the end'
