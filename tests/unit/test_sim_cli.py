@@ -53,6 +53,8 @@ def test_same_seed_same_run(tmp_path: Path) -> None:
     (('sim', '--out', '{file}', '--duration', '1'), 'exists and is not a folder'),
     (('sim', '--out', '{file}/run', '--duration', '1'), 'cannot create'),
     (('up', '--out', '{file}/run', '--duration', '1'), 'cannot create'),
+    (('run', '--out', '{file}/run'), 'cannot create'),
+    (('run', '--batch', '--out', '{file}/run'), 'cannot create'),
     (('paper', '--out', '{folder}/figures', '--docs', '{file}/results.md'), 'exists and is not a folder'),
     (('sim', '--scenario', '{folder}'), 'cannot read the scenario'),
     (('sim', '--scenario', sys.executable), 'not a text file'),

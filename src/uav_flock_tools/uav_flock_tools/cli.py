@@ -235,7 +235,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.batch:
         return cmd_sim(ns)
     ns.__dict__.update(maps=90, agents_per_process=RUN_AGENTS_PER_PROCESS, domain_id=None, discovery='auto',
-                       record=True, sync='lockstep', rate=1.0)
+                       record=True, sync='lockstep', rate=1.0, listen=None, agents_here=None)
     code = cmd_up(ns)
     bag_path = Path(ns.out) / 'bag'
     if (bag_path / 'metadata.yaml').exists():
