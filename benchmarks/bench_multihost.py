@@ -28,7 +28,7 @@ SUBNET = '10.231.9'
 
 
 def cli_in(ns: str, args: list[str], out: Path) -> subprocess.Popen[str]:
-    return subprocess.Popen(['ip', 'netns', 'exec', ns, sys.executable, '-m', 'uav_flock_tools.cli', *args],
+    return subprocess.Popen(netns.cli(ns, *args),
                             stdout=open(out, 'w'), stderr=subprocess.STDOUT, text=True)
 
 

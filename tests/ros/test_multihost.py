@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import re
 import subprocess
-import sys
 import time
 from pathlib import Path
 from typing import Any, Iterator
@@ -35,7 +34,7 @@ def hosts() -> Iterator[dict[str, str]]:
 
 def in_ns(ns: str, *args: str, env: dict[str, str], out: Path) -> subprocess.Popen[str]:
     """The CLI in a namespace, its output to a file (read while it runs)."""
-    return subprocess.Popen(['ip', 'netns', 'exec', ns, sys.executable, '-m', 'uav_flock_tools.cli', *args],
+    return subprocess.Popen(netns.cli(ns, *args),
                             stdout=open(out, 'w'), stderr=subprocess.STDOUT, text=True, env=env)
 
 
@@ -69,8 +68,8 @@ def start(hosts: dict[str, str], tmp_path: Path, env: dict[str, str], scenario: 
                   env=env, out=tmp_path / 'world.out')
     address = wait_for(tmp_path / 'world.out', r'--join (\S+)', world, 120).group(1)
     if refuse:  # ids the run does not leave to other hosts: one line, exit 2, while the run waits on
-        wrong = subprocess.run(['ip', 'netns', 'exec', hosts['a'], sys.executable, '-m', 'uav_flock_tools.cli',
-                                'agents', '--join', address, '--ids', '11-12', '--out', str(tmp_path / 'wrong')],
+        wrong = subprocess.run(netns.cli(hosts['a'], 'agents', '--join', address, '--ids', '11-12',
+                                         '--out', str(tmp_path / 'wrong')),
                                capture_output=True, text=True, env=env, timeout=120)
         assert wrong.returncode == 2 and wrong.stderr.strip().splitlines() == [
             'uav-flock: error: agents: --ids: MAP 12 is not one this run waits for from other hosts (it has 12 '
@@ -116,8 +115,7 @@ def test_losing_a_host_by_kill_and_by_link_leaves_the_exact_alive_count_and_the_
     out = tmp_path / 'world.out'
     try:
         wait_for(out, r'^t = +10\.0 s', world, 180)
-        killed = subprocess.run(['ip', 'netns', 'exec', hosts['a'], sys.executable, '-m', 'uav_flock_tools.cli',
-                                 'kill', '--run', str(tmp_path / 'a'), '--ids', '8,9'],
+        killed = subprocess.run(netns.cli(hosts['a'], 'kill', '--run', str(tmp_path / 'a'), '--ids', '8,9'),
                                 capture_output=True, text=True, env=ros_env)
         assert killed.returncode == 0, killed.stderr
         # No pid of host a is known here: DDS says when its participants are gone (their lease ends).

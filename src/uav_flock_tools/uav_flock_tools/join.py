@@ -38,9 +38,10 @@ def parse_address(text: str) -> tuple[str, int]:
     return host, domain
 
 
-def fetch_run_info(address: str, domain: int, timeout: float) -> dict[str, object]:
-    """The run's /run_info, read through its discovery server; JoinError if nothing answers in time."""
-    os.environ.update(ros_env(domain, address))
+def fetch_run_info(address: str, env: dict[str, str], timeout: float) -> dict[str, object]:
+    """The run's /run_info, read through its discovery server (env: the run's); JoinError if nothing answers
+    in time."""
+    os.environ.update(env)
     import rclpy
     from rclpy.signals import SignalHandlerOptions
     from std_msgs.msg import String
@@ -73,10 +74,10 @@ def check_ids(ids: list[int], info: dict[str, object]) -> None:
 
 def join(address: str, ids: list[int], out: Path, agents_per_process: int, timeout: float) -> int:
     """Fetch the run, start its agents `ids` here, and wait until they end (with the run, or on Ctrl-C)."""
-    host, domain = parse_address(address)
-    info = fetch_run_info(address, domain, timeout)
-    check_ids(ids, info)
+    _, domain = parse_address(address)
     env = ros_env(domain, address)
+    info = fetch_run_info(address, env, timeout)
+    check_ids(ids, info)
     out.mkdir(parents=True, exist_ok=True)
     params = write_params(out / 'agent_params.yaml', dict(info['agent_params']))  # type: ignore[arg-type]
     (out / 'run.json').write_text(json.dumps({'domain_id': domain, 'discovery_server': address, 'join': address,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import subprocess
+import sys
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -62,6 +63,11 @@ def hosts(roles: list[str], subnet: str) -> Iterator[dict[str, str]]:
     finally:
         for ns in reversed(made):
             subprocess.run(['ip', 'netns', 'del', ns], capture_output=True)
+
+
+def cli(ns: str, *args: str) -> list[str]:
+    """The command line of `uav-flock ARGS` run in host ns (this interpreter, this environment)."""
+    return ['ip', 'netns', 'exec', ns, sys.executable, '-m', 'uav_flock_tools.cli', *args]
 
 
 def counter(ns: str, interface: str, name: str) -> int:
