@@ -5,7 +5,7 @@ Layout n is layout n of `./uav-flock layouts --seed 0` (3 to 6 clusters); its cl
 in a direction drawn per layout; N = ceil(factor x LB); default policies, online survey, 90 s batch runs.
 Each variant runs on the same layouts and seeds, so the columns compare like with like:
   full           what ships
-  no hysteresis  MAPs change role as soon as their key leaves their role's share (ROLE_HYSTERESIS = 0)
+  fresh keys     every survey lays the roles' keys end to end afresh, not carried over (keys.carry)
   no transit     a MAP that changes role flies straight to it (en_route never routes)
   neither        both taken out
 """
@@ -20,21 +20,21 @@ from typing import Optional
 
 import numpy as np
 
-from uav_agent.core import modes
+from uav_agent.core import keys, modes
 from uav_flock_tools.layouts import draw, policy_sets
 from world_sim.batch import BatchSimulator
 from world_sim.core import layouts
 from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario
 
-VARIANTS = ('full', 'no hysteresis', 'no transit', 'neither')
+VARIANTS = ('full', 'fresh keys', 'no transit', 'neither')
 
 
 def run(job: tuple[str, Scenario]) -> tuple[Optional[float], Optional[float]]:
     """(time-averaged R_c, fraction of time connected) after first convergence; (None, None) if never."""
     variant, s = job
-    if variant in ('no hysteresis', 'neither'):
-        modes.ROLE_HYSTERESIS = 0.0
+    if variant in ('fresh keys', 'neither'):
+        keys.carry = lambda old, shares: keys.fresh(keys.end_to_end(shares))
     if variant in ('no transit', 'neither'):
         modes.en_route = lambda *args: modes.NO_GOAL
     m = BatchSimulator(s).run().metrics

@@ -107,7 +107,7 @@ def test_every_role_gets_its_share_of_any_id_range(k: int, seed: int, scale: flo
     roles = clusters.roles(P.d)
     n = max(1, math.ceil(scale * sum(roles.demand)))
     counts = role_counts(clusters, n)
-    shares = n * (np.array(roles.end) - np.array(roles.start))
+    shares = n * np.array(roles.share)
     assert np.all(np.abs(counts - shares) <= 2.5), (counts, shares)
 
 

@@ -134,9 +134,11 @@ class AgentNode(Node):
         if not np.all(np.isfinite(c.velocities)):
             self.reject('/clusters', 'non-finite velocities')
             return
-        if self.clusters is not None and c.version < self.clusters_version:
-            return  # an older picture arriving late
-        self.clusters = ClusterMap(c.xy, self.params.height, c.radii, c.active, c.velocities)
+        if self.clusters is not None and c.version <= self.clusters_version:
+            return  # the picture held, or an older one arriving late
+        # Roles carry their keys over from the survey before, as world_sim's batch twin does (ClusterMap).
+        carried = self.clusters if self.params.allocation == 'demand' else None
+        self.clusters = ClusterMap(c.xy, self.params.height, c.radii, c.active, c.velocities, previous=carried)
         self.clusters_version = c.version
         self.try_step()
 

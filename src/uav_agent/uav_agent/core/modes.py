@@ -18,6 +18,7 @@ from typing import Iterable, NamedTuple, Optional, Sequence
 import numpy as np
 from scipy.sparse.csgraph import minimum_spanning_tree
 
+from . import keys
 from .control import M0, M1, M2
 from .params import FlockParams
 
@@ -26,7 +27,6 @@ Edge = tuple[int, int]
 GOLDEN = 0.6180339887498949  # frac(id * GOLDEN) spreads any set of ids evenly over [0, 1)
 STALL_STEPS = 50             # steps without a 1 % gain after which a goal's coverage counts as stalled
 STALL_GAIN = 0.01
-ROLE_HYSTERESIS = 0.01       # key-space margin a role's share must move past before a MAP leaves it
 
 
 def key_of(agent_id: int) -> float:
@@ -73,7 +73,8 @@ class ClusterMap:
     """Cluster centroids known to every MAP (from an aerial survey, Section IV-B), with cached MSTs."""
 
     def __init__(self, centroids_xy: np.ndarray, height: float, radii: Optional[np.ndarray] = None,
-                 active: Optional[np.ndarray] = None, velocities: Optional[np.ndarray] = None) -> None:
+                 active: Optional[np.ndarray] = None, velocities: Optional[np.ndarray] = None,
+                 previous: Optional['ClusterMap'] = None) -> None:
         self.xy = np.asarray(centroids_xy, dtype=float).reshape(-1, 2)
         self.count = len(self.xy)
         # R_k: radius of the disc holding 95 % of cluster k's MSDs (m), from the survey; 0 if unknown.
@@ -90,6 +91,9 @@ class ClusterMap:
         self._roles = lru_cache(maxsize=None)(self._roles_uncached)
         self._hops = lru_cache(maxsize=None)(self._hops_uncached)
         self._axes: dict[Edge, tuple[np.ndarray, np.ndarray, float]] = {}
+        # The survey before this one, as this MAP heard it: roles carry their keys over from it (keys.carry).
+        # Dropped once this map's roles are laid out, so a MAP never holds more than two surveys.
+        self._previous = previous
 
     def mst(self, achieved: int) -> tuple[Edge, ...]:
         """Edges (a < b) of the minimum spanning tree T_c over the achieved clusters that exist, by centroid
@@ -166,7 +170,7 @@ class ClusterMap:
         return (0.0, length) if ra + rb >= length else (ra, length - rb)
 
     def roles(self, d: float) -> 'Roles':
-        """Every cluster and every edge of the MST over all clusters, with its demand in MAPs."""
+        """Every cluster and every edge of the MST over all clusters, with its demand in MAPs and its keys."""
         return self._roles(float(d))
 
     def _roles_uncached(self, d: float) -> 'Roles':
@@ -180,32 +184,48 @@ class ClusterMap:
         weights = np.array(demand)
         if not np.any(self.radii > 0):  # nothing known of the clusters' extent: an equal share each, no relays
             weights = np.r_[[float(self.live >> k & 1) for k in range(self.count)], np.zeros(len(edges))]
-        if not weights.sum() > 0:  # no cluster exists (none has arrived yet, or all have left)
-            return Roles(edges, tuple(demand), (0.0,) * len(weights), (0.0,) * len(weights))
+        ids: list[keys.RoleId] = [*range(self.count), *edges]
+        before = self._previous.roles(d).pieces if self._previous is not None else ()
+        self._previous = None
+        if not weights.sum() > 0:  # no cluster exists (none has arrived yet, or all have left): keep the keys
+            return Roles(edges, tuple(demand), (0.0,) * len(weights), before)
         bounds = np.cumsum(weights) / weights.sum()
         starts = np.r_[0.0, bounds[:-1]]
-        return Roles(edges, tuple(demand), tuple(starts), tuple(bounds))
+        share = tuple(float(b - a) for a, b in zip(starts, bounds))
+        if before:
+            pieces = keys.carry(before, dict(zip(ids, share)))
+        else:
+            pieces = keys.fresh(zip(ids, starts.tolist(), bounds.tolist()))
+        return Roles(edges, tuple(demand), share, pieces)
 
 
 class Roles(NamedTuple):
-    """Roles 0..K-1 serve cluster k; role K + j relays on edges[j]. Role i owns keys [start_i, end_i)."""
+    """Roles 0..K-1 serve cluster k; role K + j relays on edges[j]. Role i owns the keys of its pieces of
+    [0, 1), share[i] in all: end to end at the first survey, carried across later ones (keys.carry)."""
 
     edges: tuple[Edge, ...]
     demand: tuple[float, ...]   # MAPs each role needs (a lattice of spacing d over the disc, a chain over the gap)
-    start: tuple[float, ...]
-    end: tuple[float, ...]
+    share: tuple[float, ...]
+    pieces: tuple[keys.Piece, ...]
+
+    def index(self, role: keys.RoleId) -> int:
+        """Role number of a cluster id or an edge."""
+        return role if isinstance(role, int) else len(self.demand) - len(self.edges) + self.edges.index(role)
 
     def of(self, key: float) -> int:
-        """The role whose share holds key (never an empty one)."""
-        i = bisect.bisect_right(self.end, key)
-        while i < len(self.end) - 1 and self.end[i] <= self.start[i]:
-            i += 1
-        return min(i, len(self.end) - 1)
+        """The role whose piece holds key."""
+        i = bisect.bisect_right(self.pieces, key, key=lambda p: p[0])
+        return self.index(self.pieces[max(i - 1, 0)][2])
 
     def place(self, key: float, role: int) -> float:
-        """Where in its role's share key lies, 0..1: a relay's position along its gap."""
-        width = self.end[role] - self.start[role]
-        return float(np.clip((key - self.start[role]) / width, 0.0, 1.0)) if width > 0 else 0.5
+        """Where among its role's keys key lies, 0..1: a relay's position along its gap."""
+        mine = [(lo, hi) for lo, hi, r in self.pieces if self.index(r) == role]
+        if len(mine) == 1:
+            lo, hi = mine[0]
+            return float(np.clip((key - lo) / (hi - lo), 0.0, 1.0))
+        total = sum(hi - lo for lo, hi in mine)
+        below = sum(min(max(key - lo, 0.0), hi - lo) for lo, hi in mine)
+        return float(np.clip(below / total, 0.0, 1.0)) if total > 0 else 0.5
 
 
 class Memory(NamedTuple):
@@ -291,15 +311,6 @@ def served(mem: Memory, r_g: float, arrived: bool, fp: FlockParams) -> Memory:
     return mem
 
 
-def _held_role(mem: Memory, roles: 'Roles', clusters: ClusterMap) -> Optional[int]:
-    """The role a MAP holds now, if that role still exists (its share may have moved)."""
-    if mem.mode == M1 and mem.bridge in roles.edges:
-        return clusters.count + roles.edges.index(mem.bridge)
-    if mem.mode != M1 and mem.goal != NO_GOAL and clusters.live >> mem.goal & 1:
-        return mem.goal
-    return None
-
-
 def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
                   fp: FlockParams) -> Memory:
     """The demand allocation for one MAP at one step: its role from its key, then its mode.
@@ -311,11 +322,7 @@ def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, cluster
     if not clusters.live:  # no cluster to serve or bridge: hold where it is until one appears
         return mem if mem.goal == NO_GOAL and mem.mode == M2 else \
             Memory(mode=M2, achieved=mem.achieved, settled=mem.settled)
-    key = key_of(agent_id)
-    role = roles.of(key)
-    held = _held_role(mem, roles, clusters)
-    if held is not None and roles.start[held] - ROLE_HYSTERESIS <= key < roles.end[held] + ROLE_HYSTERESIS:
-        role = held  # the shares moved a little: keep the role rather than fly off and back
+    role = roles.of(key_of(agent_id))
     if role < clusters.count:
         if mem.goal != role or mem.mode == M1:
             mem = Memory(mode=M0, goal=role, achieved=mem.achieved, settled=mem.settled, transit=mem.settled)

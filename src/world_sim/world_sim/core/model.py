@@ -100,9 +100,11 @@ class World:
             self.label[present] = labels
             report = settle(self.reported, tracks)
             if self.reported is None or not report.same(self.reported):
-                self.clusters = ClusterMap(report.centroids, s.flock.height, report.radii, report.active,
-                                           report.velocities)
                 changed = self.reported is not None  # the first survey is what the MAPs start with
+                # Roles carry their keys over from the survey before, as each MAP does (modes.ClusterMap).
+                carried = self.clusters if changed and s.flock.allocation == 'demand' else None
+                self.clusters = ClusterMap(report.centroids, s.flock.height, report.radii, report.active,
+                                           report.velocities, previous=carried)
                 self.clusters_version += int(changed)
             self.tracks, self.reported = tracks, report
         elif s.survey == 'given':

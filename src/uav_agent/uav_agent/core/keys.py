@@ -1,0 +1,128 @@
+"""Which MAP keys each role owns: pieces of [0, 1), carried from one survey to the next.
+
+A MAP's role is the role whose piece holds its key (modes.key_of). Laid out afresh at every survey, the
+shares would sit end to end, and one cluster growing, merging or leaving would shift every boundary after
+it: most MAPs would change role at once and cross the field. Carried instead, a role that shrinks gives up
+only the keys it no longer needs, a role that grows takes only what it lacks, and every other MAP keeps
+its role (docs/dynamics.md, "Keys carried across surveys").
+
+Every MAP carries the layout itself, from the surveys it has heard; MAPs that heard the same surveys hold
+the same layout, with no message exchanged.
+"""
+from __future__ import annotations
+
+from typing import Iterable, Sequence, Union
+
+RoleId = Union[int, tuple[int, int]]  # a cluster's id, or an MST edge (a, b): what stays the same across surveys
+Piece = tuple[float, float, RoleId]   # keys [lo, hi) belong to the role
+SLIVER = 0.002  # a piece thinner than this is a fragment (a sixth of the key spacing of 80 MAPs); it joins a neighbour
+_EPS = 1e-12
+_FREE = None  # a piece given up and not yet taken
+
+
+def fresh(shares: Iterable[tuple[RoleId, float, float]]) -> tuple[Piece, ...]:
+    """The first layout: one piece [start, end) per role, end to end, empty roles left out."""
+    return tuple((lo, hi, role) for role, lo, hi in shares if hi > lo)
+
+
+def totals(pieces: Iterable[Piece]) -> dict[RoleId, float]:
+    """How much of [0, 1) each role holds."""
+    held: dict[RoleId, float] = {}
+    for lo, hi, role in pieces:
+        held[role] = held.get(role, 0.0) + hi - lo
+    return held
+
+
+def carry(old: Sequence[Piece], shares: dict[RoleId, float]) -> tuple[Piece, ...]:
+    """The layout after a survey: old, with each role's holding brought to its new share (shares, in role
+    order, summing to 1), moving as few keys as it can.
+
+    1. Neighbours trade at their common boundary: a growing role takes from a shrinking one it touches,
+       so a share that moves a little moves the boundary a little, as end to end.
+    2. A role still holding too much gives up its smallest pieces whole, then the high end of its largest.
+    3. A role still short takes a free piece next to one of its own, else the largest free piece.
+    4. Free keys left by rounding, and fragments thinner than SLIVER, join the piece before them.
+    """
+    if not old:
+        return fresh(end_to_end(shares))
+    held = totals(old)
+    spare = {role: held[role] - shares.get(role, 0.0) for role in held}
+    need = {role: share - held.get(role, 0.0) for role, share in shares.items()}
+    pieces = [list(p) for p in old]
+    for a, b in zip(pieces, pieces[1:]):  # 1.
+        if spare.get(a[2], 0.0) > _EPS and need.get(b[2], 0.0) > _EPS:
+            t = min(spare[a[2]], need[b[2]], a[1] - a[0])
+            a[1] -= t
+            b[0] -= t
+            spare[a[2]] -= t
+            need[b[2]] -= t
+        elif need.get(a[2], 0.0) > _EPS and spare.get(b[2], 0.0) > _EPS:
+            t = min(need[a[2]], spare[b[2]], b[1] - b[0])
+            a[1] += t
+            b[0] += t
+            need[a[2]] -= t
+            spare[b[2]] -= t
+    pieces = [p for p in pieces if p[1] - p[0] > _EPS]
+    for role, extra in spare.items():  # 2.
+        mine = sorted((p for p in pieces if p[2] == role), key=lambda p: (p[1] - p[0], p[0]))
+        for p in mine[:-1]:
+            if extra > _EPS and p[1] - p[0] <= extra + _EPS:
+                extra -= p[1] - p[0]
+                p[2] = _FREE
+        if extra > _EPS and mine:
+            largest = mine[-1]
+            cut = min(extra, largest[1] - largest[0])
+            pieces.append([largest[1] - cut, largest[1], _FREE])
+            largest[1] -= cut
+        pieces = _merged([p for p in pieces if p[1] - p[0] > _EPS])
+    for role, short in need.items():  # 3.
+        while short > _EPS:
+            free = [i for i, p in enumerate(pieces) if p[2] is _FREE]
+            if not free:
+                break
+            after = [i for i in free if i > 0 and pieces[i - 1][2] == role]
+            before = [i for i in free if i + 1 < len(pieces) and pieces[i + 1][2] == role]
+            i = (after + before)[0] if after or before else max(free, key=lambda j: (pieces[j][1] - pieces[j][0], -j))
+            lo, hi, _ = pieces[i]
+            t = min(short, hi - lo)
+            if i in after or i not in before:  # grow from the role's piece below it (or from the low end)
+                parts = [[lo, lo + t, role], [lo + t, hi, _FREE]]
+            else:
+                parts = [[lo, hi - t, _FREE], [hi - t, hi, role]]
+            pieces[i:i + 1] = [p for p in parts if p[1] - p[0] > _EPS]
+            pieces = _merged(pieces)
+            short -= t
+    largest: dict[RoleId, float] = {}
+    for lo, hi, role in pieces:
+        largest[role] = max(largest.get(role, 0.0), hi - lo)
+    out: list[list] = []
+    for p in pieces:  # 4.
+        fragment = p[2] is _FREE or (p[1] - p[0] < SLIVER and p[1] - p[0] < largest[p[2]])
+        if fragment and out:
+            out[-1][1] = p[1]
+        else:
+            out.append(p)
+    if out and out[0][2] is _FREE and len(out) > 1:
+        out[1][0] = out[0][0]
+        out.pop(0)
+    return tuple((lo, hi, role) for lo, hi, role in _merged(out))
+
+
+def end_to_end(shares: dict[RoleId, float]) -> list[tuple[RoleId, float, float]]:
+    """(role, start, end) of shares laid end to end in role order, as `fresh` takes them."""
+    at, out = 0.0, []
+    for role, share in shares.items():
+        out.append((role, at, at + share))
+        at += share
+    return out
+
+
+def _merged(pieces: list[list]) -> list[list]:
+    """Pieces in key order, neighbours of one role (or both free) joined."""
+    out: list[list] = []
+    for p in sorted(pieces, key=lambda p: p[0]):
+        if out and out[-1][2] == p[2] and abs(out[-1][1] - p[0]) <= _EPS:
+            out[-1][1] = p[1]
+        else:
+            out.append(list(p))
+    return out
