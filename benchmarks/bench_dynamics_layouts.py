@@ -1,6 +1,7 @@
 """A drifting cluster on random layouts, with the adaptation mechanisms of docs/dynamics.md taken out one by one.
 
-Run: ./uav-flock exec python benchmarks/bench_dynamics_layouts.py [--layouts 20 --seeds 2 --speed 2 --factor 1.5]
+Run: ./uav-flock exec python benchmarks/bench_dynamics_layouts.py [--layouts 20 --seeds 2 --speed 2 --factor 1.5
+     --variants full,fresh keys,no transit,neither]
 Layout n is layout n of `./uav-flock layouts --seed 0` (3 to 6 clusters); its cluster 0 drifts at --speed m/s
 in a direction drawn per layout; N = ceil(factor x LB); default policies, online survey, 90 s batch runs.
 Each variant runs on the same layouts and seeds, so the columns compare like with like:
@@ -51,7 +52,12 @@ def main() -> int:
     ap.add_argument('--seeds', type=int, default=2, help='seeds per layout (default: 2)')
     ap.add_argument('--speed', type=float, default=2.0, help='drift speed of cluster 0, m/s (default: 2)')
     ap.add_argument('--factor', type=float, default=1.5, help='MAPs as a multiple of the floor LB (default: 1.5)')
+    ap.add_argument('--variants', default=','.join(VARIANTS),
+                    help=f'comma-separated, of: {", ".join(VARIANTS)} (default: all)')
     args = ap.parse_args()
+    variants = [v.strip() for v in args.variants.split(',') if v.strip()]
+    if not variants or any(v not in VARIANTS for v in variants):
+        ap.error(f'--variants: choose from {", ".join(VARIANTS)}')
     if args.layouts < 1 or args.seeds < 1 or not args.speed >= 0 or not args.factor > 0:
         ap.error('--layouts and --seeds must be at least 1, --speed non-negative, --factor positive')
     paper = load_scenario('paper')
@@ -66,8 +72,8 @@ def main() -> int:
         for seed in range(args.seeds):
             s = dataclasses.replace(lay, clusters=clusters, maps=maps, seed=seed, duration=90.0, flock=flock,
                                     survey='online')
-            jobs += [(variant, s) for variant in VARIANTS]
-    print(f'{len(jobs)} runs: {args.layouts} layouts x {args.seeds} seeds x {len(VARIANTS)} variants', flush=True)
+            jobs += [(variant, s) for variant in variants]
+    print(f'{len(jobs)} runs: {args.layouts} layouts x {args.seeds} seeds x {len(variants)} variants', flush=True)
     t0 = time.perf_counter()
     results: list[tuple[Optional[float], Optional[float]]] = []
     with ProcessPoolExecutor(max_workers=2, max_tasks_per_child=1) as pool:  # a fresh process per variant
@@ -79,7 +85,7 @@ def main() -> int:
     print('| variant | runs converged | time-averaged R_c after convergence (mean) | time connected after it '
           '(mean, worst run) | runs connected ≥ 95 % of the time |')
     print('|---|---|---|---|---|')
-    for variant in VARIANTS:
+    for variant in variants:
         mine = [r for (v, _), r in zip(jobs, results) if v == variant]
         ok = [r for r in mine if r[0] is not None]
         rc = [r[0] for r in ok]
