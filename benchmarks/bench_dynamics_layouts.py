@@ -1,14 +1,16 @@
 """A drifting cluster on random layouts, with the adaptation mechanisms of docs/dynamics.md taken out one by one.
 
 Run: ./uav-flock exec python benchmarks/bench_dynamics_layouts.py [--layouts 20 --seeds 2 --speed 2 --factor 1.5
-     --variants full,fresh keys,no transit,neither]
+     --variants full,no swing,fresh keys,no transit,neither]
 Layout n is layout n of `./uav-flock layouts --seed 0` (3 to 6 clusters); its cluster 0 drifts at --speed m/s
 in a direction drawn per layout; N = ceil(factor x LB); default policies, online survey, 90 s batch runs.
 Each variant runs on the same layouts and seeds, so the columns compare like with like:
   full           what ships
+  no swing       a relay whose edge is swapped for one sharing a cluster flies along the tree, like any other
+                 MAP changing role (modes.pivot never swings)
   fresh keys     every survey lays the roles' keys end to end afresh, not carried over (keys.carry)
   no transit     a MAP that changes role flies straight to it (en_route never routes)
-  neither        both taken out
+  neither        carried keys and transit both taken out (relays still swing)
 """
 from __future__ import annotations
 
@@ -28,7 +30,7 @@ from world_sim.core import layouts
 from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario
 
-VARIANTS = ('full', 'fresh keys', 'no transit', 'neither')
+VARIANTS = ('full', 'no swing', 'fresh keys', 'no transit', 'neither')
 
 
 def run(job: tuple[str, Scenario]) -> tuple[Optional[float], Optional[float]]:
@@ -38,6 +40,8 @@ def run(job: tuple[str, Scenario]) -> tuple[Optional[float], Optional[float]]:
         keys.carry = lambda old, shares: keys.fresh(keys.end_to_end(shares))
     if variant in ('no transit', 'neither'):
         modes.en_route = lambda *args: modes.NO_GOAL
+    if variant == 'no swing':
+        modes.pivot = lambda *args: None
     m = BatchSimulator(s).run().metrics
     ok = (m[:, 2] >= 0.95) & (m[:, 3] > 0)
     if not ok.any():

@@ -12,7 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from uav_agent.core.control import M0, M1, M2
-from uav_agent.core.modes import NO_GOAL, ClusterMap, Memory, demand_switch, key_of, mode_switch, reference
+from uav_agent.core.modes import (NO_GOAL, ClusterMap, Memory, demand_switch, en_route, key_of, mode_switch, pivot,
+                                  reference, swing_place)
 from uav_agent.core.params import FlockParams
 from world_sim.batch import BatchSimulator
 from world_sim.core.crowd import center_at
@@ -159,6 +160,61 @@ def test_a_map_in_transit_to_a_new_role_flies_along_the_tree() -> None:
     assert np.allclose(first_flight.target[:2], xy[2]), 'before it ever settled it flies straight, as always'
     near_2 = reference(moving, 7, np.array([160.0, 0.0, 20.0]), np.zeros((0, 3)), [], clusters, fp)
     assert np.allclose(near_2.target[:2], xy[2]), 'once its goal is the nearest cluster it flies to it'
+
+
+def test_relays_whose_edge_leaves_the_tree_swing_about_the_cluster_it_shares_with_the_new_one() -> None:
+    """Cluster 2 drifts until the tree swaps edge (1, 2) for (0, 2): each relay of (1, 2) that is given
+    (0, 2) keeps its place from cluster 2, so the chain swings about 2 and its far end slides along (0, 1)."""
+    fp, n = FlockParams(), 150
+    radii = np.full(3, 25.0)
+    before = ClusterMap(np.array([[0.0, 0.0], [150.0, 0.0], [200.0, 120.0]]), fp.height, radii)
+    after = ClusterMap(np.array([[0.0, 0.0], [150.0, 0.0], [60.0, 140.0]]), fp.height, radii, previous=before)
+    assert before.roles(fp.d).edges == ((0, 1), (1, 2)) and after.roles(fp.d).edges == ((0, 1), (0, 2))
+    old, new = role_ids(before, n, fp), role_ids(after, n, fp)
+    swung = [i for i in range(n) if old[i] == (1, 2) and new[i] == (0, 2)]
+    assert len(swung) >= 3, 'the new edge takes the keys of the one that left'
+    a, b = after.xy[1], after.xy[2]  # where the old edge runs now: cluster 2 has moved
+    length, rim = float(np.linalg.norm(b - a)), 25.0 - fp.d / 2
+    origin, u, _ = after.axis((0, 2))
+    start, stop = after.gap((0, 2), fp.d / 2)
+    far = 0
+    for i, f in zip(swung, np.linspace(0.0, 1.0, len(swung))):
+        at = a + (rim + f * (length - 2 * rim)) * (b - a) / length  # f of the way along the old gap from 1
+        q = np.array([*at, fp.height])
+        settled = Memory(mode=M1, goal=1, bridge=(1, 2), settled=True)
+        p, g = pivot(settled, q, (0, 2), after, fp)
+        assert p == 2 and abs(g - (1.0 - f)) < 1e-6, 'its place along the old gap, counted from cluster 2'
+        place = swing_place((p, g), (0, 2), after, fp)
+        assert abs(place - (stop - g * (stop - start))) < 1e-6, 'the same place along the new gap from 2'
+        mem = demand_switch(settled, i, 0.0, q, after, fp)
+        assert mem.mode == M1 and mem.bridge == (0, 2)
+        if np.linalg.norm(origin + u * place - at) <= fp.d:
+            assert mem.swing is None, 'already at its new place: nothing to swing'
+            continue
+        far += 1
+        assert mem.swing == (p, g)
+        assert en_route(mem, q, after, fp) == NO_GOAL, 'a swinging relay flies straight to its new place'
+        ref = reference(mem, i, q, np.zeros((0, 3)), [], after, fp)
+        assert np.allclose((ref.q1[:2] + ref.q2[:2]) / 2, origin + u * place), 'it aims there'
+    assert far >= 2
+    there = after.xy[0] + (after.xy[2] - after.xy[0]) * 0.5
+    done = Memory(mode=M1, goal=0, bridge=(0, 2), settled=True, swing=(2, 0.5))
+    assert demand_switch(done, swung[0], 0.0, np.array([*there, fp.height]), after, fp).swing is None, \
+        'at its new place the swing ends and the chain rule takes over'
+
+
+def test_only_a_settled_relay_whose_edges_share_one_cluster_swings() -> None:
+    fp = FlockParams()
+    clusters = ClusterMap(np.array([[0.0, 0.0], [150.0, 0.0], [60.0, 140.0], [300.0, 50.0]]), fp.height,
+                          np.full(4, 25.0))
+    q = np.array([75.0, 0.0, fp.height])
+    settled = Memory(mode=M1, goal=0, bridge=(0, 1), settled=True)
+    assert pivot(settled, q, (0, 2), clusters, fp) == (0, pytest.approx(0.5))
+    assert pivot(settled, q, (2, 3), clusters, fp) is None, 'no cluster in common: it flies along the tree'
+    assert pivot(settled._replace(settled=False), q, (0, 2), clusters, fp) is None, 'first out: no chain yet'
+    assert pivot(Memory(mode=M0, goal=0, settled=True), q, (0, 2), clusters, fp) is None, 'a server'
+    gone = ClusterMap(clusters.xy, fp.height, np.full(4, 25.0), active=np.array([True, False, True, True]))
+    assert pivot(settled, q, (0, 2), gone, fp) is None, 'its old edge ended with its cluster: nothing to swing'
 
 
 def role_ids(clusters: ClusterMap, n: int, fp: FlockParams) -> list[Any]:

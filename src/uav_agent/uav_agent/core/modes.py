@@ -232,7 +232,8 @@ class Memory(NamedTuple):
     """What a MAP carries from step to step: its mode M_i, goal g_c^i, known achieved goals and bridge,
     and (demand allocation) the best coverage of its goal so far, the steps since it last grew, and
     whether it has reached its role's place once, and whether it is on its way to a new role since
-    (transit: a role change after settling, flown along the tree)."""
+    (transit: a role change after settling, flown along the tree); a relay whose edge left the tree for
+    one with a cluster in common swings about that cluster (swing: the pivot and its place along the gap)."""
 
     mode: int = M0
     goal: int = NO_GOAL
@@ -242,6 +243,7 @@ class Memory(NamedTuple):
     flat: int = 0
     settled: bool = False
     transit: bool = False
+    swing: Optional[tuple[int, float]] = None
 
 
 def mode_switch(mem: Memory, n_users: int, goal_coverage: float, q: np.ndarray,
@@ -337,10 +339,53 @@ def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, cluster
     edge = roles.edges[role - clusters.count]
     if mem.mode != M1 or mem.bridge != edge:
         mem = Memory(mode=M1, goal=edge[0], achieved=mem.achieved, bridge=edge, settled=mem.settled,
-                     transit=mem.settled)
+                     transit=mem.settled, swing=pivot(mem, q, edge, clusters, fp))
     if (mem.transit or not mem.settled) and clusters.segment_distance(q, edge) <= fp.d:
         mem = mem._replace(settled=True, transit=False)
+    if mem.swing is not None:
+        a, u, _ = clusters.axis(edge)
+        if float(np.linalg.norm(a + u * swing_place(mem.swing, edge, clusters, fp) - np.asarray(q)[:2])) <= fp.d:
+            mem = mem._replace(swing=None)
     return mem
+
+
+def _gap_from(end: int, edge: Edge, clusters: ClusterMap, fp: FlockParams) -> tuple[float, float, float]:
+    """(edge length, start, end of its gap), in m from the centre of its cluster `end`."""
+    start, stop = clusters.gap(edge, fp.d / 2)
+    length = clusters.axis(edge)[2]
+    return (length, start, stop) if edge[0] == end else (length, length - stop, length - start)
+
+
+def pivot(mem: Memory, q: np.ndarray, edge: Edge, clusters: ClusterMap, fp: FlockParams) -> Optional[tuple[int, float]]:
+    """The swing a relay takes to edge: the cluster its old edge shares with it, and the relay's place along
+    the old gap from that cluster (0..1); None if it was not settled on an edge that shares exactly one.
+
+    When a drifting cluster makes another edge shorter, the tree swaps an edge (P, O) for (P, N), and (O, N)
+    stays in it. Each relay keeping its place from P swings the chain about P: those near P barely move, and
+    the far end slides from O to N along the (O, N) chain, so P's side of the tree never loses the rest
+    (docs/dynamics.md, "Swinging chains"). Flown to the new edge one by one, they would cut it off until
+    the new chain was complete.
+    """
+    old = mem.bridge
+    if mem.mode != M1 or old is None or not mem.settled or not all(clusters.live >> k & 1 for k in old):
+        return None
+    shared = set(old) & set(edge)
+    if len(shared) != 1:
+        return None
+    p = shared.pop()
+    length, lo, hi = _gap_from(p, old, clusters, fp)
+    a, u, _ = clusters.axis(old)
+    along = float(np.dot(np.asarray(q, dtype=float)[:2] - a, u))
+    from_p = along if old[0] == p else length - along
+    return p, float(np.clip((from_p - lo) / max(hi - lo, 1e-9), 0.0, 1.0))
+
+
+def swing_place(swing: tuple[int, float], edge: Edge, clusters: ClusterMap, fp: FlockParams) -> float:
+    """Where along edge (m from its first centre) a swinging relay aims: its old place, from the pivot."""
+    p, f = swing
+    length, lo, hi = _gap_from(p, edge, clusters, fp)
+    from_p = lo + f * (hi - lo)
+    return from_p if edge[0] == p else length - from_p
 
 
 def decide(mem: Memory, agent_id: int, n_users: int, cluster_coverage: np.ndarray, q: np.ndarray,
@@ -462,7 +507,7 @@ def en_route(mem: Memory, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) 
     tree it passes clusters and relay chains. Roles never change while the clusters stand still, so then
     nothing is ever in transit.
     """
-    if fp.allocation != 'demand' or not mem.transit or mem.goal == NO_GOAL:
+    if fp.allocation != 'demand' or not mem.transit or mem.goal == NO_GOAL or mem.swing is not None:
         return NO_GOAL
     if mem.mode == M1 and mem.bridge is not None:
         if clusters.segment_distance(q, mem.bridge) <= fp.d:
@@ -507,7 +552,8 @@ def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told
     if mem.mode == M1 and mem.bridge is not None:
         va, vb = clusters.velocities[mem.bridge[0]], clusters.velocities[mem.bridge[1]]
         if fp.allocation == 'demand':
-            place = relay_place(agent_id, q, mem.bridge, nbr_q, told, clusters, fp)
+            place = swing_place(mem.swing, mem.bridge, clusters, fp) if mem.swing is not None else \
+                relay_place(agent_id, q, mem.bridge, nbr_q, told, clusters, fp)
             q1, q2 = relay_slot(place, mem.bridge, clusters, fp)
             # The slot moves as its point of the edge does: at the velocity interpolated between the ends.
             length = clusters.axis(mem.bridge)[2]
