@@ -360,11 +360,11 @@ def pivot(mem: Memory, q: np.ndarray, edge: Edge, clusters: ClusterMap, fp: Floc
     """The swing a relay takes to edge: the cluster its old edge shares with it, and the relay's place along
     the old gap from that cluster (0..1); None if it was not settled on an edge that shares exactly one.
 
-    When a drifting cluster makes another edge shorter, the tree swaps an edge (P, O) for (P, N), and (O, N)
-    stays in it. Each relay keeping its place from P swings the chain about P: those near P barely move, and
-    the far end slides from O to N along the (O, N) chain, so P's side of the tree never loses the rest
-    (docs/dynamics.md, "Swinging chains"). Flown to the new edge one by one, they would cut it off until
-    the new chain was complete.
+    When a drifting cluster changes the tree, relays of an edge that left it take the keys of one that joined.
+    Keeping its place from the shared cluster P and flying straight there, each relay lands on the new edge
+    about where the chain needs it, and those near P barely move: the new chain forms along its whole length
+    at once, where flying along the tree (through P's centre and out) would grow it from one end, one relay
+    at a time (docs/dynamics.md, "Swinging chains").
     """
     old = mem.bridge
     if mem.mode != M1 or old is None or not mem.settled or not all(clusters.live >> k & 1 for k in old):
