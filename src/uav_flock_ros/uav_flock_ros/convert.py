@@ -108,3 +108,19 @@ def sensing(header: Header, map_id: int, step: int, q: np.ndarray, p: np.ndarray
                    clusters_version=int(clusters_version),
                    neighbors=NeighborList(id=int(map_id), ids=np.asarray(neighbour_ids, np.uint32).tolist(),
                                           distances=np.linalg.norm(neighbour_q - q, axis=1).tolist()))
+
+
+def stamped_id_step(raw: bytes) -> tuple[int, int]:
+    """(id, step) of a serialized AgentState or Command, read from its CDR bytes without deserializing.
+
+    Both begin with a Header, then `uint32 id` and `uint64 step`; the recorder reads these two fields of
+    every MAP's message at each step, and a full deserialization costs about ten times more.
+    """
+    order = 'little' if raw[1] & 1 else 'big'  # encapsulation kind: CDR_LE or CDR_BE
+    body = memoryview(raw)[4:]                  # CDR alignment counts from after the 4-byte encapsulation
+    at = 8 + 4 + int.from_bytes(body[8:12], order)  # stamp (sec, nanosec), frame_id's length and characters
+    at += -at % 4
+    map_id = int.from_bytes(body[at:at + 4], order)
+    at += 4
+    at += -at % 8
+    return map_id, int.from_bytes(body[at:at + 8], order)

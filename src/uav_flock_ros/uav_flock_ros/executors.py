@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import signal
 import sys
+from contextlib import contextmanager
 from types import FrameType
-from typing import Any, Callable, Optional, TypeVar
+from typing import Any, Callable, Iterator, Optional, TypeVar
 
 import rclpy
 from rclpy.exceptions import ParameterException
@@ -36,6 +37,26 @@ class StopSignals:
 
     def _on_signal(self, signum: int, frame: Optional[FrameType]) -> None:
         self.received = True
+
+
+@contextmanager
+def signals_deferred() -> Iterator[None]:
+    """SIGINT and SIGTERM held back until the block ends, then handled as they would have been.
+
+    A handler that raises (a command line's KeyboardInterrupt) half-way through an rclpy constructor
+    leaves an object whose __del__ then prints rclpy's own traceback ("Exception ignored in
+    Executor.__del__ ... no attribute '_sigint_gc'"). Build rclpy's context, nodes and executors in here.
+    """
+    caught: list[int] = []
+    held = (signal.SIGINT, signal.SIGTERM)
+    before = {sig: signal.signal(sig, lambda signum, frame: caught.append(signum)) for sig in held}
+    try:
+        yield
+    finally:
+        for sig, handler in before.items():
+            signal.signal(sig, handler)
+        if caught and callable(before[caught[0]]):
+            before[caught[0]](caught[0], None)
 
 
 def make_executor() -> Executor:

@@ -12,8 +12,13 @@ RECORDER_MAX_LAG_STEPS = 16
 STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=HISTORY_DEPTH,
                        reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Per-step traffic that must not be lost in lockstep: sensing, commands, association, metrics, events.
+# Transient-local: DDS matches a writer and a reader from each side on its own, and a reader may see a
+# writer (the recorder's "every topic matched", world_sim's "every MAP publishes commands") before that
+# writer sees the reader; a volatile writer sends what it publishes meanwhile to no one. A transient-local
+# one hands its kept samples to each transient-local reader as it matches it, so none is lost; a reader
+# takes a handed-over sample of a past step for the late copy it is.
 STEP_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=HISTORY_DEPTH,
-                      reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+                      reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Fixed for a run (users, clusters): latched.
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -241,6 +241,28 @@ def first_time(t: np.ndarray, ok: np.ndarray) -> Optional[float]:
     return float(t[bad[-1] + 1]) if len(bad) else float(t[0])
 
 
+def missing_commands(run: BagRun) -> Optional[dict[int, list[int]]]:
+    """Step -> MAPs whose command of that step the world used and the bag lacks; None for a realtime bag.
+
+    In lockstep the world uses the command of every MAP it sensed at step k and did not drop during k. The
+    recorder holds the run back until it has them, so only a writer that vanished first (a MAP SIGKILLed
+    by hand, a host gone) can leave one out. In realtime a MAP may skip steps: nothing says what was used.
+    """
+    if run.scenario.get('sync', 'lockstep') != 'lockstep':
+        return None
+    dropped: dict[int, set[int]] = defaultdict(set)
+    for step, ids, _ in run.failures:
+        dropped[step].update(ids)
+    commands = run.heard.get('cmd', {})
+    missing = {}
+    for k in run.metrics[:, 0].astype(int).tolist():
+        lost = set(run.association[k][0].tolist()) - dropped[k] - commands.get(k, set()) if k in run.association \
+            else set()
+        if lost:
+            missing[k] = sorted(lost)
+    return missing
+
+
 def summary(run: BagRun) -> dict[str, Any]:
     """The figures a reader of a run wants first."""
     m = run.metrics
@@ -257,6 +279,7 @@ def summary(run: BagRun) -> dict[str, Any]:
         'time_to_95_coverage_s': first_time(t, rc >= 0.95),
         'time_to_connectivity_s': first_time(t, lam2 > 0),
         'failures': [{'t_s': step * run.dt, 'ids': ids, 'cause': cause} for step, ids, cause in run.failures],
+        'missing_commands': missing_commands(run),
     }
 
 

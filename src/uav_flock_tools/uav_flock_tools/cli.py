@@ -273,7 +273,22 @@ def cmd_up(args: argparse.Namespace) -> int:
     m = result.metrics
     print(f'{s.maps} MAPs, seed {s.seed}: t = {m[-1, 1]:.1f} s, R_c = {100 * m[-1, 2]:.1f} %, '
           f'Fiedler = {m[-1, 3]:.4f}, alive = {int(m[-1, 4])}; results in {out}')
+    if args.record:
+        say_what_the_bag_lacks(out / 'bag')
     return code
+
+
+def say_what_the_bag_lacks(path: Path) -> None:
+    """One line if the bag misses commands the world used (only a writer that vanished first leaves one out)."""
+    from . import bag
+    try:
+        missing = bag.missing_commands(bag.load(path))
+    except bag.BagError:
+        return  # the recorder's own end is reported by up
+    if missing:
+        print(f'up: the bag lacks {sum(map(len, missing.values()))} commands that world_sim used, at '
+              f'{len(missing)} steps (their MAPs died before the recorder had them); `report` lists them',
+              file=sys.stderr)
 
 
 def listen_address(host: str) -> None:

@@ -85,8 +85,9 @@ def _init_rclpy() -> 'StopSignals':
     """rclpy without its signal handlers: theirs end a spin with ExternalShutdownException and a traceback."""
     import rclpy
     from rclpy.signals import SignalHandlerOptions
-    from uav_flock_ros.executors import StopSignals
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    from uav_flock_ros.executors import StopSignals, signals_deferred
+    with signals_deferred():
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     return StopSignals()
 
 
@@ -157,7 +158,8 @@ def echo(topic: str, once: bool, timeout: float, run: Optional[str], domain_id: 
         # Like ros2cli: ask for what every publisher offers, so that no QoS mismatch hides the data.
         latched = all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
         reliable = all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
-        qos = QoSProfile(depth=10,
+        # A transient-local publisher hands over what it keeps: --once wants the newest of it, a stream the last ten.
+        qos = QoSProfile(depth=1 if once else 10,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
                          reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT)
         done = shown = False

@@ -43,18 +43,24 @@ def fetch_run_info(address: str, env: dict[str, str], timeout: float) -> dict[st
     in time."""
     os.environ.update(env)
     import rclpy
+    import rclpy.executors
     from rclpy.signals import SignalHandlerOptions
     from std_msgs.msg import String
 
+    from uav_flock_ros.executors import signals_deferred
     from uav_flock_ros.qos import LATCHED_QOS
     got: list[str] = []
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    with signals_deferred():
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     try:
-        node = rclpy.create_node('uav_flock_join')
+        with signals_deferred():
+            node = rclpy.create_node('uav_flock_join')
+            executor = rclpy.executors.SingleThreadedExecutor()
+            executor.add_node(node)
         node.create_subscription(String, '/run_info', lambda m: got.append(m.data), LATCHED_QOS)
         end = time.monotonic() + timeout
         while not got and time.monotonic() < end:
-            rclpy.spin_once(node, timeout_sec=POLL_S)
+            executor.spin_once(timeout_sec=POLL_S)
         node.destroy_node()
     finally:
         rclpy.try_shutdown()

@@ -520,8 +520,8 @@ class Run:
         self.raise_if_interrupted()
         if p.record:
             rec_params = write_params(p.run / 'recorder_params.yaml', {
-                'out': str(p.bag_path), 'maps': s.maps, 'params_json': json.dumps(s.flock.as_dict()),
-                'scenario_json': json.dumps(scenario_summary(p.scenario_path, s))})
+                'out': str(p.bag_path), 'maps': s.maps, 'sync': p.sync, 'params_json': json.dumps(s.flock.as_dict()),
+                'scenario_json': json.dumps({**scenario_summary(p.scenario_path, s), 'sync': p.sync})})
             # With a discovery server, a plain client hears only of the topics it already uses; the recorder
             # finds its topics in the graph, so it is a super-client, which hears of every endpoint.
             self.recorder = subprocess.Popen(

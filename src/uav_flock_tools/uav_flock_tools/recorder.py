@@ -3,8 +3,11 @@
 Every message is taken serialized (raw CDR) and written as received, with the schema (ros2msg), the
 RIHS01 type hash and the publishers' offered QoS of its topic. The run's fixed topics are subscribed
 before the world starts stepping; any other topic that appears later is added when it is discovered.
-The recorder reports the last /metrics step it has written on /recorder/progress, so that world_sim can
-keep the run within a bounded lag of what is on disk and nothing is overwritten in a writer's history.
+The recorder reports on /recorder/progress the last step it holds whole, so that world_sim can keep the
+run within a bounded lag of what is on disk and nothing is overwritten in a writer's history: in lockstep,
+a step is whole once its /metrics and the state and command of every MAP not dropped are written (each
+MAP's writer delivers in order, so its newest step says all before it are in); in realtime, where a MAP
+may skip steps, once its /metrics is.
 SIGINT/SIGTERM drain what is still in flight and close the bag, so an interrupted run leaves a readable one.
 """
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 from typing import Any, Optional
 
@@ -24,10 +28,11 @@ from rclpy.subscription import Subscription
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from std_msgs.msg import Int64
-from uav_flock_msgs.msg import Metrics
+from uav_flock_msgs.msg import FailureEvent, Metrics
 
+from uav_flock_ros.convert import stamped_id_step
 from uav_flock_ros.executors import StopSignals, spun_node, take_waiting
-from uav_flock_ros.qos import LATCHED_QOS
+from uav_flock_ros.qos import LATCHED_QOS, is_realtime
 
 from . import bag
 from .echo import message_type
@@ -62,15 +67,56 @@ def reading_qos(offered: list[QoSProfile]) -> QoSProfile:
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
 
+class StepProgress:
+    """The last step of which the bag holds everything: /metrics, and in lockstep each live MAP's state and
+    command. A MAP dropped by the world is waited for no longer."""
+
+    def __init__(self, maps: int, lockstep: bool) -> None:
+        self.lockstep = lockstep
+        self.maps = maps
+        self.metrics = -1
+        self.state = [-1] * maps
+        self.cmd = [-1] * maps
+        self.reached_by: Counter[int] = Counter()  # step -> MAPs whose state and command of it are written
+        self.dropped: set[int] = set()
+        self.step = -1
+
+    def map_message(self, kind: str, map_id: int, step: int) -> None:
+        if not self.lockstep or not 0 <= map_id < self.maps:
+            return
+        before = min(self.state[map_id], self.cmd[map_id])
+        last = self.state if kind == 'state' else self.cmd
+        last[map_id] = max(last[map_id], step)
+        for k in range(before + 1, min(self.state[map_id], self.cmd[map_id]) + 1):
+            if k > self.step:
+                self.reached_by[k] += 1
+
+    def advance(self) -> bool:
+        """Move to the last whole step; True if it moved."""
+        start = self.step
+        while self.step < self.metrics:
+            k = self.step + 1
+            if self.lockstep:
+                gone = sum(1 for i in self.dropped if min(self.state[i], self.cmd[i]) < k)
+                if self.reached_by[k] + gone < self.maps:
+                    break
+                del self.reached_by[k]
+            self.step = k
+        return self.step > start
+
+
 class Recorder(Node):
     def __init__(self) -> None:
         super().__init__('recorder')
-        for name, default in (('out', ''), ('maps', 0), ('params_json', '{}'), ('scenario_json', '{}')):
+        for name, default in (('out', ''), ('maps', 0), ('sync', 'lockstep'), ('params_json', '{}'),
+                              ('scenario_json', '{}')):
             self.declare_parameter(name, default)
         out = str(self.get_parameter('out').value)
         if not out:
             raise ValueError('parameter out (the bag folder to create) is required')
-        self.expected = bag.run_topics(int(self.get_parameter('maps').value))
+        maps = int(self.get_parameter('maps').value)
+        self.expected = bag.run_topics(maps)
+        self.steps = StepProgress(maps, not is_realtime(str(self.get_parameter('sync').value)))
         self.store = bag.typestore()
         self.writer = Writer(Path(out), version=9, storage_plugin=StoragePlugin.MCAP)
         self.writer.set_custom_data(bag.PARAMS_KEY, str(self.get_parameter('params_json').value))
@@ -82,7 +128,6 @@ class Recorder(Node):
         self.last_message = time.monotonic()
         self.written = 0
         self.ready = False
-        self.progress = -1
         self.progress_pub = self.create_publisher(Int64, PROGRESS_TOPIC, LATCHED_QOS)
         self.create_timer(DISCOVERY_PERIOD_S, self.discover)
 
@@ -111,15 +156,23 @@ class Recorder(Node):
             self.ready = True
             self.get_logger().info(f'recording {len(self.subs)} topics')
         if self.ready:
-            self.progress_pub.publish(Int64(data=self.progress))
+            self.progress_pub.publish(Int64(data=self.steps.step))
 
     def on_message(self, topic: str, raw: bytes) -> None:
         self.writer.write(self.connections[topic], time.time_ns(), raw)
         self.written += 1
         self.last_message = time.monotonic()
-        if topic == '/metrics':
-            self.progress = int(deserialize_message(raw, Metrics).step)
-            self.progress_pub.publish(Int64(data=self.progress))
+        kind = topic.rsplit('/', 1)[-1]
+        if kind in ('state', 'cmd') and topic.startswith('/map_'):
+            self.steps.map_message(kind, *stamped_id_step(raw))
+        elif topic == '/metrics':
+            self.steps.metrics = int(deserialize_message(raw, Metrics).step)
+        elif topic == '/events/failure':
+            self.steps.dropped.update(int(i) for i in deserialize_message(raw, FailureEvent).ids)
+        else:
+            return
+        if self.steps.advance():
+            self.progress_pub.publish(Int64(data=self.steps.step))
 
     def take_rest(self) -> int:
         """Write whatever is still queued in any reader, whether or not an event announced it."""

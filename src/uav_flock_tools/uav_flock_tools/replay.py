@@ -110,17 +110,20 @@ def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
     from rclpy.signals import SignalHandlerOptions
     from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
 
+    from uav_flock_ros.executors import signals_deferred
     from uav_flock_ros.qos import LATCHED_QOS, STATE_QOS, STEP_QOS
 
     i = inputs.agent
     context = rclpy.Context()
     # rclpy's signal handlers would turn Ctrl-C into a shutdown of the context and a traceback; without them
     # it is a KeyboardInterrupt, and replay's clean-up stops the agent before the CLI says "interrupted".
-    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    with signals_deferred():
+        rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
     try:
-        node = Node('replay', context=context)
-        executor = rclpy.executors.SingleThreadedExecutor(context=context)
-        executor.add_node(node)
+        with signals_deferred():
+            node = Node('replay', context=context)
+            executor = rclpy.executors.SingleThreadedExecutor(context=context)
+            executor.add_node(node)
         answers: dict[int, Command] = {}
         node.create_subscription(Command, f'/map_{i}/cmd', lambda m: answers.__setitem__(int(m.step), m), STEP_QOS)
         clusters = node.create_publisher(Clusters, '/clusters', LATCHED_QOS)

@@ -15,6 +15,16 @@ def _seconds(v: Optional[float]) -> str:
     return 'not reached' if v is None else f'{v:.1f} s'
 
 
+def _missing(missing: Optional[dict[int, list[int]]]) -> str:
+    if missing is None:
+        return 'not known (realtime run)'
+    if not missing:
+        return 'none: the bag is complete'
+    steps = sorted(missing)
+    shown = ', '.join(f'step {k}: MAPs {missing[k]}' for k in steps[:5]) + (' ...' if len(steps) > 5 else '')
+    return f'{sum(map(len, missing.values()))} at {len(steps)} steps ({shown})'
+
+
 def summary_table(s: dict[str, Any]) -> str:
     """The summary as a Markdown table (what `report` prints and writes to summary.md)."""
     failures = '; '.join(f'{len(f["ids"])} MAPs at t = {f["t_s"]:.1f} s ({f["cause"]})' for f in s['failures'])
@@ -26,6 +36,7 @@ def summary_table(s: dict[str, Any]) -> str:
         ('time to 95 % coverage (held to the end)', _seconds(s['time_to_95_coverage_s'])),
         ('time to connectivity, λ2 > 0 (held to the end)', _seconds(s['time_to_connectivity_s'])),
         ('failures', failures or 'none'),
+        ('commands used and not recorded', _missing(s['missing_commands'])),
     ]
     width = max(len(k) for k, _ in rows)
     lines = [f'| {"figure".ljust(width)} | value |', f'|{"-" * (width + 2)}|-------|']

@@ -128,6 +128,7 @@ class WorldNode(Node):
         self.fresh = self.applied = 0  # realtime: commands applied in the step they were computed for, of all
         self.last_mode: dict[int, int] = {}
         self.rejected = 0
+        self.late = 0  # lockstep: commands of steps already past, ignored
         self.started = False
         self.finished = False
         self.advancing = False  # lockstep: inside maybe_advance's loop
@@ -231,6 +232,9 @@ class WorldNode(Node):
         if s is None or self.finished:
             return
         known = self.commands.get(sender)
+        if not self.realtime and msg.step < s.k and msg.id == sender:
+            self.late += 1  # a copy of a past step's command (a repeat, or handed over at matching)
+            return
         if self.realtime:  # any step up to the current one, never older than what we hold
             bad_step = msg.step > s.k or (known is not None and msg.step < known.step)
         else:
@@ -297,7 +301,10 @@ class WorldNode(Node):
 
     # ------------------------------------------------------------------ recorder
     def recorder_behind(self) -> bool:
-        return self.record and self.world.k - self.recorded > RECORDER_MAX_LAG_STEPS
+        """The recorder's last complete step is too far back. Before a scheduled failure SIGKILLs agents it
+        must hold the step just ended: a command already used and not yet recorded would die with its writer."""
+        lag = 1 if self.world.failing_now else RECORDER_MAX_LAG_STEPS
+        return self.record and self.world.k - self.recorded > lag
 
     def next_step(self) -> None:
         if self.recorder_behind() and not self.realtime:  # realtime keeps its pace: it never waits

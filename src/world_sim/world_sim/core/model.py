@@ -125,9 +125,14 @@ class World:
         size = np.bincount(drawn, minlength=len(self.scenario.clusters))
         return np.where(size > 0, served / np.maximum(size, 1), np.nan)
 
+    @property
+    def failing_now(self) -> bool:
+        """MAPs fail by the scenario's schedule at this step."""
+        return self.fail_step is not None and self.k == self.fail_step and self.scenario.fail_fraction > 0
+
     def scheduled_failures(self) -> np.ndarray:
         """Ids that fail at this step by the scenario's schedule (empty on other steps)."""
-        if self.fail_step is None or self.k != self.fail_step or self.scenario.fail_fraction <= 0:
+        if not self.failing_now:
             return np.zeros(0, np.intp)
         return physics.failure_ids(self.scenario, self.ids[self.alive], self._fail_rng)
 
