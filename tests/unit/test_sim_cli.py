@@ -166,3 +166,33 @@ def test_an_interrupt_swallowed_in_a_callback_is_raised_again() -> None:
     done = subprocess.run([sys.executable, '-c', SWALLOWED], capture_output=True, text=True, timeout=60)
     assert done.stdout.strip() == 'interrupted', done.stdout + done.stderr
     assert 'Exception ignored' not in done.stderr, done.stderr
+
+
+MID_CONSTRUCTION = '''
+import os, signal
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
+from uav_flock_tools.cli import install_interrupts
+from uav_flock_ros.executors import signals_deferred
+install_interrupts()
+context = rclpy.Context()
+built = None
+try:
+    with signals_deferred():
+        rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+        os.kill(os.getpid(), signal.SIGTERM)  # lands where an rclpy constructor runs
+        built = SingleThreadedExecutor(context=context)
+    print('not interrupted')
+except KeyboardInterrupt:
+    print('interrupted after the executor was built' if built is not None else 'interrupted mid-construction')
+finally:
+    rclpy.try_shutdown(context=context)
+'''
+
+
+def test_a_signal_during_rclpy_construction_is_handled_after_it() -> None:
+    """`kill PID` while replay made its executor left a half-made one whose __del__ printed rclpy's traceback."""
+    done = subprocess.run([sys.executable, '-c', MID_CONSTRUCTION], capture_output=True, text=True, timeout=60)
+    assert done.stdout.strip() == 'interrupted after the executor was built', done.stdout + done.stderr
+    assert 'Exception ignored' not in done.stderr and 'Traceback' not in done.stderr, done.stderr
