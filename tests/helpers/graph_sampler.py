@@ -1,7 +1,7 @@
 """Samples the ROS graph during a run: which MAPs subscribe to each /map_<j>/state, at which step.
 
 Usage: python -m helpers.graph_sampler N_MAPS. Prints 'ready' once it listens; on SIGTERM, JSON
-[[step, j, [i, ...]], ...].
+{"samples": [[step, j, [i, ...]], ...], "nodes": most MAP nodes discovered at once, "metrics": messages heard}.
 """
 from __future__ import annotations
 
@@ -19,8 +19,11 @@ def main() -> int:
     running = UntilTerm()
     node = rclpy.create_node('graph_sampler')
     samples: list[list[object]] = []
+    nodes = heard = 0  # the most MAP nodes discovery brought at once; /metrics messages received
 
     def on_metrics(m: Metrics) -> None:
+        nonlocal heard
+        heard += 1
         if m.step % 5:
             return
         for j in range(n):
@@ -33,7 +36,8 @@ def main() -> int:
     print('ready', flush=True)
     while running:
         rclpy.spin_once(node, timeout_sec=0.1)
-    print(json.dumps(samples), flush=True)
+        nodes = max(nodes, sum(1 for _, ns in node.get_node_names_and_namespaces() if ns.startswith('/map_')))
+    print(json.dumps({'samples': samples, 'nodes': nodes, 'metrics': heard}), flush=True)
     node.destroy_node()
     rclpy.shutdown()
     return 0
