@@ -7,7 +7,7 @@ in a direction drawn per layout; N = ceil(factor x LB); default policies, online
 Each variant runs on the same layouts and seeds, so the columns compare like with like:
   full           what ships
   no swing       a relay whose edge is swapped for one sharing a cluster flies along the tree, like any other
-                 MAP changing role (modes.pivot never swings)
+                 MAP changing role (demand.pivot never swings)
   fresh keys     every survey lays the roles' keys end to end afresh, not carried over (keys.carry)
   no transit     a MAP that changes role flies straight to it (en_route never routes)
   neither        carried keys and transit both taken out (relays still swing)
@@ -23,7 +23,7 @@ from typing import Optional
 
 import numpy as np
 
-from uav_agent.core import keys, modes
+from uav_agent.core import demand, keys
 from uav_flock_tools.layouts import draw, policy_sets
 from world_sim.batch import BatchSimulator
 from world_sim.core import layouts
@@ -39,9 +39,9 @@ def run(job: tuple[str, Scenario]) -> tuple[Optional[float], Optional[float]]:
     if variant in ('fresh keys', 'neither'):
         keys.carry = lambda old, shares: keys.fresh(keys.end_to_end(shares))
     if variant in ('no transit', 'neither'):
-        modes.en_route = lambda *args: modes.NO_GOAL
+        demand.en_route = lambda *args: demand.NO_GOAL
     if variant == 'no swing':
-        modes.pivot = lambda *args: None
+        demand.pivot = lambda *args: None
     m = BatchSimulator(s).run().metrics
     ok = (m[:, 2] >= 0.95) & (m[:, 3] > 0)
     if not ok.any():

@@ -8,8 +8,10 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from uav_agent.core.control import M0, M1, M2
-from uav_agent.core.modes import (STALL_STEPS, ClusterMap, Memory, Told, decide, key_of, mst_edges, relay_place)
+from uav_agent.core.clusters import ClusterMap, key_of, mst_edges
+from uav_agent.core.demand import STALL_STEPS, relay_place
+from uav_agent.core.policies import decide
+from uav_agent.core.state import M0, M1, M2, Memory, Told
 from uav_agent.core.params import FlockParams
 from world_sim.batch import BatchSimulator
 from world_sim.core import layouts, outcome

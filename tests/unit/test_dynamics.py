@@ -11,9 +11,11 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from uav_agent.core.control import M0, M1, M2
-from uav_agent.core.modes import (NO_GOAL, ClusterMap, Memory, demand_switch, en_route, key_of, mode_switch, pivot,
-                                  reference, swing_place)
+from uav_agent.core.algorithm2 import mode_switch
+from uav_agent.core.clusters import NO_GOAL, ClusterMap, key_of
+from uav_agent.core.demand import demand_switch, en_route, pivot, swing_place
+from uav_agent.core.policies import reference
+from uav_agent.core.state import M0, M1, M2, Memory
 from uav_agent.core.params import FlockParams
 from world_sim.batch import BatchSimulator
 from world_sim.core.crowd import center_at

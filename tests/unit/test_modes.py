@@ -6,9 +6,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from uav_agent.core.control import M0, M1, M2
-from uav_agent.core.modes import (NO_GOAL, ClusterMap, Memory, choose_bridge, decide, ids_of, mask_of,
-                                  merge_achieved, mode_switch)
+from uav_agent.core.algorithm2 import choose_bridge, mode_switch
+from uav_agent.core.clusters import NO_GOAL, ClusterMap, ids_of, mask_of, merge_achieved
+from uav_agent.core.policies import decide
+from uav_agent.core.state import M0, M1, M2, Memory
 from uav_agent.core.params import FlockParams
 
 P = FlockParams(allocation="algorithm2")  # the paper's Algorithm 2 with its shipped policies

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from uav_agent.core.agent import Neighbourhood, agent_step
-from uav_agent.core.modes import Told
+from uav_agent.core.state import Told
 from uav_agent.core.params import FlockParams
 from world_sim.batch import BatchSimulator
 from world_sim.core import layouts, physics

@@ -28,7 +28,8 @@ from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, make_executor
 from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STEP_QOS, is_realtime
 
 from .core.agent import Neighbourhood, agent_step
-from .core.modes import NO_GOAL, ClusterMap, Memory, Told, ids_of, mask_of
+from .core.clusters import NO_GOAL, ClusterMap, ids_of, mask_of
+from .core.state import Memory, Told
 from .core.checks import check_fields
 from .core.params import AgentNodeParams, FlockParams, check as check_params
 
@@ -137,8 +138,7 @@ class AgentNode(Node):
         if self.clusters is not None and c.version <= self.clusters_version:
             return  # the picture held, or an older one arriving late
         # Roles carry their keys over from the survey before, as world_sim's batch twin does (ClusterMap).
-        carried = self.clusters if self.params.allocation == 'demand' else None
-        self.clusters = ClusterMap(c.xy, self.params.height, c.radii, c.active, c.velocities, previous=carried)
+        self.clusters = ClusterMap(c.xy, self.params.height, c.radii, c.active, c.velocities, previous=self.clusters)
         self.clusters_version = c.version
         self.try_step()
 

@@ -13,6 +13,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
+from uav_agent.core.policies import ALLOCATIONS, DEFAULT  # noqa: E402
 from world_sim.core.scenario import Scenario  # noqa: E402
 
 from . import layouts, plots, simrun  # noqa: E402
@@ -83,9 +84,10 @@ def _fmt(values: list[float], pct: bool = False, digits: int = 3) -> str:
 def ablation_variants(base: Scenario) -> list[tuple[str, Scenario]]:
     f = base.flock
     out = [('scenario as shipped', base)]
-    if f.allocation != 'demand':
-        out.append(('policies.allocation = demand (the default)',
-                    dataclasses.replace(base, flock=dataclasses.replace(f, allocation='demand'))))
+    for name in ALLOCATIONS:
+        if name != f.allocation:
+            out.append((f'policies.allocation = {name}' + (' (the default)' if name == DEFAULT else ''),
+                        dataclasses.replace(base, flock=dataclasses.replace(f, allocation=name))))
     for key, value in (('zero_users', 'static'), ('m1_pending', 'lead'), ('m0_exhausted', 'serve'),
                        ('edge_choice', 'nearest'), ('edge_choice', 'keep_nearest'), ('edge_choice', 'share')):
         if getattr(f, key) != value:

@@ -11,7 +11,8 @@ from typing import Callable, Optional
 import numpy as np
 
 from uav_agent.core.control import control_input
-from uav_agent.core.modes import Memory, Told, apart_links, decide, reference
+from uav_agent.core.policies import apart_links, decide, reference
+from uav_agent.core.state import Memory, Told
 
 from .core.model import RunResult, Sensed, World
 from .core.scenario import Scenario

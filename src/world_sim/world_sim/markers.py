@@ -10,7 +10,7 @@ from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from uav_agent.core.modes import key_of
+from uav_agent.core.clusters import key_of
 
 from .core.model import Sensed
 from .core.physics import UNSERVED, Users

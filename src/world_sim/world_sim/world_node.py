@@ -32,7 +32,7 @@ from visualization_msgs.msg import MarkerArray
 from uav_flock_msgs.msg import Association, Clusters, Command, FailureEvent, Metrics, Sensing, Users
 
 from uav_agent.core.checks import check_fields
-from uav_agent.core.modes import NO_GOAL
+from uav_agent.core.clusters import NO_GOAL
 from uav_flock_ros import convert
 from uav_flock_ros.executors import StopSignals, spun_node
 from uav_flock_ros.processes import process_alive

@@ -6,8 +6,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from .control import control_input
-from .modes import ClusterMap, Memory, Told, apart_links, decide, reference
+from .clusters import ClusterMap
 from .params import FlockParams
+from .policies import apart_links, decide, reference
+from .state import Memory, Told
 
 
 @dataclass

@@ -12,8 +12,7 @@ from numpy.typing import NDArray
 
 from .params import FlockParams
 from .potentials import F64, action, bump, sigma_abs, sigma_grad, sigma_norm
-
-M0, M1, M2 = 0, 1, 2  # dynamic, connectivity, static (Section IV-A)
+from .state import M1
 
 
 def sum_edges(values: F64, owner: NDArray[np.intp], m: int) -> F64:

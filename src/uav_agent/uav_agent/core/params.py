@@ -5,10 +5,11 @@ from dataclasses import dataclass, field, fields
 from typing import Any, Callable
 
 from .checks import bound, number
+from .policies import ALLOCATIONS, DEFAULT
 
 # Names of the choices where the paper is ambiguous, with their allowed values; docs/choices.md explains them.
 POLICY_VALUES: dict[str, tuple[str, ...]] = {
-    'allocation': ('demand', 'algorithm2'),
+    'allocation': tuple(ALLOCATIONS),
     'zero_users': ('move_on', 'static'),
     'm1_pending': ('hold', 'lead'),
     'm0_exhausted': ('bridge', 'serve'),
@@ -34,20 +35,11 @@ class FlockParams:
     n0: int = 3                # serving threshold to M1, Algorithm 2
     n1: int = 10               # serving threshold to M2, Algorithm 2
     height: float = 20.0       # flight altitude H (m)
-    allocation: str = 'demand'  # 'algorithm2': the paper's, with the four policies below
+    allocation: str = DEFAULT  # policies.ALLOCATIONS; 'algorithm2': the paper's, with the four policies below
     zero_users: str = 'move_on'
     m1_pending: str = 'hold'
     m0_exhausted: str = 'bridge'
     edge_choice: str = 'keep_nearest'
-
-    @classmethod
-    def from_mapping(cls, values: dict[str, Any]) -> 'FlockParams':
-        """Build from a dict, ignoring nothing: unknown names are an error the caller reports."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise KeyError(unknown[0])
-        return cls(**values)
 
     def as_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}

@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import chi2
 
-from uav_agent.core.modes import mst_edges
+from uav_agent.core.clusters import mst_edges
 
 from .scenario import Cluster, Scenario
 

@@ -7,7 +7,7 @@ from typing import Optional
 
 import numpy as np
 
-from uav_agent.core.modes import NO_GOAL, ClusterMap
+from uav_agent.core.clusters import NO_GOAL, ClusterMap
 
 from . import physics
 from .records import Motion
@@ -101,8 +101,8 @@ class World:
             report = settle(self.reported, tracks)
             if self.reported is None or not report.same(self.reported):
                 changed = self.reported is not None  # the first survey is what the MAPs start with
-                # Roles carry their keys over from the survey before, as each MAP does (modes.ClusterMap).
-                carried = self.clusters if changed and s.flock.allocation == 'demand' else None
+                # Roles carry their keys over from the survey before, as each MAP does (clusters.ClusterMap).
+                carried = self.clusters if changed else None
                 self.clusters = ClusterMap(report.centroids, s.flock.height, report.radii, report.active,
                                            report.velocities, previous=carried)
                 self.clusters_version += int(changed)

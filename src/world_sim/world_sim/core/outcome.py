@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uav_agent.core.modes import mst_edges, segment_distance
+from uav_agent.core.clusters import mst_edges, segment_distance
 
 from . import layouts
 from .records import METRICS_COLUMNS, TRAJECTORY_COLUMNS

@@ -1,0 +1,247 @@
+"""The demand allocation (`allocation: demand`, docs/allocation.md): every MAP takes one role from the start,
+a cluster to serve or an edge of the MST over all clusters to relay on, by the share of [0, 1) its id's
+key falls in, with shares sized by each role's demand in MAPs. Relays space themselves along their edge's
+gap, swing about a shared cluster when the tree changes, and a MAP sent to a new role flies along the tree."""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Optional, Sequence
+
+import numpy as np
+
+from .clusters import NO_GOAL, ClusterMap, Edge, key_of
+from .state import M0, M1, M2, Memory, Reference, Told, aim, hold
+
+if TYPE_CHECKING:
+    from .params import FlockParams
+
+STALL_STEPS = 50             # steps without a 1 % gain after which a goal's coverage counts as stalled
+STALL_GAIN = 0.01
+
+
+def served(mem: Memory, r_g: float, arrived: bool, fp: FlockParams) -> Memory:
+    """Track the goal's coverage: achieved above r0, or once it has stopped growing (a stall).
+
+    A cluster whose MAPs are all in place but that stays just under r0 would otherwise never count as
+    served; STALL_STEPS without a gain of STALL_GAIN, counted while this MAP is at the cluster (arrived),
+    count it served, so it joins the achieved set.
+    """
+    if r_g > mem.best + STALL_GAIN:
+        mem = mem._replace(best=r_g, flat=0)
+    elif arrived and r_g > 0:
+        mem = mem._replace(flat=mem.flat + 1)
+    if (r_g > fp.r0 or mem.flat >= STALL_STEPS) and not mem.achieved >> mem.goal & 1:
+        mem = mem._replace(achieved=mem.achieved | 1 << mem.goal)
+    return mem
+
+
+def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
+                  fp: FlockParams) -> Memory:
+    """The demand allocation for one MAP at one step: its role from its key, then its mode.
+
+    A server flies to its cluster in M0 and holds it in M2 once the cluster is served; a relay bridges
+    its edge in M1 from the start, so the tree never waits for clusters to be achieved.
+    """
+    roles = clusters.roles(fp.d)
+    if not clusters.live:  # no cluster to serve or bridge: hold where it is until one appears
+        return mem if mem.goal == NO_GOAL and mem.mode == M2 else \
+            Memory(mode=M2, achieved=mem.achieved, settled=mem.settled)
+    role = roles.of(key_of(agent_id))
+    if role < clusters.count:
+        if mem.goal != role or mem.mode == M1:
+            mem = Memory(mode=M0, goal=role, achieved=mem.achieved, settled=mem.settled, transit=mem.settled)
+            r_g = 0.0
+        arrived = float(np.hypot(*(np.asarray(q, dtype=float)[:2] - clusters.xy[role]))) <= clusters.radii[role]
+        if arrived and (mem.transit or not mem.settled):
+            mem = mem._replace(settled=True, transit=False)
+        mem = served(mem, r_g, arrived, fp)
+        if mem.mode == M0 and mem.achieved >> mem.goal & 1:
+            mem = mem._replace(mode=M2)
+        return mem
+    edge = roles.edges[role - clusters.count]
+    if mem.mode != M1 or mem.bridge != edge:
+        mem = Memory(mode=M1, goal=edge[0], achieved=mem.achieved, bridge=edge, settled=mem.settled,
+                     transit=mem.settled, swing=pivot(mem, q, edge, clusters, fp))
+    if (mem.transit or not mem.settled) and clusters.segment_distance(q, edge) <= fp.d:
+        mem = mem._replace(settled=True, transit=False)
+    if mem.swing is not None:
+        a, u, _ = clusters.axis(edge)
+        if float(np.linalg.norm(a + u * swing_place(mem.swing, edge, clusters, fp) - np.asarray(q)[:2])) <= fp.d:
+            mem = mem._replace(swing=None)
+    return mem
+
+
+def _gap_from(end: int, edge: Edge, clusters: ClusterMap, fp: FlockParams) -> tuple[float, float, float]:
+    """(edge length, start, end of its gap), in m from the centre of its cluster `end`."""
+    start, stop = clusters.gap(edge, fp.d / 2)
+    length = clusters.axis(edge)[2]
+    return (length, start, stop) if edge[0] == end else (length, length - stop, length - start)
+
+
+def pivot(mem: Memory, q: np.ndarray, edge: Edge, clusters: ClusterMap, fp: FlockParams) -> Optional[tuple[int, float]]:
+    """The swing a relay takes to edge: the cluster its old edge shares with it, and the relay's place along
+    the old gap from that cluster (0..1); None if it was not settled on an edge that shares exactly one.
+
+    When a drifting cluster changes the tree, relays of an edge that left it take the keys of one that joined.
+    Keeping its place from the shared cluster P and flying straight there, each relay lands on the new edge
+    about where the chain needs it, and those near P barely move: the new chain forms along its whole length
+    at once, where flying along the tree (through P's centre and out) would grow it from one end, one relay
+    at a time (docs/dynamics.md, "Swinging chains").
+    """
+    old = mem.bridge
+    if mem.mode != M1 or old is None or not mem.settled or not all(clusters.live >> k & 1 for k in old):
+        return None
+    shared = set(old) & set(edge)
+    if len(shared) != 1:
+        return None
+    p = shared.pop()
+    length, lo, hi = _gap_from(p, old, clusters, fp)
+    a, u, _ = clusters.axis(old)
+    along = float(np.dot(np.asarray(q, dtype=float)[:2] - a, u))
+    from_p = along if old[0] == p else length - along
+    return p, float(np.clip((from_p - lo) / max(hi - lo, 1e-9), 0.0, 1.0))
+
+
+def swing_place(swing: tuple[int, float], edge: Edge, clusters: ClusterMap, fp: FlockParams) -> float:
+    """Where along edge (m from its first centre) a swinging relay aims: its old place, from the pivot."""
+    p, f = swing
+    length, lo, hi = _gap_from(p, edge, clusters, fp)
+    from_p = lo + f * (hi - lo)
+    return from_p if edge[0] == p else length - from_p
+
+
+def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, told: Sequence[Told],
+                clusters: ClusterMap, fp: FlockParams) -> float:
+    """Where along its edge a relay aims (m from the first cluster's centre): midway along its chain.
+
+    The chain of an edge (a, b) is its relays and the servers of a and b. Servers of a lie on the a side
+    of every relay and servers of b on the b side, so the outermost server heard is each side's anchor.
+    A relay that hears a chain member on each side aims midway between the nearest two, so the chain
+    relaxes to even spacing between the clusters' outermost servers wherever they are; with one side
+    silent it reaches d beyond the other towards the silent side; hearing none, it takes its own place in
+    the gap by its key.
+    """
+    a, u, length = clusters.axis(edge)
+    here = float(np.dot(np.asarray(q, dtype=float)[:2] - a, u))
+    below, above = -math.inf, math.inf
+    # How far along the edge a relay may aim and stay within reach (r less 1 m) of some server of each
+    # cluster: a server off the axis reaches less far along it.
+    reach_a, reach_b = -math.inf, math.inf
+    for qj, tj in zip(nbr_q, told):
+        if not _in_place(qj, tj, edge, clusters, fp):
+            continue
+        at = float(np.dot(qj[:2] - a, u))
+        if tj.mode != M1 and tj.goal in edge:
+            off = abs(float(u[0] * (qj[1] - a[1]) - u[1] * (qj[0] - a[0])))
+            reach = math.sqrt(max((fp.r - 1.0) ** 2 - off * off, 0.0))
+            if tj.goal == edge[0]:
+                reach_a = max(reach_a, at + reach)
+            else:
+                reach_b = min(reach_b, at - reach)
+        if tj.mode != M1 and tj.goal == edge[0] or tj.mode == M1 and tj.bridge == edge and at < here:
+            below = max(below, at)
+        elif tj.mode != M1 and tj.goal == edge[1] or tj.mode == M1 and tj.bridge == edge and at > here:
+            above = min(above, at)
+    if math.isfinite(below) and math.isfinite(above):
+        mid = (below + above) / 2.0
+        if reach_b <= reach_a:  # both ends within reach: stay where both hold
+            return min(max(mid, reach_b), reach_a)
+        return mid
+    if math.isfinite(below):
+        return min(below + fp.d, length)
+    if math.isfinite(above):
+        return max(above - fp.d, 0.0)
+    roles = clusters.roles(fp.d)
+    start, stop = clusters.gap(edge, fp.d / 2)
+    return start + roles.place(key_of(agent_id), clusters.count + roles.edges.index(edge)) * (stop - start)
+
+
+def _in_place(qj: np.ndarray, tj: 'Told', edge: Edge, clusters: ClusterMap, fp: FlockParams) -> bool:
+    """Whether a neighbour is where its role holds it: a server within its cluster's disc (plus d/2), a relay
+    within d of its edge. One still on its way (to a new role, or first out) would bend the chain towards it."""
+    if tj.mode == M1:
+        return tj.bridge == edge and clusters.segment_distance(qj, edge) <= fp.d
+    if tj.goal not in edge:
+        return False
+    return float(np.hypot(*(qj[:2] - clusters.xy[tj.goal]))) <= clusters.radii[tj.goal] + fp.d / 2
+
+
+def relay_slot(place: float, edge: Edge, clusters: ClusterMap, fp: FlockParams) -> tuple[np.ndarray, np.ndarray]:
+    """q_1^r, q_2^r of eq. 13 for a relay: a piece of its edge d/2 long centred where it aims.
+
+    E_c pulls the relay onto that piece and is flat along it, so the flocking terms keep their say there.
+    """
+    a, u, length = clusters.axis(edge)
+    place = min(max(place, 0.0), length)
+    lo, hi = max(place - fp.d / 4, 0.0), min(place + fp.d / 4, length)
+    return (np.array([a[0] + u[0] * lo, a[1] + u[1] * lo, fp.height]),
+            np.array([a[0] + u[0] * hi, a[1] + u[1] * hi, fp.height]))
+
+
+def related(a: Told, b: Told) -> bool:
+    """Whether two MAPs' roles belong together: one cluster's servers, or a relay and its edge's servers
+    or fellow relays. Under the demand allocation only related MAPs attract (control.flocking_terms)."""
+    if a.mode == M1 and b.mode == M1:
+        return a.bridge == b.bridge
+    if a.mode == M1:
+        return a.bridge is not None and b.goal in a.bridge
+    if b.mode == M1:
+        return b.bridge is not None and a.goal in b.bridge
+    return a.goal == b.goal
+
+
+def en_route(mem: Memory, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) -> int:
+    """The cluster a MAP in transit heads for first: the next one along the tree from the cluster it is at,
+    or NO_GOAL to go straight to its role.
+
+    A MAP in transit (demand allocation) left a place in a covered, connected formation because the clusters
+    changed; flown straight to its new role it would cross empty ground out of everyone's range. Along the
+    tree it passes clusters and relay chains. Roles never change while the clusters stand still, so then
+    nothing is ever in transit.
+    """
+    if not mem.transit or mem.goal == NO_GOAL or mem.swing is not None:
+        return NO_GOAL
+    if mem.mode == M1 and mem.bridge is not None:
+        if clusters.segment_distance(q, mem.bridge) <= fp.d:
+            return NO_GOAL
+        a, b = clusters.xy[mem.bridge[0]], clusters.xy[mem.bridge[1]]
+        xy = np.asarray(q, dtype=float)[:2]
+        dest = mem.bridge[0] if np.linalg.norm(xy - a) <= np.linalg.norm(xy - b) else mem.bridge[1]
+    else:
+        dest = mem.goal
+    at = clusters.nearest(q, 0)
+    if at == NO_GOAL or at == dest:
+        return NO_GOAL
+    return clusters.tree_hop(at, dest)
+
+
+class Demand:
+    """The demand allocation as an allocation (policies.Allocation)."""
+
+    def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
+               fp: FlockParams) -> Memory:
+        return demand_switch(mem, agent_id, r_g, q, clusters, fp)
+
+    def reference(self, mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],
+                  clusters: ClusterMap, fp: FlockParams) -> Reference:
+        """A MAP in transit aims at the next cluster along the tree; a relay bridges its own piece of the
+        edge, where its chain needs it (eq. 13), moving with the edge."""
+        here, v = aim(mem, q, clusters)
+        hop = en_route(mem, q, clusters, fp)
+        if hop != NO_GOAL:
+            at, v = clusters.targets[hop], clusters.velocities[hop]
+            return Reference(at, at, at, M0, np.array([v, v, v]))
+        if mem.mode == M1 and mem.bridge is not None:
+            va, vb = clusters.velocities[mem.bridge[0]], clusters.velocities[mem.bridge[1]]
+            place = swing_place(mem.swing, mem.bridge, clusters, fp) if mem.swing is not None else \
+                relay_place(agent_id, q, mem.bridge, nbr_q, told, clusters, fp)
+            q1, q2 = relay_slot(place, mem.bridge, clusters, fp)
+            # The slot moves as its point of the edge does: at the velocity interpolated between the ends.
+            length = clusters.axis(mem.bridge)[2]
+            vs = va + (min(max(place / length, 0.0), 1.0) if length > 0 else 0.5) * (vb - va)
+            return Reference(here, q1, q2, M1, np.array([v, vs, vs]))
+        return hold(mem, here, v)
+
+    def related(self, a: Told, b: Told) -> bool:
+        """Only related MAPs attract (control.flocking_terms)."""
+        return related(a, b)

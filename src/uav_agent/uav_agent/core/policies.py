@@ -1,0 +1,64 @@
+"""Allocations by name, and the step every MAP takes through the one its scenario chooses.
+
+An allocation decides who serves which cluster and who relays where. Each implements `Allocation`;
+`ALLOCATIONS` names them, and a scenario's `policies: allocation:` picks one (FlockParams.allocation).
+Nothing else in uav-flock tests an allocation's name: a new one is a module and a line below
+(docs/design.md, "Adding an allocation").
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Iterable, Protocol, Sequence
+
+import numpy as np
+
+from .algorithm2 import Algorithm2
+from .clusters import NO_GOAL, ClusterMap, merge_achieved
+from .demand import Demand
+from .state import Memory, Reference, Told
+
+if TYPE_CHECKING:
+    from .params import FlockParams
+
+
+class Allocation(Protocol):
+    """One MAP's discrete update and goal under an allocation, from its own sensing and its neighbours' words."""
+
+    def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
+               fp: FlockParams) -> Memory:
+        """Mode, goal and bridge after this step's gossip (Algorithm 2's place in Algorithm 1)."""
+
+    def reference(self, mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],
+                  clusters: ClusterMap, fp: FlockParams) -> Reference:
+        """What eq. 9's goal term aims at."""
+
+    def related(self, a: Told, b: Told) -> bool:
+        """Whether two MAPs' roles belong together: only related MAPs attract (control.flocking_terms)."""
+
+
+ALLOCATIONS: dict[str, Allocation] = {
+    'demand': Demand(),
+    'algorithm2': Algorithm2(),
+}
+DEFAULT = 'demand'
+
+
+def decide(mem: Memory, agent_id: int, n_users: int, cluster_coverage: np.ndarray, q: np.ndarray,
+           neighbour_achieved: Iterable[int], clusters: ClusterMap, fp: FlockParams) -> Memory:
+    """One MAP's discrete update at step k: gossip, then its allocation."""
+    achieved = merge_achieved(mem.achieved, neighbour_achieved)
+    if achieved != mem.achieved:
+        mem = mem._replace(achieved=achieved)
+    r_g = float(cluster_coverage[mem.goal]) if mem.goal != NO_GOAL else 0.0
+    return ALLOCATIONS[fp.allocation].decide(mem, agent_id, n_users, r_g, q, clusters, fp)
+
+
+def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],
+              clusters: ClusterMap, fp: FlockParams) -> Reference:
+    return ALLOCATIONS[fp.allocation].reference(mem, agent_id, q, nbr_q, told, clusters, fp)
+
+
+def apart_links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[bool]:
+    """For each neighbour heard, whether its link to this MAP (as decided this step) joins unrelated roles."""
+    own = Told(mem.mode, mem.goal, mem.bridge)
+    allocation = ALLOCATIONS[fp.allocation]
+    return [not allocation.related(own, t) for t in heard]

@@ -1,0 +1,61 @@
+"""What a MAP carries from step to step, what it tells its neighbours of its role, and what its goal term
+aims at (Algorithm 2's M_i, g_c^i and bridge; eqs. 12-13's references)."""
+from __future__ import annotations
+
+from typing import NamedTuple, Optional
+
+import numpy as np
+
+from .clusters import NO_GOAL, ClusterMap, Edge
+
+M0, M1, M2 = 0, 1, 2  # dynamic, connectivity, static (Section IV-A)
+
+
+class Memory(NamedTuple):
+    """What a MAP carries from step to step: its mode M_i, goal g_c^i, known achieved goals and bridge,
+    and (demand allocation) the best coverage of its goal so far, the steps since it last grew, and
+    whether it has reached its role's place once, and whether it is on its way to a new role since
+    (transit: a role change after settling, flown along the tree); a relay whose edge left the tree for
+    one with a cluster in common swings about that cluster (swing: the pivot and its place along the gap)."""
+
+    mode: int = M0
+    goal: int = NO_GOAL
+    achieved: int = 0
+    bridge: Optional[Edge] = None
+    best: float = 0.0
+    flat: int = 0
+    settled: bool = False
+    transit: bool = False
+    swing: Optional[tuple[int, float]] = None
+
+
+class Told(NamedTuple):
+    """What a neighbour's state message says of its role: mode, goal and bridge (as of its last step)."""
+
+    mode: int
+    goal: int
+    bridge: Optional[Edge]
+
+
+class Reference(NamedTuple):
+    """What eq. 9's goal term aims at: q^r (M0/M2), q_1^r and q_2^r (M1), the mode that picks between
+    them, and the velocities the damping of eqs. 12-13 matches (rows: q^r, q_1^r, q_2^r)."""
+
+    target: np.ndarray
+    q1: np.ndarray
+    q2: np.ndarray
+    mode: int
+    velocity: np.ndarray  # (3, 3)
+
+
+def aim(mem: Memory, q: np.ndarray, clusters: ClusterMap) -> tuple[np.ndarray, np.ndarray]:
+    """q^r of eq. 12 and its velocity: the goal cluster's centre at flight height, moving as the cluster
+    does; where the MAP is, at rest, when it has no goal (no cluster exists)."""
+    if mem.goal != NO_GOAL:
+        return clusters.targets[mem.goal], clusters.velocities[mem.goal]
+    return np.asarray(q, dtype=float), np.zeros(3)
+
+
+def hold(mem: Memory, here: np.ndarray, v: np.ndarray) -> Reference:
+    """The reference of a MAP with nothing to bridge: its goal (eq. 12); M1 without a bridge holds like M2."""
+    return Reference(here, here, here, (M2 if mem.mode == M1 else mem.mode), np.array([v, v, v]))
