@@ -5,11 +5,13 @@ import math
 from dataclasses import replace
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from uav_agent.core.clusters import ClusterMap, key_of, mst_edges
 from uav_agent.core.demand import STALL_STEPS, relay_place
+from uav_agent.core import policies, state
 from uav_agent.core.policies import decide
 from uav_agent.core.state import M0, M1, M2, Memory, Told
 from uav_agent.core.params import FlockParams
@@ -145,3 +147,32 @@ def test_without_the_clusters_extent_every_map_serves_a_cluster() -> None:
     clusters = ClusterMap(np.array([[0.0, 0.0], [150.0, 0.0], [300.0, 0.0]]), P.height)
     counts = role_counts(clusters, 30)
     assert counts[3:].sum() == 0 and max(counts[:3]) - min(counts[:3]) <= 2, counts
+
+
+class Nearest:
+    """The allocation of docs/design.md's example: serve the nearest cluster, attract only its other servers."""
+
+    def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
+               fp: FlockParams) -> Memory:
+        from uav_agent.core.clusters import NO_GOAL
+        goal = clusters.nearest(q, 0)
+        return mem._replace(goal=goal, mode=M2 if goal != NO_GOAL and r_g > fp.r0 else M0)
+
+    def reference(self, mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: list[Told],
+                  clusters: ClusterMap, fp: FlockParams) -> 'state.Reference':
+        return state.hold(mem, *state.aim(mem, q, clusters))
+
+    def related(self, a: Told, b: Told) -> bool:
+        return a.goal == b.goal
+
+
+def test_a_new_allocation_is_a_class_and_one_registry_line(paper_scenario_path: str,
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(policies.ALLOCATIONS, 'nearest', Nearest())
+    s = load(paper_scenario_path).with_overrides(maps=30, duration=20.0)
+    s = replace(s, flock=replace(s.flock, allocation='nearest'))
+    sim = BatchSimulator(s)
+    result = sim.run()
+    assert set(result.trajectory[:, 9].astype(int).tolist()) <= {M0, M2}, 'it never bridges'
+    assert all(m.goal == sim.clusters.nearest(q, 0) for m, q in zip(sim.memory, sim.q)), \
+        'every MAP ends serving its nearest cluster'

@@ -1,6 +1,6 @@
 """Which MAP keys each role owns: pieces of [0, 1), carried from one survey to the next.
 
-A MAP's role is the role whose piece holds its key (modes.key_of). Laid out afresh at every survey, the
+A MAP's role is the role whose piece holds its key (clusters.key_of). Laid out afresh at every survey, the
 shares would sit end to end, and one cluster growing, merging or leaving would shift every boundary after
 it: most MAPs would change role at once and cross the field. Carried instead, a role that shrinks gives up
 only the keys it no longer needs, a role that grows takes only what it lacks, and every other MAP keeps
