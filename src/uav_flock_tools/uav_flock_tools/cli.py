@@ -403,6 +403,9 @@ def cmd_paper(args: argparse.Namespace) -> int:
                       ablation=not args.no_ablation, random_layouts=args.layouts)
 
 
+RUN_INFO_TIMEOUT_S = 20.0  # agents --join: how long a run's /run_info is waited for
+
+
 def build_parser() -> argparse.ArgumentParser:
     from uav_flock_ros.qos import SYNC_MODES
     parser = _Parser(prog='uav-flock', description=__doc__)
@@ -443,8 +446,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--join', required=True, metavar='HOST:PORT', help='the address `up --listen` printed')
     p.add_argument('--ids', type=id_list, required=True, help='MAP ids to run here, e.g. 30-89')
     p.add_argument('--agents-per-process', type=positive_int, default=1, help='pack K agent nodes into one process')
-    p.add_argument('--timeout', type=positive_float, default=20.0,
-                   help='wait this long for the run to answer (s, default: 20)')
+    p.add_argument('--timeout', type=positive_float, default=RUN_INFO_TIMEOUT_S,
+                   help=f'wait this long for the run to answer (s, default: {RUN_INFO_TIMEOUT_S:g})')
     p.add_argument('--out', help='folder for this host\'s logs and pids (default: runs/agents-<time>)')
     p.add_argument('--replace', action='store_true', help='replace an earlier folder in --out (refused otherwise)')
     p.set_defaults(func=cmd_agents)

@@ -19,7 +19,6 @@ from uav_flock_ros.processes import write_params
 
 from .launcher import (DISCOVERY_BASE_PORT, ForkedAgent, ros_env, start_agents, stop, write_pid_table)
 
-RUN_INFO_TIMEOUT_S = 20.0  # default wait for a run's /run_info
 POLL_S = 0.5
 
 
