@@ -17,11 +17,12 @@ from typing import Optional
 
 import numpy as np
 import rclpy
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 from rclpy.subscription import Subscription
-from std_msgs.msg import Int64
+from std_msgs.msg import Header, Int64
 from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
 from uav_flock_ros import convert
 from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, make_executor, take_waiting
@@ -48,6 +49,7 @@ RESUBSCRIBE_AFTER_FIRST_S = 20.0
 # executor is not told of some samples that reach readers made in a burst (hundreds at once as MAPs
 # spread); they would otherwise sit there until the 1 s watch found them.
 SWEEP_PERIOD_S = 0.25
+FLUSH_S = 1.0  # at the end, how long the last states and commands may take to be acknowledged by every reader
 
 
 class AgentNode(Node):
@@ -79,10 +81,11 @@ class AgentNode(Node):
         self.memory = Memory()
         self.clusters: Optional[ClusterMap] = None
         self.clusters_version = 0  # of the clusters held; a step waits for the version its sensing names
-        self.pending: Optional[Sensing] = None
+        self.pending: Optional[convert.SensingData] = None
+        self.pending_header: Optional[Header] = None  # the pending sensing's, which its state and command carry
         self.step = -1  # the last step the world sensed for us
         self.own_q = np.zeros(3)
-        self.latest: dict[int, AgentState] = {}
+        self.latest: dict[int, convert.AgentStateData] = {}
         self.neighbour_subs: dict[int, Subscription] = {}
         self.dead: set[int] = set()
         self.rejected: dict[str, int] = {}
@@ -90,7 +93,7 @@ class AgentNode(Node):
         self.stopped = False
         self.run_finished = False  # stopped because world_sim ended the run normally
         self.last_state: Optional[AgentState] = None
-        self.last_cmd: Optional[Command] = None
+        self.last_cmd: Optional[tuple[int, Command]] = None  # (step, message), said again on a repeat
         self.failed = False  # this MAP failed by the schedule (its process lives on for other MAPs)
         self.resubscribed = (-1, 0)  # (step, times its silent neighbours' readers were made anew)
 
@@ -125,7 +128,7 @@ class AgentNode(Node):
             self.get_logger().info(f'ignored {sum(self.repeats.values())} late copies of past steps ({told})')
 
     def on_clusters(self, msg: Clusters) -> None:
-        c = convert.clusters_arrays(msg)
+        c = convert.ClustersData.from_msg(msg)
         if not np.all(np.isfinite(c.xy)) or len(c.xy) == 0:
             self.reject('/clusters', 'no or non-finite centroids')
             return
@@ -147,43 +150,46 @@ class AgentNode(Node):
         self.run_finished = self.stopped = True
 
     def on_failure(self, msg: FailureEvent) -> None:
-        self.dead.update(int(i) for i in msg.ids)
+        event = convert.FailureData.from_msg(msg)
+        self.dead.update(event.ids)
         if self.map_id in self.dead and not self.failed:
             # Failed by the schedule while sharing a process with live MAPs: fall silent, as if killed.
             self.failed = True
             self.pending = None
-            self.get_logger().warning(f'MAP {self.map_id} failed (event at step {msg.step}): silent from now on')
+            self.get_logger().warning(f'MAP {self.map_id} failed (event at step {event.step}): silent from now on')
             return
         self.try_step()
 
     def on_sensing(self, msg: Sensing) -> None:
         if self.failed:
             return
-        if msg.id != self.map_id or not convert.finite(msg.position, msg.velocity, msg.goal_coverage):
-            self.reject('sensing', f'id {msg.id} or non-finite values')
+        s = convert.SensingData.from_msg(msg)
+        if s.id != self.map_id or not np.all(np.isfinite(np.r_[s.q, s.p, s.goal_coverage])):
+            self.reject('sensing', f'id {s.id} or non-finite values')
             return
-        if msg.step == self.step and self.step >= 0 and not self.realtime:
+        if s.step == self.step and self.step >= 0 and not self.realtime:
             self.answer_again()  # the world repeats a stalled step: say again what we said
             return
-        if msg.step < self.step or (self.realtime and msg.step == self.step):
+        if s.step < self.step or (self.realtime and s.step == self.step):
             self.repeat('sensing')
             return
         self.sensed_at = time.monotonic()
         self.next_report = 2.0
         self.world_seen = True
-        self.pending = msg
-        self.step = msg.step
-        self.own_q = convert.xyz(msg.position)
-        self.publish_state(msg)
-        self.follow(list(msg.neighbors.ids))
+        self.pending, self.pending_header = s, msg.header
+        self.step = s.step
+        self.own_q = s.q
+        self.publish_state(s)
+        self.follow(s.neighbour_ids.tolist())
         self.try_step()
 
-    def on_state(self, sender: int, msg: AgentState) -> None:
+    def on_state(self, sender: int, raw: AgentState) -> None:
         source = f'/map_{sender}/state'
+        msg = convert.AgentStateData.from_msg(raw)
         if msg.id != sender:
             self.reject(source, f'sender id {msg.id} on the topic of MAP {sender}')
             return
-        if not convert.finite(msg.position, msg.velocity):
+        if not np.all(np.isfinite(np.r_[msg.q, msg.p])):
             self.reject(source, 'non-finite position or velocity')
             return
         known = self.latest.get(sender)
@@ -205,7 +211,7 @@ class AgentNode(Node):
         for j in self.neighbour_subs:
             s = self.latest.get(j)
             if s is not None and j not in self.dead and \
-                    np.linalg.norm(convert.xyz(s.position) - self.own_q) <= self.params.r + self.hysteresis:
+                    np.linalg.norm(s.q - self.own_q) <= self.params.r + self.hysteresis:
                 keep.add(j)
         for j in set(self.neighbour_subs) - keep:
             self.destroy_subscription(self.neighbour_subs.pop(j))
@@ -225,15 +231,13 @@ class AgentNode(Node):
     def answer_again(self) -> None:
         if self.last_state is not None:
             self.state_pub.publish(self.last_state)
-        if self.last_cmd is not None and self.last_cmd.step == self.step:
-            self.cmd_pub.publish(self.last_cmd)
+        if self.last_cmd is not None and self.last_cmd[0] == self.step:
+            self.cmd_pub.publish(self.last_cmd[1])
 
-    def publish_state(self, s: Sensing) -> None:
+    def publish_state(self, s: convert.SensingData) -> None:
         mem = self.memory
-        msg = AgentState(header=s.header, id=self.map_id, step=s.step, position=s.position,
-                         velocity=s.velocity, user_count=s.user_count, mode=mem.mode, goal=mem.goal,
-                         bridge=list(mem.bridge) if mem.bridge else [],
-                         achieved_goals=ids_of(mem.achieved))
+        msg = convert.AgentStateData(self.map_id, s.step, s.q, s.p, s.n_users, mem.mode, mem.goal, mem.bridge,
+                                     tuple(ids_of(mem.achieved))).to_msg(self.pending_header)
         self.state_pub.publish(msg)
         self.last_state = msg
 
@@ -242,7 +246,7 @@ class AgentNode(Node):
         s = self.pending
         if s is None or self.clusters is None or self.clusters_version < s.clusters_version:
             return
-        needed = [j for j in s.neighbors.ids if j not in self.dead]
+        needed = [j for j in s.neighbour_ids.tolist() if j not in self.dead]
         if self.realtime:
             heard = [self.latest[j] for j in needed if j in self.latest]  # whatever came in, of any step
         elif self.unheard(s):
@@ -250,28 +254,27 @@ class AgentNode(Node):
         else:
             heard = [self.latest[j] for j in needed]  # ascending id, as the world lists them
         hood = Neighbourhood(
-            q=np.array([convert.xyz(m.position) for m in heard]).reshape(-1, 3),
-            p=np.array([convert.xyz(m.velocity) for m in heard]).reshape(-1, 3),
-            n_users=np.array([float(m.user_count) for m in heard]),
-            achieved=[mask_of(m.achieved_goals) for m in heard],
-            told=[Told(*convert.role(m)) for m in heard])
+            q=np.array([m.q for m in heard]).reshape(-1, 3),
+            p=np.array([m.p for m in heard]).reshape(-1, 3),
+            n_users=np.array([float(m.n_users) for m in heard]),
+            achieved=[mask_of(m.achieved) for m in heard],
+            told=[Told(m.mode, m.goal, m.bridge) for m in heard])
         coverage = np.zeros(self.clusters.count)
         if self.memory.goal != NO_GOAL:
             coverage[self.memory.goal] = s.goal_coverage  # r_g of the goal the world knows we hold
-        u, mem = agent_step(self.memory, self.map_id, convert.xyz(s.position), convert.xyz(s.velocity),
-                            int(s.user_count), coverage, hood, self.clusters, self.params)
+        u, mem = agent_step(self.memory, self.map_id, s.q, s.p, s.n_users, coverage, hood, self.clusters,
+                            self.params)
         if not np.all(np.isfinite(u)):
             self.reject('core', f'non-finite control input at step {s.step}; holding u = 0')
             u = np.zeros(3)
         self.memory = mem
         self.pending = None
-        self.last_cmd = Command(header=s.header, id=self.map_id, step=s.step, accel=convert.vector(u),
-                                mode=mem.mode, goal=mem.goal)
-        self.cmd_pub.publish(self.last_cmd)
+        self.last_cmd = (s.step, convert.CommandData(self.map_id, s.step, u, mem.mode, mem.goal).to_msg(self.pending_header))
+        self.cmd_pub.publish(self.last_cmd[1])
 
-    def unheard(self, s: Sensing) -> list[int]:
+    def unheard(self, s: convert.SensingData) -> list[int]:
         """The live neighbours listed for step s whose state of that step has not come in."""
-        return [j for j in s.neighbors.ids if j not in self.dead and (j not in self.latest or self.latest[j].step != s.step)]
+        return [j for j in s.neighbour_ids.tolist() if j not in self.dead and (j not in self.latest or self.latest[j].step != s.step)]
 
     def sweep(self) -> None:
         """Take what already sits in the readers of the neighbours a waiting step still misses."""
@@ -372,6 +375,13 @@ def main(argv: Optional[list[str]] = None) -> int:
         while not stop.received and not all(n.stopped for n in nodes):
             executor.spin_once(timeout_sec=0.5)
     finally:
+        # What the MAPs said last reaches every reader that has not acknowledged it yet (the recorder may be
+        # repairing a lost datagram) before the writers go; a reader that died with its MAP is waited for no
+        # longer than the budget.
+        deadline = time.monotonic() + FLUSH_S
+        for n in nodes:
+            for pub in (n.state_pub, n.cmd_pub):
+                pub.wait_for_all_acked(Duration(seconds=max(deadline - time.monotonic(), 0.0)))
         # The executor first: the events executor holds the nodes' entities, and only once they are all
         # released is the DDS participant deleted (with its shared memory), even if this process then ends
         # by os._exit, past the interpreter's teardown.
