@@ -1,63 +1,114 @@
-"""uav_flock_ros.convert: every message it builds reads back to the arrays it was built from."""
+"""uav_flock_ros.convert: every message type's values read back equal from an rclpy message, from its
+wire bytes and from what rosbags deserializes out of a bag."""
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
+from typing import Any, NamedTuple
+
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
+from rclpy.serialization import deserialize_message, serialize_message
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
 from std_msgs.msg import Header
-from uav_flock_msgs.msg import AgentState
 from uav_flock_ros import convert
+from uav_flock_tools import bag
 
 FINITE = st.floats(-1e6, 1e6, allow_nan=False)
 HDR = Header(frame_id='world')
+U32 = st.integers(0, 2**32 - 1)
+VEC = arrays(np.float64, 3, elements=FINITE)
+STORE = bag.typestore()
 
 
-@settings(max_examples=30, deadline=None)
-@given(arrays(np.float64, st.tuples(st.integers(0, 20), st.just(3)), elements=FINITE), st.integers(1, 5))
-def test_users_round_trip(xyz: np.ndarray, k: int) -> None:
-    cluster = np.arange(len(xyz)) % (k + 1) - 1  # -1: an MSD in no cluster
-    msg = convert.users(HDR, 42, xyz, cluster)
-    back_xyz, back_cluster = convert.users_arrays(msg)
-    assert msg.step == 42 and np.array_equal(back_xyz, xyz) and np.array_equal(back_cluster, cluster)
+def through_a_bag(raw: bytes, name: str) -> Any:
+    """The message as bag reading takes it: written into a real MCAP bag, read back with rosbags."""
+    with tempfile.TemporaryDirectory() as tmp:
+        with Writer(Path(tmp) / 'bag', version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+            writer.write(writer.add_connection('/t', name, typestore=STORE), 0, raw)
+        with AnyReader([Path(tmp) / 'bag'], default_typestore=STORE) as reader:
+            [(conn, _, got)] = list(reader.messages())
+            return bag.deserialize(reader, got, conn.msgtype)
 
 
-@settings(max_examples=30, deadline=None)
-@given(arrays(np.float64, st.tuples(st.integers(1, 8), st.just(2)), elements=FINITE))
-def test_clusters_round_trip_with_and_without_radii(xy: np.ndarray) -> None:
-    sizes = np.arange(1, len(xy) + 1)
-    radii = np.linspace(10.0, 40.0, len(xy))
-    back = convert.clusters_arrays(convert.clusters(HDR, 0, xy, sizes, radii))
-    assert np.array_equal(back.xy, xy) and np.array_equal(back.sizes, sizes) and np.array_equal(back.radii, radii)
-    assert back.version == 0 and back.active.all() and not back.velocities.any()
-    msg = convert.clusters(HDR, 0, xy, sizes, radii)
-    msg.radii = []  # an older recording: no radii, and the reader says so rather than inventing them
-    assert convert.clusters_arrays(msg).radii is None
+def rows(n: Any, width: int) -> Any:
+    return arrays(np.float64, st.tuples(n, st.just(width)), elements=FINITE)
 
 
-@settings(max_examples=30, deadline=None)
-@given(arrays(np.float64, st.tuples(st.integers(1, 8), st.just(2)), elements=FINITE), st.integers(0, 1000))
-def test_clusters_of_a_survey_round_trip_with_ended_ids_and_velocities(xy: np.ndarray, version: int) -> None:
-    sizes = np.arange(len(xy)) * 10
-    active = sizes > 0
-    vel = xy[::-1] / 100.0
-    back = convert.clusters_arrays(convert.clusters(HDR, version, xy, sizes, np.ones(len(xy)), active, vel))
-    assert back.version == version and np.array_equal(back.active, active)
-    assert np.array_equal(back.velocities, vel if np.any(vel) else np.zeros_like(vel))
+def ids(n: int = 12) -> Any:
+    return st.lists(st.integers(0, 500), max_size=n, unique=True).map(lambda v: np.array(sorted(v), dtype=np.intp))
 
 
-def test_association_and_sensing_carry_what_they_were_built_from() -> None:
-    a = convert.association(HDR, 7, np.array([0, 2, 5]), np.array([3, 0, 9]), np.array([0.5, 1.0]), 0.75)
-    assert (a.step, list(a.map_ids), list(a.user_counts), list(a.cluster_coverage), a.coverage_ratio) == \
-        (7, [0, 2, 5], [3, 0, 9], [0.5, 1.0], 0.75)
-    q, p = np.array([1.0, 2.0, 20.0]), np.array([0.5, -0.5, 0.0])
-    nq = np.array([[4.0, 6.0, 20.0], [1.0, 2.0, 30.0]])
-    s = convert.sensing(HDR, 3, 7, q, p, 12, 0.9, np.array([1, 4]), nq, clusters_version=5)
-    assert (s.id, s.step, s.user_count, s.goal_coverage, s.clusters_version) == (3, 7, 12, 0.9, 5)
-    assert np.array_equal(convert.xyz(s.position), q) and np.array_equal(convert.xyz(s.velocity), p)
-    assert list(s.neighbors.ids) == [1, 4] and np.allclose(s.neighbors.distances, [5.0, 10.0])
+VALUES = {
+    convert.AgentStateData: st.builds(
+        convert.AgentStateData, U32, st.integers(0, 2**63), VEC, VEC, U32, st.integers(0, 2), st.integers(-1, 99),
+        st.one_of(st.none(), st.tuples(st.integers(0, 99), st.integers(0, 99))),
+        st.lists(st.integers(0, 99), unique=True).map(lambda v: tuple(sorted(v)))),
+    convert.CommandData: st.builds(convert.CommandData, U32, st.integers(0, 2**63), VEC, st.integers(0, 2),
+                                   st.integers(-1, 99)),
+    convert.SensingData: ids().flatmap(lambda n: st.builds(
+        convert.SensingData, U32, st.integers(0, 2**63), VEC, VEC, U32, st.floats(0, 1), st.just(n),
+        arrays(np.float64, len(n), elements=st.floats(0, 1e4)), U32)),
+    convert.UsersData: st.integers(0, 30).flatmap(lambda m: st.builds(
+        convert.UsersData, st.integers(0, 2**63), rows(st.just(m), 3),
+        arrays(np.intp, m, elements=st.integers(-1, 20)))),
+    convert.ClustersData: st.integers(1, 8).flatmap(lambda k: st.builds(
+        convert.ClustersData, U32, rows(st.just(k), 2), arrays(np.intp, k, elements=st.integers(0, 1000)),
+        st.one_of(st.none(), arrays(np.float64, k, elements=st.floats(0, 100))),
+        arrays(np.bool_, k), rows(st.just(k), 2))),
+    convert.AssociationData: ids().flatmap(lambda n: st.builds(
+        convert.AssociationData, st.integers(0, 2**63), st.just(n), arrays(np.intp, len(n), elements=U32),
+        arrays(np.float64, st.integers(0, 8), elements=st.floats(0, 1)), st.floats(0, 1))),
+    convert.MetricsData: st.builds(convert.MetricsData, st.integers(0, 2**63), FINITE, st.floats(0, 1), FINITE,
+                                   U32, U32, U32, U32, U32),
+    convert.FailureData: st.builds(convert.FailureData, st.integers(0, 2**63), ids().map(lambda a: tuple(a.tolist())),
+                                   st.sampled_from(['scheduled', 'killed'])),
+}
 
 
-def test_a_states_role_reads_back() -> None:
-    assert convert.role(AgentState(mode=1, goal=2, bridge=[2, 5])) == (1, 2, (2, 5))
-    assert convert.role(AgentState(mode=2, goal=0, bridge=[])) == (2, 0, None)
+def same(a: NamedTuple, b: NamedTuple) -> bool:
+    return type(a) is type(b) and all(
+        (x is None and y is None) or (x is not None and y is not None and np.array_equal(x, y))
+        for x, y in zip(a, b))
+
+
+def expected(v: NamedTuple) -> NamedTuple:
+    """What a reader gets back: /clusters leaves out `active` when all exist and velocities when none move."""
+    if isinstance(v, convert.ClustersData):
+        return v._replace(active=v.active if not v.active.all() else np.ones(len(v.xy), bool),
+                          velocities=v.velocities if np.any(v.velocities) else np.zeros_like(v.velocities))
+    return v
+
+
+@pytest.mark.parametrize('kind', list(VALUES), ids=lambda k: k.__name__)
+def test_every_message_round_trips_through_the_wire_and_a_bag(kind: type) -> None:
+    @settings(max_examples=25, deadline=None)
+    @given(VALUES[kind])
+    def check(values: NamedTuple) -> None:
+        msg = values.to_msg(HDR)
+        raw = serialize_message(msg)
+        want = expected(values)
+        assert same(kind.from_msg(msg), want)
+        assert same(kind.from_msg(deserialize_message(raw, type(msg))), want), 'from the wire'
+        name = type(msg).__module__.split('.')[0] + '/msg/' + type(msg).__name__
+        assert same(kind.from_msg(through_a_bag(raw, name)), want), 'as bag reading takes it from a bag'
+    check()
+
+
+def test_clusters_without_radii_read_back_as_none() -> None:
+    """An older recording has no radii, and the reader says so rather than inventing them."""
+    msg = convert.ClustersData(0, np.zeros((2, 2)), np.ones(2), np.ones(2), np.ones(2, bool), np.zeros((2, 2))).to_msg(HDR)
+    msg.radii = []
+    assert convert.ClustersData.from_msg(msg).radii is None
+
+
+def test_stamped_id_step_reads_the_wire_bytes_of_states_and_commands() -> None:
+    for frame in ('', 'w', 'world', 'x' * 13):
+        for values in (convert.CommandData(77, 123456789012, np.zeros(3), 1, 2),
+                       convert.AgentStateData(77, 123456789012, np.zeros(3), np.zeros(3), 0, 0, -1, None, ())):
+            raw = serialize_message(values.to_msg(Header(frame_id=frame)))
+            assert convert.stamped_id_step(raw) == (77, 123456789012)

@@ -1,8 +1,10 @@
 """Messages to numpy values and back: the one place where uav_flock_msgs meet the cores' arrays.
 
-Builders take arrays and numbers, readers return them; the cores' own types (ClusterMap, Users, Told) are
-made from those by the caller, so this package depends on the messages alone. The readers are
-duck-typed: they read rclpy messages and the ones rosbags deserializes from a bag alike.
+Each message type has its values as a named tuple of numbers and arrays, with `to_msg(header)` and
+`from_msg(msg)`: nodes, the recorder, bag reading and replay build and read messages only through these.
+The cores' own types (ClusterMap, Users, Told) are made from the values by the caller, so this package
+depends on the messages alone. `from_msg` is duck-typed: it reads rclpy messages and the ones rosbags
+deserializes from a bag alike.
 """
 from __future__ import annotations
 
@@ -12,7 +14,8 @@ from typing import Any, Iterable, NamedTuple, Optional
 import numpy as np
 from geometry_msgs.msg import Point, Vector3
 from std_msgs.msg import Header
-from uav_flock_msgs.msg import AgentState, Association, Clusters, NeighborList, Sensing, Users
+from uav_flock_msgs.msg import (AgentState, Association, Clusters, Command, FailureEvent, Metrics, NeighborList,
+                                 Sensing, Users)
 
 
 def point(v: np.ndarray) -> Point:
@@ -41,36 +44,96 @@ def finite(*values: Point | Vector3 | float) -> bool:
     return True
 
 
-def role(msg: AgentState) -> tuple[int, int, Optional[tuple[int, int]]]:
-    """(mode, goal, bridge) a neighbour's state states; bridge None unless it names two clusters."""
-    bridge = tuple(int(c) for c in msg.bridge)
-    return int(msg.mode), int(msg.goal), (bridge[0], bridge[1]) if len(bridge) == 2 else None
+class AgentStateData(NamedTuple):
+    """/map_<id>/state: what a MAP tells its neighbours at step k."""
+
+    id: int
+    step: int
+    q: np.ndarray                   # (3,) m
+    p: np.ndarray                   # (3,) m/s
+    n_users: int
+    mode: int
+    goal: int
+    bridge: Optional[tuple[int, int]]  # the two clusters an M1 MAP connects, None otherwise
+    achieved: tuple[int, ...]       # cluster indices known as achieved, ascending
+
+    def to_msg(self, header: Header) -> AgentState:
+        return AgentState(header=header, id=int(self.id), step=int(self.step), position=point(self.q),
+                          velocity=vector(self.p), user_count=int(self.n_users), mode=int(self.mode),
+                          goal=int(self.goal), bridge=list(self.bridge) if self.bridge else [],
+                          achieved_goals=[int(k) for k in self.achieved])
+
+    @classmethod
+    def from_msg(cls, msg: Any) -> 'AgentStateData':
+        bridge = tuple(int(c) for c in msg.bridge)
+        return cls(int(msg.id), int(msg.step), xyz(msg.position), xyz(msg.velocity), int(msg.user_count),
+                   int(msg.mode), int(msg.goal), (bridge[0], bridge[1]) if len(bridge) == 2 else None,
+                   tuple(int(k) for k in msg.achieved_goals))
 
 
-def users(header: Header, step: int, xyz_all: np.ndarray, cluster: np.ndarray) -> Users:
-    return Users(header=header, step=int(step), positions=[point(y) for y in xyz_all],
-                 cluster=np.asarray(cluster, np.int32).tolist())
+class CommandData(NamedTuple):
+    """/map_<id>/cmd: the control input u_i a MAP asks for at step k, and the mode and goal it decided."""
+
+    id: int
+    step: int
+    u: np.ndarray                   # (3,) m/s^2
+    mode: int
+    goal: int
+
+    def to_msg(self, header: Header) -> Command:
+        return Command(header=header, id=int(self.id), step=int(self.step), accel=vector(self.u),
+                       mode=int(self.mode), goal=int(self.goal))
+
+    @classmethod
+    def from_msg(cls, msg: Any) -> 'CommandData':
+        return cls(int(msg.id), int(msg.step), xyz(msg.accel), int(msg.mode), int(msg.goal))
 
 
-def users_arrays(msg: Any) -> tuple[np.ndarray, np.ndarray]:
-    """(positions (M, 3) in m, cluster id per MSD, -1 for none)."""
-    return xyz_rows(msg.positions), np.asarray(msg.cluster, dtype=np.intp)
+class SensingData(NamedTuple):
+    """/map_<id>/sensing: one MAP's own q, p, N_u and r_g at step k, and its neighbours within r."""
+
+    id: int
+    step: int
+    q: np.ndarray                   # (3,) m
+    p: np.ndarray                   # (3,) m/s
+    n_users: int
+    goal_coverage: float
+    neighbour_ids: np.ndarray       # ascending
+    distances: np.ndarray           # m, one per neighbour
+    clusters_version: int = 0
+
+    def to_msg(self, header: Header) -> Sensing:
+        return Sensing(header=header, id=int(self.id), step=int(self.step), position=point(self.q),
+                       velocity=vector(self.p), user_count=int(self.n_users), goal_coverage=float(self.goal_coverage),
+                       clusters_version=int(self.clusters_version),
+                       neighbors=NeighborList(id=int(self.id), ids=np.asarray(self.neighbour_ids, np.uint32).tolist(),
+                                              distances=np.asarray(self.distances, dtype=float).tolist()))
+
+    @classmethod
+    def from_msg(cls, msg: Any) -> 'SensingData':
+        return cls(int(msg.id), int(msg.step), xyz(msg.position), xyz(msg.velocity), int(msg.user_count),
+                   float(msg.goal_coverage), np.asarray(msg.neighbors.ids, dtype=np.intp),
+                   np.asarray(msg.neighbors.distances, dtype=float), int(getattr(msg, 'clusters_version', 0)))
 
 
-def clusters(header: Header, version: int, centroids: np.ndarray, sizes: np.ndarray, radii: np.ndarray,
-             active: Optional[np.ndarray] = None, velocities: Optional[np.ndarray] = None) -> Clusters:
-    """The survey's clusters; `active` and `velocities` are left empty when every cluster exists and stands
-    still, as before users could move."""
-    moving = velocities is not None and np.any(velocities)
-    return Clusters(header=header, version=int(version),
-                    centroids=[point(np.array([c[0], c[1], 0.0])) for c in centroids],
-                    sizes=np.asarray(sizes, np.uint32).tolist(), radii=np.asarray(radii, dtype=float).tolist(),
-                    active=[] if active is None or np.all(active) else [bool(a) for a in active],
-                    velocities=[vector(np.array([v[0], v[1], 0.0])) for v in velocities] if moving else [])
+class UsersData(NamedTuple):
+    """/users: every MSD present at a step, and its cluster (-1: none)."""
+
+    step: int
+    xyz: np.ndarray                 # (M, 3) m
+    cluster: np.ndarray             # (M,)
+
+    def to_msg(self, header: Header) -> Users:
+        return Users(header=header, step=int(self.step), positions=[point(y) for y in self.xyz],
+                     cluster=np.asarray(self.cluster, np.int32).tolist())
+
+    @classmethod
+    def from_msg(cls, msg: Any) -> 'UsersData':
+        return cls(int(getattr(msg, 'step', 0)), xyz_rows(msg.positions), np.asarray(msg.cluster, dtype=np.intp))
 
 
-class ClusterArrays(NamedTuple):
-    """A /clusters message as arrays; radii None when the message has none for every cluster."""
+class ClustersData(NamedTuple):
+    """/clusters, the survey's picture; radii None when the message has none for every cluster."""
 
     version: int
     xy: np.ndarray                  # (K, 2) m
@@ -79,35 +142,91 @@ class ClusterArrays(NamedTuple):
     active: np.ndarray              # (K,) bool
     velocities: np.ndarray          # (K, 2) m/s
 
+    def to_msg(self, header: Header) -> Clusters:
+        """`active` and `velocities` are left empty when every cluster exists and stands still, as before
+        users could move."""
+        v = self.velocities
+        moving = v is not None and np.any(v)
+        return Clusters(header=header, version=int(self.version),
+                        centroids=[point(np.array([c[0], c[1], 0.0])) for c in self.xy],
+                        sizes=np.asarray(self.sizes, np.uint32).tolist(),
+                        radii=[] if self.radii is None else np.asarray(self.radii, dtype=float).tolist(),
+                        active=[] if self.active is None or np.all(self.active) else [bool(a) for a in self.active],
+                        velocities=[vector(np.array([w[0], w[1], 0.0])) for w in v] if moving else [])
 
-def clusters_arrays(msg: Any) -> ClusterArrays:
-    xy = xyz_rows(msg.centroids)[:, :2]
-    radii = np.asarray(getattr(msg, 'radii', []), dtype=float)
-    active = np.asarray(getattr(msg, 'active', []), dtype=bool)
-    vel = getattr(msg, 'velocities', [])
-    return ClusterArrays(int(getattr(msg, 'version', 0)), xy, np.asarray(msg.sizes, dtype=np.intp),
-                         radii if len(radii) == len(xy) else None,
-                         active if len(active) == len(xy) else np.ones(len(xy), dtype=bool),
-                         xyz_rows(vel)[:, :2] if len(vel) == len(xy) else np.zeros((len(xy), 2)))
+    @classmethod
+    def from_msg(cls, msg: Any) -> 'ClustersData':
+        xy = xyz_rows(msg.centroids)[:, :2]
+        radii = np.asarray(getattr(msg, 'radii', []), dtype=float)
+        active = np.asarray(getattr(msg, 'active', []), dtype=bool)
+        vel = getattr(msg, 'velocities', [])
+        return cls(int(getattr(msg, 'version', 0)), xy, np.asarray(msg.sizes, dtype=np.intp),
+                   radii if len(radii) == len(xy) else None,
+                   active if len(active) == len(xy) else np.ones(len(xy), dtype=bool),
+                   xyz_rows(vel)[:, :2] if len(vel) == len(xy) else np.zeros((len(xy), 2)))
 
 
-def association(header: Header, step: int, ids: np.ndarray, n_users: np.ndarray, cluster_coverage: np.ndarray,
-                coverage_ratio: float) -> Association:
-    return Association(header=header, step=int(step), map_ids=np.asarray(ids, np.uint32).tolist(),
-                       user_counts=np.asarray(n_users, np.uint32).tolist(),
-                       cluster_coverage=np.asarray(cluster_coverage, dtype=float).tolist(),
-                       coverage_ratio=float(coverage_ratio))
+class AssociationData(NamedTuple):
+    """/association: the live MAPs of a step, their N_u, each cluster's coverage and R_c."""
+
+    step: int
+    map_ids: np.ndarray
+    user_counts: np.ndarray
+    cluster_coverage: np.ndarray
+    coverage_ratio: float
+
+    def to_msg(self, header: Header) -> Association:
+        return Association(header=header, step=int(self.step), map_ids=np.asarray(self.map_ids, np.uint32).tolist(),
+                           user_counts=np.asarray(self.user_counts, np.uint32).tolist(),
+                           cluster_coverage=np.asarray(self.cluster_coverage, dtype=float).tolist(),
+                           coverage_ratio=float(self.coverage_ratio))
+
+    @classmethod
+    def from_msg(cls, msg: Any) -> 'AssociationData':
+        return cls(int(msg.step), np.asarray(msg.map_ids, dtype=np.intp), np.asarray(msg.user_counts, dtype=np.intp),
+                   np.asarray(msg.cluster_coverage, dtype=float), float(msg.coverage_ratio))
 
 
-def sensing(header: Header, map_id: int, step: int, q: np.ndarray, p: np.ndarray, n_users: int,
-            goal_coverage: float, neighbour_ids: np.ndarray, neighbour_q: np.ndarray,
-            clusters_version: int = 0) -> Sensing:
-    """One MAP's sensing of a step: its own q, p, N_u and r_g, and its neighbours with their distances."""
-    return Sensing(header=header, id=int(map_id), step=int(step), position=point(q), velocity=vector(p),
-                   user_count=int(n_users), goal_coverage=float(goal_coverage),
-                   clusters_version=int(clusters_version),
-                   neighbors=NeighborList(id=int(map_id), ids=np.asarray(neighbour_ids, np.uint32).tolist(),
-                                          distances=np.linalg.norm(neighbour_q - q, axis=1).tolist()))
+class MetricsData(NamedTuple):
+    """/metrics: one row of metrics.csv (records.METRICS_COLUMNS)."""
+
+    step: int
+    t: float
+    coverage_ratio: float
+    fiedler: float
+    alive: int
+    components: int
+    mode0: int
+    mode1: int
+    mode2: int
+
+    @classmethod
+    def of_row(cls, row: Iterable[float]) -> 'MetricsData':
+        k, t, rc, lam2, alive, comp, m0, m1, m2 = row
+        return cls(int(k), float(t), float(rc), float(lam2), int(alive), int(comp), int(m0), int(m1), int(m2))
+
+    def to_msg(self, header: Header) -> Metrics:
+        return Metrics(header=header, **{f: getattr(self, f) for f in self._fields})
+
+    @classmethod
+    def from_msg(cls, msg: Any) -> 'MetricsData':
+        return cls(int(msg.step), float(msg.t), float(msg.coverage_ratio), float(msg.fiedler), int(msg.alive),
+                   int(msg.components), int(msg.mode0), int(msg.mode1), int(msg.mode2))
+
+
+class FailureData(NamedTuple):
+    """/events/failure: MAPs the world dropped at a step, and why ("scheduled" or "killed")."""
+
+    step: int
+    ids: tuple[int, ...]
+    cause: str
+
+    def to_msg(self, header: Header) -> FailureEvent:
+        return FailureEvent(header=header, step=int(self.step), ids=[int(i) for i in self.ids], cause=str(self.cause))
+
+    @classmethod
+    def from_msg(cls, msg: Any) -> 'FailureData':
+        return cls(int(msg.step), tuple(int(i) for i in msg.ids), str(msg.cause))
 
 
 def stamped_id_step(raw: bytes) -> tuple[int, int]:

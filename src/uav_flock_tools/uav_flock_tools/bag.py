@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import bisect
 import json
+import struct
 from collections import Counter, defaultdict
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -154,6 +155,24 @@ def _reader(path: Path) -> Iterator[AnyReader]:
         raise BagError(f'{path}: not a readable rosbag2 bag ({" ".join(str(exc).split())})') from None
 
 
+def deserialize(reader: AnyReader, raw: bytes, msgtype: str) -> Any:
+    """A message of the bag, as rosbags reads it, but taking the bytes Fast DDS writes as they are.
+
+    Fast CDR sizes a message for the worst-case alignment of its empty float64 sequences, so a Sensing with
+    no neighbours (an isolated MAP) or a /clusters without radii carries up to 4 trailing bytes per such
+    sequence; rosbags refuses more than 3 as a size mismatch. What precedes them is the whole message.
+    """
+    if msgtype not in reader.typestore.fielddefs or len(raw) < 4 or bytes(raw[:2]) not in (b'\x00\x00', b'\x00\x01'):
+        return reader.deserialize(raw, msgtype)
+    msgdef = reader.typestore.get_msgdef(msgtype)
+    func = msgdef.deserialize_cdr_le if raw[1] else msgdef.deserialize_cdr_be
+    try:
+        message, pos = func(raw[4:], 0, msgdef.cls, reader.typestore)
+    except (struct.error, UnicodeDecodeError, ValueError) as exc:
+        raise BagError(f'a {msgtype} message in the bag cannot be read: {exc}') from None
+    return message
+
+
 def load(path: Path) -> BagRun:
     """Read a run's bag."""
     path = find_bag(path)
@@ -175,22 +194,25 @@ def _read(path: Path, reader: AnyReader) -> BagRun:
     for conn, _, raw in reader.messages(connections=wanted):
         counts[conn.topic] += 1
         i, kind = _map_topic(conn.topic)
-        msg = reader.deserialize(raw, conn.msgtype)
+        msg = deserialize(reader, raw, conn.msgtype)
         if i is not None and kind in heard:
-            heard[kind][int(msg.step)].add(i)
             if kind == 'state':
-                q, p = msg.position, msg.velocity
-                traj.append([msg.step, np.nan, msg.id, q.x, q.y, q.z, p.x, p.y, p.z, msg.mode, msg.goal,
-                             msg.user_count])
+                st = convert.AgentStateData.from_msg(msg)
+                traj.append([st.step, np.nan, st.id, *st.q, *st.p, st.mode, st.goal, st.n_users])
             elif kind == 'sensing':
-                sensed[int(msg.step)][int(msg.id)] = np.array([msg.position.x, msg.position.y, msg.position.z])
+                st = convert.SensingData.from_msg(msg)
+                sensed[st.step][st.id] = st.q
+            else:
+                st = convert.CommandData.from_msg(msg)
+            heard[kind][st.step].add(i)
         elif conn.topic == '/metrics':
-            metrics.append([msg.step, msg.t, msg.coverage_ratio, msg.fiedler, msg.alive, msg.components,
-                            msg.mode0, msg.mode1, msg.mode2])
+            metrics.append(list(convert.MetricsData.from_msg(msg)))
         elif conn.topic == '/events/failure':
-            failures.append((int(msg.step), [int(v) for v in msg.ids], str(msg.cause)))
+            f = convert.FailureData.from_msg(msg)
+            failures.append((f.step, list(f.ids), f.cause))
         elif conn.topic == '/association':
-            association[int(msg.step)] = (np.asarray(msg.map_ids, dtype=np.intp), float(msg.coverage_ratio))
+            a = convert.AssociationData.from_msg(msg)
+            association[a.step] = (a.map_ids, a.coverage_ratio)
         elif conn.topic == '/users':
             users_msgs.append(msg)
         elif conn.topic == '/clusters' and clusters_msg is None:
@@ -209,10 +231,10 @@ def _read(path: Path, reader: AnyReader) -> BagRun:
     t[:, 1] = t[:, 0] * run.dt
     run.trajectory = t
     if users_msgs and clusters_msg is not None:
-        xyz, cluster = convert.users_arrays(users_msgs[0])
-        c = convert.clusters_arrays(clusters_msg)
-        run.users = physics.Users(xyz, cluster, c.xy, c.radii)
-        run.users_at = {int(getattr(m, 'step', 0)): convert.users_arrays(m) for m in users_msgs}
+        first = convert.UsersData.from_msg(users_msgs[0])
+        c = convert.ClustersData.from_msg(clusters_msg)
+        run.users = physics.Users(first.xyz, first.cluster, c.xy, c.radii)
+        run.users_at = {u.step: (u.xyz, u.cluster) for u in map(convert.UsersData.from_msg, users_msgs)}
     return run
 
 
@@ -290,19 +312,19 @@ class ReplayInputs:
     agent: int
     params: dict[str, Any]
     clusters: dict[int, bytes]                            # version -> raw Clusters
-    sensing: dict[int, tuple[bytes, list[int], int]]      # step -> (raw Sensing, neighbour ids, clusters version)
+    sensing: dict[int, tuple[bytes, convert.SensingData]]  # step -> (raw Sensing, its values)
     states: dict[int, dict[int, bytes]]                   # MAP id -> step -> raw AgentState
-    commands: dict[int, tuple[np.ndarray, int, int]]      # step -> (u, mode, goal)
-    failures: list[tuple[int, str, bytes]]                # (step, cause, raw FailureEvent)
+    commands: dict[int, convert.CommandData]              # step -> the command recorded
+    failures: list[tuple[convert.FailureData, bytes]]     # (event, raw FailureEvent), by step
 
 
 def replay_inputs(path: Path, agent: int) -> ReplayInputs:
     """One MAP's recorded inputs and commands, for `replay`."""
     path = find_bag(path)
-    sensing: dict[int, tuple[bytes, list[int], int]] = {}
+    sensing: dict[int, tuple[bytes, convert.SensingData]] = {}
     states: dict[int, dict[int, bytes]] = defaultdict(dict)
-    commands: dict[int, tuple[np.ndarray, int, int]] = {}
-    failures: list[tuple[int, str, bytes]] = []
+    commands: dict[int, convert.CommandData] = {}
+    failures: list[tuple[convert.FailureData, bytes]] = []
     clusters: dict[int, bytes] = {}
     mine = {f'/map_{agent}/sensing', f'/map_{agent}/cmd', '/clusters', '/events/failure'}
     with _reader(path) as reader:
@@ -311,22 +333,22 @@ def replay_inputs(path: Path, agent: int) -> ReplayInputs:
             raw = bytes(raw)
             i, kind = _map_topic(conn.topic)
             if kind == 'state':
-                states[i][int(reader.deserialize(raw, conn.msgtype).step)] = raw
+                states[i][convert.stamped_id_step(raw)[1]] = raw
                 continue
-            msg = reader.deserialize(raw, conn.msgtype)
+            msg = deserialize(reader, raw, conn.msgtype)
             if kind == 'sensing':
-                sensing[int(msg.step)] = (raw, [int(j) for j in msg.neighbors.ids],
-                                          int(getattr(msg, 'clusters_version', 0)))
+                sensed = convert.SensingData.from_msg(msg)
+                sensing[sensed.step] = (raw, sensed)
             elif kind == 'cmd':
-                a = msg.accel
-                commands[int(msg.step)] = (np.array([a.x, a.y, a.z]), int(msg.mode), int(msg.goal))
+                command = convert.CommandData.from_msg(msg)
+                commands[command.step] = command
             elif conn.topic == '/clusters':
-                clusters.setdefault(int(getattr(msg, 'version', 0)), raw)
+                clusters.setdefault(convert.ClustersData.from_msg(msg).version, raw)
             else:
-                failures.append((int(msg.step), str(msg.cause), raw))
+                failures.append((convert.FailureData.from_msg(msg), raw))
     if not sensing:
         raise BagError(f'{path}: no /map_{agent}/sensing messages: MAP {agent} is not in this bag')
     if not clusters:
         raise BagError(f'{path}: no /clusters message')
     return ReplayInputs(agent, _custom(path, PARAMS_KEY), clusters, sensing, dict(states), commands,
-                        sorted(failures, key=lambda f: f[0]))
+                        sorted(failures, key=lambda f: f[0].step))

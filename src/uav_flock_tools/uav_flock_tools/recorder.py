@@ -30,7 +30,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from std_msgs.msg import Int64
 from uav_flock_msgs.msg import FailureEvent, Metrics
 
-from uav_flock_ros.convert import stamped_id_step
+from uav_flock_ros.convert import FailureData, MetricsData, stamped_id_step
 from uav_flock_ros.executors import StopSignals, spun_node, take_waiting
 from uav_flock_ros.qos import LATCHED_QOS, is_realtime
 
@@ -40,6 +40,7 @@ from .echo import message_type
 PROGRESS_TOPIC = '/recorder/progress'
 RECORD_DEPTH = 1000        # reader history: room for bursts while the writer is busy on disk
 DISCOVERY_PERIOD_S = 0.1   # how often the graph is looked at for topics not yet recorded
+STALLED_S = 0.5            # an incomplete step with nothing arriving this long: look into the readers
 DRAIN_IDLE_S = 0.3         # on shutdown, stop once nothing arrived for this long ...
 DRAIN_MAX_S = 2.0          # ... or after this long in all
 
@@ -156,6 +157,10 @@ class Recorder(Node):
             self.ready = True
             self.get_logger().info(f'recording {len(self.subs)} topics')
         if self.ready:
+            # A step the world waits on that stays incomplete: the events executor may not have been told of a
+            # sample that sits in its reader (seen with writers that end right after publishing); take it.
+            if self.steps.step < self.steps.metrics and time.monotonic() - self.last_message > STALLED_S:
+                self.take_rest()
             self.progress_pub.publish(Int64(data=self.steps.step))
 
     def on_message(self, topic: str, raw: bytes) -> None:
@@ -166,9 +171,9 @@ class Recorder(Node):
         if kind in ('state', 'cmd') and topic.startswith('/map_'):
             self.steps.map_message(kind, *stamped_id_step(raw))
         elif topic == '/metrics':
-            self.steps.metrics = int(deserialize_message(raw, Metrics).step)
+            self.steps.metrics = MetricsData.from_msg(deserialize_message(raw, Metrics)).step
         elif topic == '/events/failure':
-            self.steps.dropped.update(int(i) for i in deserialize_message(raw, FailureEvent).ids)
+            self.steps.dropped.update(FailureData.from_msg(deserialize_message(raw, FailureEvent)).ids)
         else:
             return
         if self.steps.advance():

@@ -110,6 +110,7 @@ def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
     from rclpy.signals import SignalHandlerOptions
     from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
 
+    from uav_flock_ros import convert
     from uav_flock_ros.executors import signals_deferred
     from uav_flock_ros.qos import LATCHED_QOS, STATE_QOS, STEP_QOS
 
@@ -124,8 +125,13 @@ def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
             node = Node('replay', context=context)
             executor = rclpy.executors.SingleThreadedExecutor(context=context)
             executor.add_node(node)
-        answers: dict[int, Command] = {}
-        node.create_subscription(Command, f'/map_{i}/cmd', lambda m: answers.__setitem__(int(m.step), m), STEP_QOS)
+        answers: dict[int, convert.CommandData] = {}
+
+        def answered(msg: Command) -> None:
+            got = convert.CommandData.from_msg(msg)
+            answers[got.step] = got
+
+        node.create_subscription(Command, f'/map_{i}/cmd', answered, STEP_QOS)
         clusters = node.create_publisher(Clusters, '/clusters', LATCHED_QOS)
         sensing = node.create_publisher(Sensing, f'/map_{i}/sensing', STEP_QOS)
         failures = node.create_publisher(FailureEvent, '/events/failure', STEP_QOS)
@@ -147,10 +153,11 @@ def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
         for k in sorted(inputs.sensing):
             if k not in inputs.commands:
                 break  # the MAP answered nothing more in the recording (killed, or the run ended)
-            while pending_failures and (pending_failures[0][0] < k or
-                                        (pending_failures[0][0] == k and pending_failures[0][1] == 'scheduled')):
-                failures.publish(pending_failures.pop(0)[2])
-            raw, neighbours, version = inputs.sensing[k]
+            while pending_failures and (pending_failures[0][0].step < k or
+                                        (pending_failures[0][0].step == k and pending_failures[0][0].cause == 'scheduled')):
+                failures.publish(pending_failures.pop(0)[1])
+            raw, sensed = inputs.sensing[k]
+            neighbours, version = sensed.neighbour_ids.tolist(), sensed.clusters_version
             if version != told_version and version in inputs.clusters:
                 clusters.publish(inputs.clusters[version])  # the survey's new picture, as world_sim sent it
                 told_version = version
@@ -158,8 +165,8 @@ def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
             for j in neighbours:
                 if k in inputs.states.get(j, {}):
                     states[j].publish(inputs.states[j][k])
-            while pending_failures and pending_failures[0][0] == k:
-                failures.publish(pending_failures.pop(0)[2])
+            while pending_failures and pending_failures[0][0].step == k:
+                failures.publish(pending_failures.pop(0)[1])
             until = time.monotonic() + timeout
             while k not in answers and time.monotonic() < until:
                 executor.spin_once(timeout_sec=0.01)
@@ -169,8 +176,8 @@ def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
                 outcome.stuck_at = k
                 return
             got = answers.pop(k)
-            u, mode, goal = inputs.commands[k]
-            du = float(np.max(np.abs(np.array([got.accel.x, got.accel.y, got.accel.z]) - u)))
+            u, mode, goal = inputs.commands[k].u, inputs.commands[k].mode, inputs.commands[k].goal
+            du = float(np.max(np.abs(got.u - u)))
             outcome.max_du = max(outcome.max_du, du)
             outcome.steps += 1
             if du > outcome.tolerance or got.mode != mode or got.goal != goal:

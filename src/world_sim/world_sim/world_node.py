@@ -124,7 +124,7 @@ class WorldNode(Node):
         self.publish_fixed()
 
         self.sensed: Optional[Sensed] = None
-        self.commands: dict[int, Command] = {}  # lockstep: this step's; realtime: each MAP's latest
+        self.commands: dict[int, convert.CommandData] = {}  # lockstep: this step's; realtime: each MAP's latest
         self.fresh = self.applied = 0  # realtime: commands applied in the step they were computed for, of all
         self.last_mode: dict[int, int] = {}
         self.rejected = 0
@@ -148,13 +148,13 @@ class WorldNode(Node):
 
     def publish_users(self) -> None:
         u = self.world.users
-        self.users_pub.publish(convert.users(self.header(), self.world.k, u.xyz, u.cluster))
+        self.users_pub.publish(convert.UsersData(self.world.k, u.xyz, u.cluster).to_msg(self.header()))
 
     def publish_clusters(self) -> None:
         w = self.world
         c = w.clusters
-        self.clusters_pub.publish(convert.clusters(self.header(), w.clusters_version, c.xy, w.users.cluster_sizes,
-                                                   c.radii, c.active, c.velocities[:, :2]))
+        self.clusters_pub.publish(convert.ClustersData(w.clusters_version, c.xy, w.users.cluster_sizes, c.radii, c.active,
+                                                       c.velocities[:, :2]).to_msg(self.header()))
 
     # ------------------------------------------------------------------ lockstep
     def tick(self) -> None:
@@ -209,7 +209,8 @@ class WorldNode(Node):
         self.step_resends = 0
         hdr = self.header()
         self.clock_pub.publish(Clock(clock=hdr.stamp))
-        self.assoc_pub.publish(convert.association(hdr, s.k, s.ids, s.n_users, s.cluster_coverage, s.coverage_ratio))
+        self.assoc_pub.publish(convert.AssociationData(s.k, s.ids, s.n_users, s.cluster_coverage,
+                                                       s.coverage_ratio).to_msg(hdr))
         self.publish_sensing(hdr)
         if not self.realtime:
             self.maybe_advance()  # no live MAP left to wait for: no command will ever come
@@ -222,12 +223,13 @@ class WorldNode(Node):
                 continue
             nbr = s.neighbours(row)
             goal = int(w.goal[i])
-            self.sensing_pubs[i].publish(convert.sensing(
-                hdr, i, s.k, s.q[row], s.p[row], int(s.n_users[row]),
-                float(s.cluster_coverage[goal]) if goal != NO_GOAL else 0.0, s.ids[nbr], s.q[nbr],
-                w.clusters_version))
+            self.sensing_pubs[i].publish(convert.SensingData(
+                i, s.k, s.q[row], s.p[row], int(s.n_users[row]),
+                float(s.cluster_coverage[goal]) if goal != NO_GOAL else 0.0, s.ids[nbr],
+                np.linalg.norm(s.q[nbr] - s.q[row], axis=1), w.clusters_version).to_msg(hdr))
 
-    def on_command(self, sender: int, msg: Command) -> None:
+    def on_command(self, sender: int, raw: Command) -> None:
+        msg = convert.CommandData.from_msg(raw)
         s = self.sensed
         if s is None or self.finished:
             return
@@ -240,7 +242,7 @@ class WorldNode(Node):
         else:
             bad_step = msg.step != s.k
         flying = self.world.alive[sender] if self.realtime else sender in s.ids
-        if msg.id != sender or bad_step or not convert.finite(msg.accel) or not flying:
+        if msg.id != sender or bad_step or not np.all(np.isfinite(msg.u)) or not flying:
             self.rejected += 1
             if self.rejected == 1:
                 self.get_logger().warning(f'rejected a command on /map_{sender}/cmd (id {msg.id}, step {msg.step}); '
@@ -280,10 +282,10 @@ class WorldNode(Node):
         self.fresh += sum(1 for c in cmds if c is not None and c.step == self.sensed.k)
         self.end_step(cmds)
 
-    def end_step(self, cmds: list[Optional[Command]]) -> None:
+    def end_step(self, cmds: list[Optional[convert.CommandData]]) -> None:
         """Record the step and integrate it; a MAP with no command (dead, or none yet) flies with u = 0."""
         s = self.sensed
-        u = np.array([convert.xyz(c.accel) if c else np.zeros(3) for c in cmds]).reshape(-1, 3)
+        u = np.array([c.u if c else np.zeros(3) for c in cmds]).reshape(-1, 3)
         modes = np.array([c.mode if c else self.last_mode.get(i, 0) for c, i in zip(cmds, s.ids.tolist())],
                          dtype=np.intp)
         goals = np.array([c.goal if c else self.world.goal[i] for c, i in zip(cmds, s.ids.tolist())],
@@ -329,10 +331,9 @@ class WorldNode(Node):
         return True
 
     def publish_metrics(self, row: np.ndarray) -> None:
-        k, t, rc, lam2, alive, comp, m0, m1, m2 = row.tolist()
-        self.metrics_pub.publish(Metrics(header=Header(stamp=sim_time(t), frame_id='world'), step=int(k), t=t,
-                                         coverage_ratio=rc, fiedler=lam2, alive=int(alive), components=int(comp),
-                                         mode0=int(m0), mode1=int(m1), mode2=int(m2)))
+        m = convert.MetricsData.of_row(row.tolist())
+        k, t, rc, lam2, alive, m0, m1, m2 = m.step, m.t, m.coverage_ratio, m.fiedler, m.alive, m.mode0, m.mode1, m.mode2
+        self.metrics_pub.publish(m.to_msg(Header(stamp=sim_time(t), frame_id='world')))
         if int(k) % int(round(1.0 / self.scenario.dt)) == 0:
             wall = time.monotonic() - self.wall_start
             fresh = ''
@@ -354,8 +355,7 @@ class WorldNode(Node):
         self.world.drop(ids)
         for i in ids.tolist():
             self.commands.pop(i, None)  # a dropped MAP flies no command any more
-        self.failure_pub.publish(FailureEvent(header=self.header(), step=self.world.k,
-                                              ids=ids.astype(np.uint32).tolist(), cause=cause))
+        self.failure_pub.publish(convert.FailureData(self.world.k, tuple(ids.tolist()), cause).to_msg(self.header()))
         # INFO, not WARN: `up` shows warnings on the terminal, where the progress line below already says it.
         self.get_logger().info(f'step {self.world.k}: dropped MAPs {ids.tolist()} ({cause})')
         print(f't = {self.world.k * self.scenario.dt:5.1f} s  dropped MAPs {ids.tolist()} ({cause})', flush=True)
