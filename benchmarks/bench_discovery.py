@@ -26,8 +26,9 @@ from typing import Optional
 import rclpy  # imported once here, before the forks, as `up`'s agent template does: discovery is timed, not imports
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Int64
-from uav_flock_tools.launcher import (claim_domain, clean_shared_memory, discovery_server_address, ros_env,
-                                      start_discovery_server, stop)
+from uav_flock_tools.cleanup import clean_shared_memory
+from uav_flock_tools.domains import claim_domain, discovery_server_address, ros_env, start_discovery_server
+from uav_flock_tools.spawn import stop
 
 MODES = ('localhost', 'server', 'subnet', 'profile')
 PROFILE = Path(__file__).resolve().parent / 'fastdds_localhost_udp.xml'

@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 from typing import NamedTuple, NoReturn, Optional
 
-from uav_flock_tools.launcher import read_pid_table
+from uav_flock_tools.spawn import read_pid_table
 from world_sim.core import records
 
 

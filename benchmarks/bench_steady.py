@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 from typing import NamedTuple, NoReturn
 
-from uav_flock_tools.launcher import read_pid_table
+from uav_flock_tools.spawn import read_pid_table
 from world_sim.core import records
 
 PROGRESS = re.compile(r'^t = +([0-9.]+) s')

@@ -10,9 +10,9 @@ import pytest
 @pytest.fixture
 def ros_env(monkeypatch: pytest.MonkeyPatch) -> dict[str, str]:
     """Environment for ROS processes of one test: a fresh domain, discovery kept on this host, and the
-    transports a run's own processes use (launcher.ros_env), so that a test's helper in a run's domain
+    transports a run's own processes use (domains.ros_env), so that a test's helper in a run's domain
     (a rogue publisher, a graph sampler) meets the run's participants as they meet each other."""
-    from uav_flock_tools.launcher import ros_env as run_env
+    from uav_flock_tools.domains import ros_env as run_env
     env = run_env(random.Random(os.getpid() ^ random.getrandbits(32)).randint(1, 101))
     for key in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'FASTDDS_BUILTIN_TRANSPORTS'):
         monkeypatch.setenv(key, env[key])

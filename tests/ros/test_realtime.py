@@ -65,7 +65,7 @@ def test_realtime_drops_killed_agents_and_goes_on(tmp_path: Path, ros_env: dict[
 
 
 def agent(ids: str, env: dict[str, str], *ros_args: str) -> subprocess.Popen[str]:
-    from uav_flock_tools.launcher import executable
+    from uav_flock_tools.spawn import executable
     return subprocess.Popen([executable('uav_agent', 'uav_agent_node'), '--ids', ids, '--ros-args', *ros_args],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
@@ -83,7 +83,7 @@ def test_agents_wait_for_a_world_that_comes_late(tmp_path: Path, ros_env: dict[s
         assert impatient.returncode == 1 and 'no world_sim appeared within' in said, said
         time.sleep(12.0)  # longer than an agent waits for a world it has already seen
         assert waiting.poll() is None, 'an agent must keep waiting for a world that has not appeared yet'
-        from uav_flock_tools.launcher import executable
+        from uav_flock_tools.spawn import executable
         world = subprocess.run([executable('world_sim', 'world_sim_node'), '--ros-args', '-p', 'maps:=2',
                                 '-p', 'duration:=1.0', '-p', f'out:={tmp_path}'], env=ros_env, capture_output=True,
                                text=True, timeout=120)
@@ -104,7 +104,7 @@ def test_bad_node_parameters_and_sync_options_are_one_line_errors(ros_env: dict[
     bad = agent('0', ros_env, '-p', 'sync:=warp')
     said, _ = bad.communicate(timeout=60)
     assert bad.returncode == 2 and said.strip().count('\n') == 0 and "parameter sync" in said, said
-    from uav_flock_tools.launcher import executable
+    from uav_flock_tools.spawn import executable
     for node, args in (('uav_agent_node', ['--ids', '0', '--ros-args', '-p', 'r:=far']),  # r is a float
                        ('uav_agent_node', ['--ids', '0', '--ros-args', '-p', 'r:=-24.0']),
                        ('uav_agent_node', ['--ids', '0', '--ros-args', '-p', 'n0:=20']),  # above n1
@@ -126,7 +126,7 @@ def test_bad_node_parameters_and_sync_options_are_one_line_errors(ros_env: dict[
 
 def test_sigterm_ends_a_stepping_world_in_order(tmp_path: Path, ros_env: dict[str, str]) -> None:
     """`kill PID` on world_sim mid-run: records written, no fatal callback error from a signal raised inside one."""
-    from uav_flock_tools.launcher import executable
+    from uav_flock_tools.spawn import executable
     for attempt in range(3):  # steps run back to back: the signal lands inside a callback most of the time
         out = tmp_path / str(attempt)
         maps = agent('0,1,2', ros_env)

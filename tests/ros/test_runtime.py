@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from helpers.runs import cli, dead, dropped_ids, helper, kill_during, shm_entries, up, wait_for_line
-from uav_flock_tools.launcher import claim_domain
+from uav_flock_tools.domains import claim_domain
 from world_sim.core.records import read_csv
 
 

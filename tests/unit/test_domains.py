@@ -7,11 +7,11 @@ import sys
 from pathlib import Path
 
 import pytest
-from uav_flock_tools.launcher import FRESH_DOMAINS, DomainInUse, claim_domain
+from uav_flock_tools.domains import FRESH_DOMAINS, DomainInUse, claim_domain
 
 HOLDER = '''
 import sys, time
-from uav_flock_tools.launcher import claim_domain
+from uav_flock_tools.domains import claim_domain
 claim = claim_domain()
 print(claim.domain, flush=True)
 time.sleep(300)

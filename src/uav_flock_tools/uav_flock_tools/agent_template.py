@@ -1,6 +1,6 @@
 """The template every agent process of `up` is forked from: the agent imported, and inspect's module map.
 
-Imported once, by the forkserver process that `up` forks its agent processes from (launcher.start_agents).
+Imported once, by the forkserver process that `up` forks its agent processes from (spawn.start_agents).
 """
 import inspect
 

@@ -247,7 +247,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     """world_sim and one process per MAP (or K per process), in lockstep or in real time."""
     from world_sim.shipped import resolve
 
-    from . import launcher, simrun
+    from . import domains, launcher, simrun
     path = resolve(args.scenario)
     base = simrun.load_scenario(args.scenario)
     check_failure('up', base, args)
@@ -265,7 +265,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     try:
         code, result = launcher.up(path.resolve(), s, out.resolve(), args.agents_per_process, args.domain_id,
                                    args.discovery, args.record, args.sync, args.rate, args.listen, args.agents_here)
-    except (FileExistsError, ValueError, launcher.DomainInUse) as exc:
+    except (FileExistsError, ValueError, domains.DomainInUse) as exc:
         raise UsageError(f'up: {exc}') from None
     if result is None:
         return code or 1
@@ -322,11 +322,11 @@ def cmd_agents(args: argparse.Namespace) -> int:
 
 
 def cmd_kill(args: argparse.Namespace) -> int:
-    from . import launcher
+    from .kill import kill
     if (args.ids is None) == (args.fraction is None):
         raise UsageError('kill: give exactly one of --ids or --fraction')
     try:
-        killed, pids = launcher.kill(Path(args.run), args.ids, args.fraction, args.whole_processes)
+        killed, pids = kill(Path(args.run), args.ids, args.fraction, args.whole_processes)
     except (FileNotFoundError, ValueError) as exc:
         raise UsageError(f'kill: {exc}') from None
     print(f'SIGKILLed MAPs {killed} (processes {pids})' if killed else 'no live MAP matched')
@@ -365,10 +365,10 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from . import bag, launcher, replay
+    from . import bag, domains, replay
     try:
         outcome = replay.replay(Path(args.bag), args.agent, args.tolerance, args.timeout, dict(args.set or []))
-    except (bag.BagError, replay.ReplayError, launcher.DomainInUse) as exc:
+    except (bag.BagError, replay.ReplayError, domains.DomainInUse) as exc:
         raise UsageError(f'replay: {exc}') from None
     print(outcome.describe())
     return 0 if outcome.ok else 1

@@ -27,7 +27,7 @@ class EchoError(Exception):
 def use_domain(run: Optional[str], domain_id: Optional[int]) -> None:
     """Point this process at a run's domain (from its run.json) or an explicit one."""
     if run is not None:
-        from .launcher import run_has_ended
+        from .kill import run_has_ended
         info = Path(run) / 'run.json'
         if not info.exists():
             raise FileNotFoundError(f'--run: {run} has no run.json (is it a run folder of ./uav-flock up?)')
@@ -72,7 +72,8 @@ def message_type(name: str) -> type:
 
 def expected_topics(run: str) -> set[str]:
     """What a live run surely has on its graph: the world's metrics and the state of each MAP whose process lives."""
-    from .launcher import agent_of_run, read_pid_table
+    from .kill import agent_of_run
+    from .spawn import read_pid_table
     try:
         table = read_pid_table(Path(run))
     except (FileNotFoundError, ValueError):

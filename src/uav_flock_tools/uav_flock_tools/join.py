@@ -13,11 +13,12 @@ import os
 import signal
 import time
 from pathlib import Path
-from typing import Optional
+
 
 from uav_flock_ros.processes import write_params
 
-from .launcher import (DISCOVERY_BASE_PORT, ForkedAgent, ros_env, start_agents, stop, write_pid_table)
+from .domains import DISCOVERY_BASE_PORT, ros_env
+from .spawn import ForkedAgent, start_agents, stop, write_pid_table
 
 POLL_S = 0.5
 
@@ -111,7 +112,7 @@ def join(address: str, ids: list[int], out: Path, agents_per_process: int, timeo
             signal.signal(sig, handler)
     codes = [a.poll() for a in agents]
     if interrupted:
-        print(f'uav-flock agents: interrupted; every agent process of this host ended', flush=True)
+        print('uav-flock agents: interrupted; every agent process of this host ended', flush=True)
         return 130
     failed = [g[0] for g, c in zip(groups, codes) if c not in (0, None)]
     print(f'uav-flock agents: the run ended; {len(groups) - len(failed)} of {len(groups)} processes ended cleanly'

@@ -20,7 +20,7 @@ import numpy as np
 from uav_agent.core.params import FlockParams
 from uav_flock_ros.processes import write_params
 
-from . import bag, launcher
+from . import bag, domains, spawn
 
 READY_TIMEOUT_S = 30.0  # the fresh agent must be on the graph within this
 
@@ -73,11 +73,11 @@ def replay(path: Path, agent: int, tolerance: float = 1e-9, timeout: float = 20.
         floats = {f.name for f in fields(FlockParams) if isinstance(f.default, float)}
         inputs.params = {**inputs.params, **{k: float(v) if k in floats and type(v) is int else v
                                             for k, v in overrides.items()}}
-    with launcher.claim_domain() as domain, tempfile.TemporaryDirectory(prefix='uav-flock-replay-') as tmp:
-        env = launcher.ros_env(domain)
+    with domains.claim_domain() as domain, tempfile.TemporaryDirectory(prefix='uav-flock-replay-') as tmp:
+        env = domains.ros_env(domain)
         params = write_params(Path(tmp) / 'agent_params.yaml', inputs.params)
         log = open(Path(tmp) / 'agent.log', 'w')
-        proc = launcher.start_agent([agent], params, env, log)
+        proc = spawn.start_agent([agent], params, env, log)
         saved = {k: os.environ.get(k) for k in env}
         os.environ.update(env)
 
@@ -87,13 +87,13 @@ def replay(path: Path, agent: int, tolerance: float = 1e-9, timeout: float = 20.
                 return None
             log.flush()
             last = (Path(log.name).read_text(errors='replace').strip().splitlines() or [''])[-1]
-            how = launcher.describe_exit(proc.returncode)
+            how = spawn.describe_exit(proc.returncode)
             return f'the agent node of MAP {agent} ended ({how})' + (f': {last}' if last else '')
 
         try:
             _drive(inputs, outcome, timeout, agent_exit)
         finally:
-            launcher.stop([proc])
+            spawn.stop([proc])
             log.close()
             for k, v in saved.items():
                 if v is None:

@@ -1,0 +1,109 @@
+"""A run's ROS_DOMAIN_ID (claimed, so that runs on one host never hear each other), its environment and its
+discovery: simple discovery on this host, or a Fast DDS discovery server for the run.
+
+Fast DDS is told to use UDP only, with large socket buffers; rmw_fastrtps overrides that with its own
+transports (loopback UDP and shared memory) when discovery is LOCALHOST (docs/design.md).
+"""
+from __future__ import annotations
+
+import fcntl
+import os
+import random
+import signal
+import subprocess
+import tempfile
+from pathlib import Path
+from typing import Optional
+
+from .spawn import dies_with_parent
+
+DISCOVERY_BASE_PORT = 11811  # a run's discovery server listens on this port plus its domain
+
+
+# Socket buffers of a run's participants (discovery server or subnet; LOCALHOST discovery keeps rmw's own
+# transports). The kernel's default (208 KiB) overflows when a hundred nodes subscribe at once, and
+# reliable DDS then spends its time repairing dropped datagrams.
+SOCKET_BUFFER_BYTES = 4 * 1024 * 1024
+
+
+def ros_env(domain_id: int, discovery_server: Optional[str] = None, discovery_range: str = 'LOCALHOST'
+            ) -> dict[str, str]:
+    """Environment of a run's processes: its own domain, and its discovery server if it has one."""
+    env = dict(os.environ)
+    env.update(ROS_DOMAIN_ID=str(domain_id), FASTDDS_BUILTIN_TRANSPORTS=f'UDPv4?sockets_size={SOCKET_BUFFER_BYTES}',
+               PYTHONUNBUFFERED='1')
+    if discovery_server:
+        env['ROS_DISCOVERY_SERVER'] = discovery_server
+        env.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
+    else:
+        env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = discovery_range
+        env.pop('ROS_DISCOVERY_SERVER', None)
+    return env
+
+
+def discovery_server_address(domain_id: int, host: str = '127.0.0.1') -> str:
+    """One port per domain, so that runs in different domains each have their own server."""
+    return f'{host}:{DISCOVERY_BASE_PORT + domain_id}'
+
+
+def start_discovery_server(address: str, env: dict[str, str], log: Path) -> subprocess.Popen:
+    """The Fast DDS discovery server the wheels ship, on address (host:port), in its own session."""
+    host, port = address.rsplit(':', 1)
+    with open(log, 'w') as out:
+        return subprocess.Popen(['fast-discovery-server', '-i', '0', '-l', host, '-p', port],
+                                env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
+                                preexec_fn=dies_with_parent(signal.SIGTERM))
+
+
+# Domains a run may be given: 0, ROS's default, is left to whatever else runs ROS on the host. Above 101
+# Fast DDS's ports for a domain run into Linux's ephemeral range.
+FRESH_DOMAINS = range(1, 102)
+DOMAIN_CLAIMS = Path(tempfile.gettempdir()) / 'uav-flock-domains'
+
+
+class DomainInUse(Exception):
+    """Every domain asked for is held by another run on this host."""
+
+
+class DomainClaim:
+    """A ROS_DOMAIN_ID held for one run, released on release(), on leaving a with block, or when the process ends.
+
+    Two runs in one domain would hear each other's MAPs: their topics have the same names. The claim is
+    an flock on one file per domain, which the kernel drops with the process, so a SIGKILLed run frees
+    its domain at once and nothing stale is left to clean.
+    """
+
+    def __init__(self, domain: int, fd: int) -> None:
+        self.domain, self._fd = domain, fd
+
+    def release(self) -> None:
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
+
+    def __enter__(self) -> int:
+        return self.domain
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+def claim_domain(requested: Optional[int] = None) -> DomainClaim:
+    """The requested domain, or a random free one of FRESH_DOMAINS; DomainInUse if another run holds it."""
+    if not DOMAIN_CLAIMS.is_dir():
+        DOMAIN_CLAIMS.mkdir(exist_ok=True)
+        os.chmod(DOMAIN_CLAIMS, 0o1777)  # shared by every user of the host, as DDS domains are
+    candidates = [requested] if requested is not None else random.SystemRandom().sample(FRESH_DOMAINS,
+                                                                                        len(FRESH_DOMAINS))
+    for domain in candidates:
+        fd = os.open(DOMAIN_CLAIMS / str(domain), os.O_RDONLY | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            continue
+        return DomainClaim(domain, fd)
+    if requested is not None:
+        raise DomainInUse(f'ROS_DOMAIN_ID {requested} is in use by another run on this host')
+    raise DomainInUse(f'every ROS_DOMAIN_ID from {FRESH_DOMAINS[0]} to {FRESH_DOMAINS[-1]} is in use by '
+                      'another run on this host')

@@ -1,0 +1,84 @@
+"""`./uav-flock kill`: SIGKILL some MAPs of a running run, as a failure would, and tell a run that has ended."""
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+from pathlib import Path
+from typing import Optional
+
+from .spawn import read_pid_table
+
+def kill(run: Path, ids: Optional[list[int]], fraction: Optional[float], whole_processes: bool = False
+         ) -> tuple[list[int], list[int]]:
+    """SIGKILL agent processes of a running `up`: by MAP id, or a random fraction of the live MAPs.
+
+    Returns (MAP ids killed, pids killed). A SIGKILL takes every MAP of a process: with agents packed
+    several to a process, asking for some of them is refused (ValueError naming the others), unless
+    whole_processes says to take all MAPs of the processes concerned.
+    """
+    if run_has_ended(run):
+        raise ValueError(f'the run in {run} has ended: nothing to kill')
+    table = read_pid_table(run)
+    params = run.resolve() / 'agent_params.yaml'
+    live = sorted(i for i, pid in table.items() if agent_of_run(pid, params))
+    by_pid: dict[int, list[int]] = {}
+    for i in live:
+        by_pid.setdefault(table[i], []).append(i)
+    if ids is None:
+        count = int(round((fraction or 0.0) * len(live)))
+        if all(len(maps) == 1 for maps in by_pid.values()):
+            ids = sorted(random.SystemRandom().sample(live, count))
+        elif not whole_processes:
+            raise ValueError(f'--fraction: agents are packed up to {max(map(len, by_pid.values()))} to a process '
+                             'and a SIGKILL takes them all; pass --whole-processes to kill whole processes '
+                             f'holding about {count} MAPs')
+        else:
+            ids = []
+            for pid in random.SystemRandom().sample(sorted(by_pid), len(by_pid)):
+                if len(ids) >= count:
+                    break
+                ids += by_pid[pid]
+    unknown = [i for i in ids if i not in table]
+    if unknown:
+        raise ValueError(f'--ids: no MAP {unknown[0]} in this run (ids 0-{max(table)})')
+    pids = sorted({table[i] for i in ids if i in live})
+    taken = sorted(i for pid in pids for i in by_pid[pid])
+    extra = sorted(set(taken) - set(ids))
+    if extra and not whole_processes:
+        first = next(i for i in ids if i in live and set(by_pid[table[i]]) - set(ids))
+        others = sorted(set(by_pid[table[first]]) - set(ids))
+        raise ValueError(f'--ids: MAP {first} shares its process (pid {table[first]}) with MAPs {others}, which a '
+                         f'SIGKILL takes too; ask for them as well, or pass --whole-processes (MAPs {taken} would die)')
+    for pid in pids:
+        os.kill(pid, signal.SIGKILL)
+    return taken, pids
+
+
+def _running(pid: int, *words: str) -> bool:
+    """A living process whose command line holds all of words: a pid alone may since belong to another."""
+    from uav_flock_ros.processes import process_alive
+    try:
+        line = Path(f'/proc/{pid}/cmdline').read_bytes().replace(b'\0', b' ').decode(errors='replace')
+    except OSError:
+        return False
+    return all(w in line for w in words) and process_alive(pid)
+
+
+def agent_of_run(pid: int, params: Path) -> bool:
+    """A living agent process of the run whose parameter file this is.
+
+    After a run has ended its pids may belong to other processes: `kill --run` on an old run must not
+    SIGKILL them. Every agent's command line names its run's agent_params.yaml.
+    """
+    return _running(pid, 'uav_agent_node', f'--params-file {params}')
+
+
+def run_has_ended(run: Path) -> bool:
+    """The run's world_sim is gone, so are its topics. False while unknown (world not yet started)."""
+    try:
+        pid = json.loads((run / 'run.json').read_text()).get('world_pid')
+    except (OSError, ValueError, AttributeError):
+        return False
+    return isinstance(pid, int) and not _running(pid, 'world_sim_node', f' out:={run.resolve()} ')
