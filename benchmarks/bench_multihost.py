@@ -22,7 +22,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from uav_flock_tools import netns
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'tests'))  # where tests and benchmarks keep helpers
+from helpers import netns  # noqa: E402
 
 SUBNET = '10.231.9'
 

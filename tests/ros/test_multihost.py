@@ -15,7 +15,7 @@ from typing import Any, Iterator
 import pytest
 import yaml
 from helpers.runs import cli
-from uav_flock_tools import netns
+from helpers import netns
 
 SUBNET = '10.231.7'
 HOSTS = ['world', 'a', 'b']  # at SUBNET.1, .2, .3

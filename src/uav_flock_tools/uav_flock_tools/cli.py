@@ -1,4 +1,9 @@
-"""uav-flock command line (behind ./uav-flock): batch simulation runs and the paper's figures."""
+"""uav-flock command line (behind ./uav-flock).
+
+Running a scenario: `sim` (batch, in one process), `run` (the main job), `up` (distributed: world_sim and
+the MAP agents as processes), `agents` (agents of another host joining an `up --listen`). Looking into a run:
+`kill`, `echo`, `topics`, `report`, `replay`. Measuring the method: `layouts`, `paper`.
+"""
 from __future__ import annotations
 
 import argparse
@@ -406,22 +411,36 @@ def cmd_paper(args: argparse.Namespace) -> int:
 RUN_INFO_TIMEOUT_S = 20.0  # agents --join: how long a run's /run_info is waited for
 
 
+def command(sub: 'argparse._SubParsersAction[_Parser]', name: str, func: Callable[[argparse.Namespace], int],
+            summary: str) -> _Parser:
+    """A subcommand whose `--help` opens with the line `uav-flock --help` lists it with."""
+    p = sub.add_parser(name, help=summary, description=summary[0].upper() + summary[1:] + '.')
+    p.set_defaults(func=func)
+    return p
+
+
 def build_parser() -> argparse.ArgumentParser:
-    from uav_flock_ros.qos import SYNC_MODES
     parser = _Parser(prog='uav-flock', description=__doc__)
     sub = parser.add_subparsers(dest='command', required=True, parser_class=_Parser)
-    p = sub.add_parser('sim', help='run a scenario in-process for one or more MAP counts and seeds')
+    add_run_commands(sub)
+    add_inspect_commands(sub)
+    add_study_commands(sub)
+    return parser
+
+
+def add_run_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
+    """sim, run, up and agents: what runs a scenario."""
+    from uav_flock_ros.qos import SYNC_MODES
+    p = command(sub, 'sim', cmd_sim, 'run a scenario in-process for one or more MAP counts and seeds')
     add_scenario_options(p, grid=True)
     p.add_argument('--out', help='output folder (default: runs/sim-<time>)')
     p.add_argument('--replace', action='store_true', help='replace the earlier run in --out (refused otherwise)')
-    p.set_defaults(func=cmd_sim)
-    p = sub.add_parser('run', help='the main job: the paper scenario with 90 MAPs, distributed and recorded, '
+    p = command(sub, 'run', cmd_run, 'the main job: the paper scenario with 90 MAPs, distributed and recorded, '
                                    'with plots and a report of its bag')
     p.add_argument('--batch', action='store_true', help='in one process with the batch simulator instead (seconds)')
     p.add_argument('--out', help='output folder (default: runs/run-<time>)')
     p.add_argument('--replace', action='store_true', help='replace the earlier run in --out (refused otherwise)')
-    p.set_defaults(func=cmd_run)
-    p = sub.add_parser('up', help='run a scenario distributed: world_sim and one process per MAP')
+    p = command(sub, 'up', cmd_up, 'run a scenario distributed: world_sim and one process per MAP')
     add_scenario_options(p, grid=False)
     p.add_argument('--agents-per-process', type=positive_int, default=1, help='pack K agent nodes into one process')
     p.add_argument('--domain-id', type=domain_id,
@@ -441,8 +460,7 @@ def build_parser() -> argparse.ArgumentParser:
                    'join (the discovery server listens there; see `agents --join`)')
     p.add_argument('--agents-here', type=non_negative_int, metavar='N',
                    help='with --listen: run MAPs 0..N-1 here and wait for the others to join (default: all here)')
-    p.set_defaults(func=cmd_up)
-    p = sub.add_parser('agents', help='agent processes on this host that join a run of `up --listen` on another')
+    p = command(sub, 'agents', cmd_agents, 'agent processes on this host that join a run of `up --listen` on another')
     p.add_argument('--join', required=True, metavar='HOST:PORT', help='the address `up --listen` printed')
     p.add_argument('--ids', type=id_list, required=True, help='MAP ids to run here, e.g. 30-89')
     p.add_argument('--agents-per-process', type=positive_int, default=1, help='pack K agent nodes into one process')
@@ -450,33 +468,31 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f'wait this long for the run to answer (s, default: {RUN_INFO_TIMEOUT_S:g})')
     p.add_argument('--out', help='folder for this host\'s logs and pids (default: runs/agents-<time>)')
     p.add_argument('--replace', action='store_true', help='replace an earlier folder in --out (refused otherwise)')
-    p.set_defaults(func=cmd_agents)
 
-    p = sub.add_parser('kill', help='SIGKILL agent processes of a running `up`')
+
+def add_inspect_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
+    """kill, echo, topics, report and replay: what looks into a run, or breaks it on purpose."""
+    p = command(sub, 'kill', cmd_kill, 'SIGKILL agent processes of a running `up`')
     p.add_argument('--run', required=True, help='the run folder of `up`')
     p.add_argument('--ids', type=int_list, help='MAP ids to kill, e.g. 3,7')
     p.add_argument('--fraction', type=fraction, help='fraction of the live MAPs to kill, chosen at random')
     p.add_argument('--whole-processes', action='store_true',
                    help='with agents packed several to a process: kill every MAP of the processes concerned '
                         '(refused otherwise, since a SIGKILL takes them all)')
-    p.set_defaults(func=cmd_kill)
-    p = sub.add_parser('echo', help='print messages of a topic as `ros2 topic echo` does')
-    p.add_argument('topic')
+    p = command(sub, 'echo', cmd_echo, 'print messages of a topic as `ros2 topic echo` does')
+    p.add_argument('topic', help='the topic, e.g. /metrics or map_3/state (relative names are taken from /)')
     p.add_argument('--once', action='store_true', help='print one message and exit')
     p.add_argument('--timeout', type=positive_float, default=10.0,
                    help='wait at most this long for the first message, publisher or not (s, default 10)')
     p.add_argument('--run', help='a run folder of `up`: use its ROS_DOMAIN_ID')
     p.add_argument('--domain-id', type=domain_id, help='ROS_DOMAIN_ID to listen on (default: the environment)')
-    p.set_defaults(func=cmd_echo)
-    p = sub.add_parser('topics', help='list topics with their types, as `ros2 topic list -t` does')
+    p = command(sub, 'topics', cmd_topics, 'list topics with their types, as `ros2 topic list -t` does')
     p.add_argument('--run', help='a run folder of `up`: use its ROS_DOMAIN_ID')
     p.add_argument('--domain-id', type=domain_id, help='ROS_DOMAIN_ID to look at (default: the environment)')
-    p.set_defaults(func=cmd_topics)
-    p = sub.add_parser('report', help="plots and a summary table from a run's bag (ours or ros2 bag record's)")
+    p = command(sub, 'report', cmd_report, "plots and a summary table from a run's bag (ours or ros2 bag record's)")
     p.add_argument('bag', help=BAG_HELP)
     p.add_argument('--out', help='output folder (default: RUN/report next to the bag)')
-    p.set_defaults(func=cmd_report)
-    p = sub.add_parser('replay', help="feed one MAP's recorded inputs to a fresh agent node, compare commands")
+    p = command(sub, 'replay', cmd_replay, "feed one MAP's recorded inputs to a fresh agent node, compare commands")
     p.add_argument('bag', help=BAG_HELP)
     p.add_argument('--agent', type=non_negative_int, required=True, help='the MAP id to replay')
     p.add_argument('--tolerance', type=non_negative_float, default=1e-9,
@@ -484,8 +500,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--timeout', type=positive_float, default=20.0, help='wait this long for a command (s)')
     p.add_argument('--set', type=key_value, action='append', metavar='KEY=VALUE',
                    help='replay with an agent parameter changed, e.g. --set c1=0.4 (repeatable)')
-    p.set_defaults(func=cmd_replay)
-    p = sub.add_parser('layouts', help='draw random cluster layouts as scenario files, with the MAP floor of each')
+
+
+def add_study_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
+    """layouts and paper: what measures the method over many runs."""
+    p = command(sub, 'layouts', cmd_layouts, 'draw random cluster layouts as scenario files, with the MAP floor of each')
     p.add_argument('--count', type=positive_int, default=10, help='layouts to draw (default: 10)')
     p.add_argument('--clusters', type=count_range, default=(3, 6), help='clusters per layout, N or LOW-HIGH '
                                                                           '(default: 3-6)')
@@ -496,8 +515,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--scenario', default='paper', help='scenario the layouts take everything else from '
                                                        '(default: paper; its policies are left out)')
     p.add_argument('--out', help='a new folder for the scenario files (default: runs/layouts-<time>)')
-    p.set_defaults(func=cmd_layouts)
-    p = sub.add_parser('paper', help="regenerate the paper's figures over several seeds and docs/results.md")
+    p = command(sub, 'paper', cmd_paper, "regenerate the paper's figures over several seeds and docs/results.md")
     p.add_argument('--scenario', default='paper', help=SCENARIO_HELP)
     p.add_argument('--seeds', type=positive_int, default=5, help='seeds per configuration (default: 5)')
     p.add_argument('--out', default='docs/figures', help='figure folder (default: docs/figures)')
@@ -505,8 +523,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--no-ablation', action='store_true', help="skip measuring the effect of each open choice")
     p.add_argument('--layouts', type=non_negative_int, default=20,
                    help='random layouts to compare the policy sets on (default: 20; 0 skips them)')
-    p.set_defaults(func=cmd_paper)
-    return parser
 
 
 def _main(argv: Optional[Sequence[str]]) -> int:

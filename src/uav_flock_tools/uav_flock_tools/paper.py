@@ -157,6 +157,9 @@ def main(seeds: int, out: Path, docs: Path, scenario: str, ablation: bool = True
     return 0
 
 
+Runs = Callable[[str], list[np.ndarray]]
+
+
 def write_results(docs: Path, out: Path, base: Scenario, seeds: int, metrics: dict[str, np.ndarray],
                   seed_ids: list[int], settled_f: dict[int, list[float]],
                   variants: list[tuple[str, Scenario]], figs: dict[str, Path], elapsed: float,
@@ -164,8 +167,25 @@ def write_results(docs: Path, out: Path, base: Scenario, seeds: int, metrics: di
     def runs(prefix: str) -> list[np.ndarray]:
         return [metrics[f'{prefix}/{k}'] for k in seed_ids]
 
-    final: Callable[[str, int], list[float]] = lambda prefix, col: [settled(m, col) for m in runs(prefix)]
     rel = lambda p: Path(p).resolve().relative_to(docs.resolve().parent).as_posix()  # noqa: E731
+    lines = _paper_lines(base, seeds, seed_ids, elapsed, runs, settled_f)
+    lines += _figure_lines(figs, rel)
+    if variants:
+        lines += _ablation_lines(variants, seeds, runs)
+    lines += _demand_lines(seeds, runs, settled_d, figs, rel)
+    if ended:
+        lines += _layout_lines(ended)
+    docs.parent.mkdir(parents=True, exist_ok=True)
+    kept = ''  # the section benchmarks/bench_dynamics.py measures is not this command's to regenerate
+    if docs.exists() and DYNAMICS_HEADING in docs.read_text():
+        kept = '\n' + DYNAMICS_HEADING + docs.read_text().split(DYNAMICS_HEADING, 1)[1]
+    docs.write_text('\n'.join(lines) + '\n' + kept)
+
+
+def _paper_lines(base: Scenario, seeds: int, seed_ids: list[int], elapsed: float, runs: Runs,
+                 settled_f: dict[int, list[float]]) -> list[str]:
+    """The table of the paper's claims beside ours."""
+    final: Callable[[str, int], list[float]] = lambda prefix, col: [settled(m, col) for m in runs(prefix)]
     t_conn = [time_to_connected_coverage(m) for m in runs('sweep/90')]
     lines = [
         '# Results: the paper beside ours',
@@ -204,6 +224,11 @@ def write_results(docs: Path, out: Path, base: Scenario, seeds: int, metrics: di
         '| Fiedler after convergence: 0 below ~65 MAPs, steep rise 65–80, slower rise to 120 | '
         + ', '.join(f'{n}: {np.mean(settled_f[n]):.4f}' for n in COUNTS_SWEEP)
         + (f' (0 in every seed up to {max(zero_below)} MAPs)' if zero_below else '') + ' |')
+    return lines
+
+
+def _figure_lines(figs: dict[str, Path], rel: Callable[[Path], str]) -> list[str]:
+    lines: list[str] = []
     lines += [
         '',
         '## Figures',
@@ -219,34 +244,43 @@ def write_results(docs: Path, out: Path, base: Scenario, seeds: int, metrics: di
         f'![Fiedler value vs MAP count]({rel(figs["fiedler_count"])})',
         '',
     ]
-    if variants:
-        lines += [
-            '## Effect of each open choice',
-            '',
-            'Each row changes one choice of `docs/choices.md` from the shipped scenario and reruns 60, 80 and 90 MAPs '
-            f'over the same {seeds} seeds. "connected" counts seeds whose Fiedler value after convergence is > 0; '
-            '"t95" is the mean first time with λ2 > 0 and R_c ≥ 95 % over the seeds that reach it.',
-            '',
-            '| variant | 60: R_c, connected | 80: R_c, connected | 90: R_c, connected, t95 |',
-            '|---|---|---|---|',
-        ]
-        for i, (label, _) in enumerate(variants):
-            cells = []
-            for n in (60, 80, 90):
-                ms = runs(f'abl/{i}/{n}')
-                rc = np.mean([settled(m, 2) for m in ms]) * 100
-                conn = sum(settled(m, 3) > 0 for m in ms)
-                cell = f'{rc:.1f} %, {conn}/{seeds}'
-                if n == 90:
-                    t = [time_to_connected_coverage(m) for m in ms]
-                    reached = [v for v in t if not np.isnan(v)]
-                    cell += f', {np.mean(reached):.1f} s' if reached else ', never'
-                cells.append(cell)
-            lines.append(f'| {label} | ' + ' | '.join(cells) + ' |')
-        lines.append('')
+    return lines
+
+
+def _ablation_lines(variants: list[tuple[str, Scenario]], seeds: int, runs: Runs) -> list[str]:
+    """One row per open choice changed from the shipped scenario."""
+    lines = [
+        '## Effect of each open choice',
+        '',
+        'Each row changes one choice of `docs/choices.md` from the shipped scenario and reruns 60, 80 and 90 MAPs '
+        f'over the same {seeds} seeds. "connected" counts seeds whose Fiedler value after convergence is > 0; '
+        '"t95" is the mean first time with λ2 > 0 and R_c ≥ 95 % over the seeds that reach it.',
+        '',
+        '| variant | 60: R_c, connected | 80: R_c, connected | 90: R_c, connected, t95 |',
+        '|---|---|---|---|',
+    ]
+    for i, (label, _) in enumerate(variants):
+        cells = []
+        for n in (60, 80, 90):
+            ms = runs(f'abl/{i}/{n}')
+            rc = np.mean([settled(m, 2) for m in ms]) * 100
+            conn = sum(settled(m, 3) > 0 for m in ms)
+            cell = f'{rc:.1f} %, {conn}/{seeds}'
+            if n == 90:
+                t = [time_to_connected_coverage(m) for m in ms]
+                reached = [v for v in t if not np.isnan(v)]
+                cell += f', {np.mean(reached):.1f} s' if reached else ', never'
+            cells.append(cell)
+        lines.append(f'| {label} | ' + ' | '.join(cells) + ' |')
+    lines.append('')
+    return lines
+
+
+def _demand_lines(seeds: int, runs: Runs, settled_d: dict[int, list[float]], figs: dict[str, Path],
+                  rel: Callable[[Path], str]) -> list[str]:
     t_demand = [time_to_connected_coverage(m) for m in runs('demand/90')]
     first_conn = [n for n in COUNTS_DEMAND if min(settled_d[n]) > 0]
-    lines += [
+    return [
         '## The demand allocation on the paper layout',
         '',
         'The same layout with the default policies (`allocation: demand`, what a scenario without `policies` runs; '
@@ -266,21 +300,19 @@ def write_results(docs: Path, out: Path, base: Scenario, seeds: int, metrics: di
         f'![Fiedler value vs MAP count, demand allocation]({rel(figs["fiedler_count_demand"])})',
         '',
     ]
-    if ended:
-        count = len({e.job.layout for e in ended})
-        lines += [
-            '## Random layouts',
-            '',
-            f'{count} layouts of `./uav-flock layouts --seed 0` (3 to 6 clusters, docs/allocation.md), one seed, '
-            f'{LAYOUT_DURATION:g} s, N = ceil(factor x LB). Success: R_c ≥ 95 % on average and λ2 > 0 throughout '
-            'the last 10 s. `benchmarks/bench_layouts.py` runs more layouts and seeds.',
-            '',
-        ]
-        for policy, title in (('default', 'Default policies (demand allocation)'),
-                              ('paper', "The paper's Algorithm 2 (paper.yaml)")):
-            lines += [f'**{title}**', '', *layouts.table(ended, policy, list(LAYOUT_FACTORS)), '']
-    docs.parent.mkdir(parents=True, exist_ok=True)
-    kept = ''  # the section benchmarks/bench_dynamics.py measures is not this command's to regenerate
-    if docs.exists() and DYNAMICS_HEADING in docs.read_text():
-        kept = '\n' + DYNAMICS_HEADING + docs.read_text().split(DYNAMICS_HEADING, 1)[1]
-    docs.write_text('\n'.join(lines) + '\n' + kept)
+
+
+def _layout_lines(ended: list[layouts.Ended]) -> list[str]:
+    count = len({e.job.layout for e in ended})
+    lines = [
+        '## Random layouts',
+        '',
+        f'{count} layouts of `./uav-flock layouts --seed 0` (3 to 6 clusters, docs/allocation.md), one seed, '
+        f'{LAYOUT_DURATION:g} s, N = ceil(factor x LB). Success: R_c ≥ 95 % on average and λ2 > 0 throughout '
+        'the last 10 s. `benchmarks/bench_layouts.py` runs more layouts and seeds.',
+        '',
+    ]
+    for policy, title in (('default', 'Default policies (demand allocation)'),
+                          ('paper', "The paper's Algorithm 2 (paper.yaml)")):
+        lines += [f'**{title}**', '', *layouts.table(ended, policy, list(LAYOUT_FACTORS)), '']
+    return lines

@@ -13,7 +13,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Callable, Optional
+from typing import TYPE_CHECKING, Callable, Optional
 
 import numpy as np
 
@@ -21,6 +21,9 @@ from uav_agent.core.params import FlockParams
 from uav_flock_ros.processes import write_params
 
 from . import bag, domains, spawn
+
+if TYPE_CHECKING:
+    from uav_flock_ros import convert
 
 READY_TIMEOUT_S = 30.0  # the fresh agent must be on the graph within this
 
@@ -143,10 +146,7 @@ def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
 
         deadline = time.monotonic() + READY_TIMEOUT_S
         while sensing.get_subscription_count() == 0 or node.count_publishers(f'/map_{i}/cmd') == 0:
-            if (why := agent_exit()) is not None:
-                raise ReplayError(why)
-            if time.monotonic() > deadline:
-                raise ReplayError(f'the agent node of MAP {i} did not appear within {READY_TIMEOUT_S:g} s')
+            _still_starting(i, deadline, agent_exit)
             executor.spin_once(timeout_sec=0.05)
 
         pending_failures = list(inputs.failures)
@@ -175,14 +175,25 @@ def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
             if k not in answers:
                 outcome.stuck_at = k
                 return
-            got = answers.pop(k)
-            u, mode, goal = inputs.commands[k].u, inputs.commands[k].mode, inputs.commands[k].goal
-            du = float(np.max(np.abs(got.u - u)))
-            outcome.max_du = max(outcome.max_du, du)
-            outcome.steps += 1
-            if du > outcome.tolerance or got.mode != mode or got.goal != goal:
-                outcome.mismatches.append(f'step {k}: |Δu| = {du:.3g}, mode {got.mode} (recorded {mode}), '
-                                          f'goal {got.goal} (recorded {goal})')
+            _compare(outcome, answers.pop(k), inputs.commands[k])
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
+
+
+def _still_starting(agent: int, deadline: float, agent_exit: Callable[[], Optional[str]]) -> None:
+    """ReplayError if the fresh agent ended, or has not appeared by the deadline."""
+    if (why := agent_exit()) is not None:
+        raise ReplayError(why)
+    if time.monotonic() > deadline:
+        raise ReplayError(f'the agent node of MAP {agent} did not appear within {READY_TIMEOUT_S:g} s')
+
+
+def _compare(outcome: Outcome, got: 'convert.CommandData', want: 'convert.CommandData') -> None:
+    """One step's command against the recorded one."""
+    du = float(np.max(np.abs(got.u - want.u)))
+    outcome.max_du = max(outcome.max_du, du)
+    outcome.steps += 1
+    if du > outcome.tolerance or got.mode != want.mode or got.goal != want.goal:
+        outcome.mismatches.append(f'step {got.step}: |Δu| = {du:.3g}, mode {got.mode} (recorded {want.mode}), '
+                                  f'goal {got.goal} (recorded {want.goal})')

@@ -1,8 +1,8 @@
 """Random cluster layouts for judging a policy set on more than one layout, and the MAP floor of each.
 
-A layout is drawn as docs/layouts.md describes: K Gaussian clusters whose centres lie in a square beyond
-the release area, far enough apart to be distinct clusters and close enough that a tree of relays can join
-them. The floor LB is a geometric count of the MAPs any method needs (coverage discs and relay chains).
+A layout is drawn as docs/allocation.md ("Random layouts and their floor") describes: K Gaussian clusters
+whose centres lie in a square beyond the release area, far enough apart to be distinct clusters and close
+enough that a tree of relays can join them. The floor LB is a geometric count of the MAPs any method needs (coverage discs and relay chains).
 """
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ class LayoutSpec:
 
 @dataclass(frozen=True)
 class Floor:
-    """The geometric floor of a layout: MAPs per cluster and relays per MST edge (docs/layouts.md)."""
+    """The geometric floor of a layout: MAPs per cluster and relays per MST edge (docs/allocation.md)."""
 
     per_cluster: tuple[int, ...]
     edges: tuple[tuple[int, int], ...]
