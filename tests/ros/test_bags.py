@@ -173,7 +173,12 @@ def test_report_plots_and_summarises_a_bag(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     for name in ('coverage.png', 'fiedler.png', 'modes.png', 'formation.png', 'summary.md'):
         assert (tmp_path / 'report' / name).stat().st_size > 1000 or name == 'summary.md', name
-    assert 'final coverage R_c' in done.stdout and '1 MAPs at t = 6.0 s (scheduled)' in done.stdout
+    [(_, ids, _)] = bag.load(GOLDEN / 'bag').failures
+    assert 'final coverage R_c' in done.stdout and f'MAP {ids[0]} at t = 6.0 s (scheduled)' in done.stdout
+    again = cli('report', str(GOLDEN / 'bag'), '--out', str(tmp_path / 'report'))
+    assert again.returncode == 2 and 'holds a report already' in again.stderr and again.stderr.count('\n') == 1, \
+        again.stderr
+    assert cli('report', str(GOLDEN / 'bag'), '--out', str(tmp_path / 'report'), '--replace').returncode == 0
 
 
 def test_bag_tools_take_the_run_folder_or_a_file_of_the_bag(tmp_path: Path) -> None:
@@ -274,6 +279,21 @@ def test_a_recorder_that_dies_is_reported_and_the_run_goes_on(tmp_path: Path, ro
     assert '[ERROR] [world_sim]: the recorder wrote nothing new' in said, 'world_sim\'s error reaches the terminal'
     assert 'recorder ended during the run (killed by SIGKILL' in said and 'is incomplete' in said, said
     assert read_csv(run / 'metrics.csv')['t'][-1] == 30.0, 'the run went on to its end without the recorder'
+
+
+def test_replay_refuses_a_realtime_bag_in_one_line(tmp_path: Path) -> None:
+    """A realtime MAP flies on whatever states came in: its commands cannot be reproduced, and saying
+    "behaviour differs" of all of them would be a false alarm."""
+    shutil.copytree(GOLDEN / 'bag', tmp_path / 'bag')
+    meta = tmp_path / 'bag' / 'metadata.yaml'
+    doc = yaml.safe_load(meta.read_text())
+    custom = doc['rosbag2_bagfile_information']['custom_data']
+    custom[bag.SCENARIO_KEY] = json.dumps({**json.loads(custom[bag.SCENARIO_KEY]), 'sync': 'realtime'})
+    meta.write_text(yaml.safe_dump(doc))
+    done = cli('replay', str(tmp_path / 'bag'), '--agent', '2')
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stdout + done.stderr
+    assert '--sync realtime' in done.stderr and 'lockstep bag' in done.stderr, done.stderr
+    assert 'commands compared' not in done.stdout
 
 
 def test_bag_tools_reject_bad_input_in_one_line(tmp_path: Path) -> None:

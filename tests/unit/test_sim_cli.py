@@ -128,14 +128,16 @@ def test_ctrl_c_ends_the_paper_sweep_without_running_the_rest(tmp_path: Path) ->
 
 
 def test_kill_on_an_ended_run_spares_processes_that_now_hold_its_pids(tmp_path: Path) -> None:
-    """Pids are reused once a run has ended: only a living agent of that very run may be SIGKILLed."""
+    """Pids are reused once a run has ended: only a living agent of that very run may be SIGKILLed, and asking
+    for MAPs that are not alive is one line and exit 2, not a quiet no-op."""
     bystander = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'])
     try:
         (tmp_path / 'pids.json').write_text(f'{{"0": {bystander.pid}, "1": {bystander.pid}}}')
-        for how in (('--ids', '0,1'), ('--fraction', '1')):
+        for how, says in ((('--ids', '0,1'), 'MAPs 0, 1 are not alive'), (('--fraction', '1'), 'nothing to kill')):
             done = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'kill', '--run', str(tmp_path), *how],
                                   capture_output=True, text=True, timeout=60)
-            assert done.returncode == 0 and done.stdout.strip() == 'no live MAP matched', done.stdout + done.stderr
+            assert done.returncode == 2 and says in done.stderr and done.stderr.count('\n') == 1, \
+                done.stdout + done.stderr
             assert bystander.poll() is None, 'kill --run SIGKILLed a process that is not an agent of the run'
     finally:
         bystander.kill()

@@ -122,6 +122,11 @@ def _custom(path: Path, key: str) -> dict[str, Any]:
         return {}
 
 
+def recorded_sync(path: Path) -> str:
+    """The sync mode the bag was recorded in; bags from before it was kept were lockstep unless said otherwise."""
+    return str(_custom(find_bag(path), SCENARIO_KEY).get('sync', 'lockstep'))
+
+
 def _recorded_params(path: Path) -> dict[str, Any]:
     """The agents' parameters the bag was recorded with. A bag from before `allocation` existed was made
     under Algorithm 2, so that is what its replay must run."""

@@ -244,7 +244,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     code = cmd_up(ns)
     bag_path = Path(ns.out) / 'bag'
     if (bag_path / 'metadata.yaml').exists():
-        code = cmd_report(argparse.Namespace(bag=str(bag_path), out=None)) or code
+        code = cmd_report(argparse.Namespace(bag=str(bag_path), out=None, replace=True)) or code
     return code
 
 
@@ -334,7 +334,7 @@ def cmd_kill(args: argparse.Namespace) -> int:
         killed, pids = kill(Path(args.run), args.ids, args.fraction, args.whole_processes)
     except (FileNotFoundError, ValueError) as exc:
         raise UsageError(f'kill: {exc}') from None
-    print(f'SIGKILLed MAPs {killed} (processes {pids})' if killed else 'no live MAP matched')
+    print(f'SIGKILLed MAPs {killed} (processes {pids})')
     return 0
 
 
@@ -359,8 +359,10 @@ def cmd_report(args: argparse.Namespace) -> int:
     try:
         path = bag.find_bag(Path(args.bag))
         out = Path(args.out) if args.out else (path.parent / 'report' if path.name == 'bag' else path / 'report')
-        if args.out:
-            make_folder(out, 'report: --out')
+        if out.is_dir() and any(out.iterdir()) and not args.replace:
+            raise UsageError(f'report: {out} holds a report already; pass --replace to write it anew, '
+                             'or --out for another folder')
+        make_folder(out, 'report: --out')
         summary, files = report.report(path, out)
     except bag.BagError as exc:
         raise UsageError(f'report: {exc}') from None
@@ -492,6 +494,7 @@ def add_inspect_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
     p = command(sub, 'report', cmd_report, "plots and a summary table from a run's bag (ours or ros2 bag record's)")
     p.add_argument('bag', help=BAG_HELP)
     p.add_argument('--out', help='output folder (default: RUN/report next to the bag)')
+    p.add_argument('--replace', action='store_true', help='write over an earlier report in that folder (refused otherwise)')
     p = command(sub, 'replay', cmd_replay, "feed one MAP's recorded inputs to a fresh agent node, compare commands")
     p.add_argument('bag', help=BAG_HELP)
     p.add_argument('--agent', type=non_negative_int, required=True, help='the MAP id to replay')

@@ -43,7 +43,13 @@ def kill(run: Path, ids: Optional[list[int]], fraction: Optional[float], whole_p
     unknown = [i for i in ids if i not in table]
     if unknown:
         raise ValueError(f'--ids: no MAP {unknown[0]} in this run (ids 0-{max(table)})')
-    pids = sorted({table[i] for i in ids if i in live})
+    dead = [i for i in ids if i not in live]
+    if dead:
+        raise ValueError(f'--ids: MAP{"s" if len(dead) > 1 else ""} {", ".join(map(str, dead))} '
+                         f'{"are" if len(dead) > 1 else "is"} not alive (live: {live or "none"})')
+    if not ids:
+        raise ValueError(f'--fraction {fraction:g} of {len(live)} live MAPs is no MAP: nothing to kill')
+    pids = sorted({table[i] for i in ids})
     taken = sorted(i for pid in pids for i in by_pid[pid])
     extra = sorted(set(taken) - set(ids))
     if extra and not whole_processes:

@@ -64,6 +64,10 @@ class Outcome:
 def replay(path: Path, agent: int, tolerance: float = 1e-9, timeout: float = 20.0,
            overrides: Optional[dict[str, object]] = None) -> Outcome:
     """Replay MAP `agent`; overrides change agent parameters (e.g. to see what a different gain does)."""
+    if bag.recorded_sync(path) != 'lockstep':
+        raise ReplayError(f'{path} was recorded with --sync {bag.recorded_sync(path)}, where each MAP flies on whatever '
+                          'states have come in: its commands cannot be reproduced. Replay needs a lockstep bag '
+                          '(`up --record`, the default sync)')
     inputs = bag.replay_inputs(path, agent)
     outcome = Outcome(agent, tolerance=tolerance)
     if not inputs.params:

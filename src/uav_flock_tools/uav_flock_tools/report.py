@@ -27,7 +27,8 @@ def _missing(missing: Optional[dict[int, list[int]]]) -> str:
 
 def summary_table(s: dict[str, Any]) -> str:
     """The summary as a Markdown table (what `report` prints and writes to summary.md)."""
-    failures = '; '.join(f'{len(f["ids"])} MAPs at t = {f["t_s"]:.1f} s ({f["cause"]})' for f in s['failures'])
+    failures = '; '.join(f'MAP{"s" if len(f["ids"]) > 1 else ""} {", ".join(map(str, f["ids"]))} at t = {f["t_s"]:.1f} s '
+                         f'({f["cause"]})' for f in s['failures'])
     rows = [
         ('simulated time', f'{s["duration_s"]:.1f} s ({s["steps"]} steps)'),
         ('MAPs at start / end', f'{s["maps_start"]} / {s["maps_end"]}'),
