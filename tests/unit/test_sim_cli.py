@@ -81,6 +81,7 @@ def test_same_seed_same_run(tmp_path: Path) -> None:
     (('agents', '--join', '127.0.0.1:11900', '--ids', '5-3', '--out', '{folder}/run'), 'ranges low-high'),
     (('agents', '--join', '127.0.0.1:11811', '--ids', '3', '--timeout', '1', '--out', '{folder}/run'),
      'no run answers at 127.0.0.1:11811'),
+    (('sim', '--map', '40'), 'sim: unrecognized arguments: --map 40'),
 ])
 def test_a_user_mistake_is_one_line_and_exit_2(tmp_path: Path, args: tuple[str, ...], says: str) -> None:
     """Caught before any work starts: a bad --out found only at the end would lose the run."""
@@ -90,6 +91,7 @@ def test_a_user_mistake_is_one_line_and_exit_2(tmp_path: Path, args: tuple[str, 
                           timeout=120)
     assert proc.returncode == 2, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and says in proc.stderr, proc.stderr
+    assert proc.stderr.count('uav-flock:') == 1, f'the program is named once: {proc.stderr}'
     assert list(tmp_path.iterdir()) == [tmp_path / 'plain'], 'nothing written'
 
 
@@ -198,3 +200,17 @@ def test_a_signal_during_rclpy_construction_is_handled_after_it() -> None:
     done = subprocess.run([sys.executable, '-c', MID_CONSTRUCTION], capture_output=True, text=True, timeout=60)
     assert done.stdout.strip() == 'interrupted after the executor was built', done.stdout + done.stderr
     assert 'Exception ignored' not in done.stderr and 'Traceback' not in done.stderr, done.stderr
+
+
+@pytest.mark.parametrize('program, says', [('ros2', './uav-flock topics'), ('no-such-program', 'no such program')])
+def test_exec_of_a_program_that_is_not_there_says_what_to_use(program: str, says: str) -> None:
+    wrapper = Path(__file__).resolve().parents[2] / 'uav-flock'
+    done = subprocess.run([str(wrapper), 'exec', program, 'topic', 'list'], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, 'UAV_FLOCK_QUIET': '1'})
+    assert done.returncode == 127 and len(done.stderr.strip().splitlines()) == 1 and says in done.stderr, done.stderr
+
+
+def test_topics_are_listed_in_natural_order() -> None:
+    from uav_flock_tools.echo import natural
+    names = ['/map_10/state', '/map_2/state', '/metrics', '/map_1/cmd', '/map_2/cmd']
+    assert sorted(names, key=natural) == ['/map_1/cmd', '/map_2/cmd', '/map_2/state', '/map_10/state', '/metrics']

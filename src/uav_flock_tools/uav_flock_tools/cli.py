@@ -33,7 +33,9 @@ class _Parser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]
 
     def error(self, message: str) -> NoReturn:
-        raise UsageError(f'{self.prog}: {message} (see --help)')
+        """`uav-flock: error: sim: ...`: the program named once, then the subcommand."""
+        command = self.prog.removeprefix('uav-flock').strip()
+        raise UsageError(f'{command + ": " if command else ""}{message} (see `uav-flock {command + " " if command else ""}--help`)')
 
 
 def _ints_from(text: str, low: int, what: str) -> list[int]:
@@ -531,7 +533,10 @@ def add_study_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
 def _main(argv: Optional[Sequence[str]]) -> int:
     from world_sim.core.scenario import ScenarioError
     try:
-        args = build_parser().parse_args(argv)
+        args, extra = build_parser().parse_known_args(argv)
+        if extra:  # the top-level parser would say it without naming the subcommand
+            raise UsageError(f'{args.command}: unrecognized arguments: {" ".join(extra)} '
+                             f'(see `uav-flock {args.command} --help`)')
         func: Callable[[argparse.Namespace], int] = args.func
         return func(args)
     except (UsageError, ScenarioError) as exc:

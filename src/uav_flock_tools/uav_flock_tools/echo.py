@@ -5,6 +5,7 @@ import importlib
 import json
 import math
 import os
+import re
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Optional
@@ -92,6 +93,11 @@ def _init_rclpy() -> 'StopSignals':
     return StopSignals()
 
 
+def natural(name: str) -> list:
+    """Sort key that puts /map_2 before /map_10."""
+    return [int(part) if part.isdigit() else part for part in re.split(r'(\d+)', name)]
+
+
 def topics(run: Optional[str], domain_id: Optional[int]) -> int:
     use_domain(run, domain_id)
     # With a run folder we know what to wait for; otherwise the list must stop growing for a while.
@@ -119,7 +125,7 @@ def topics(run: Optional[str], domain_id: Optional[int]) -> int:
         rclpy.try_shutdown()
     if stop.received:
         raise KeyboardInterrupt  # before the list was complete: the CLI says it was interrupted
-    for name, types in sorted(seen):
+    for name, types in sorted(seen, key=lambda nt: natural(nt[0])):
         print(f'{name} [{", ".join(types)}]')
     return 0
 
