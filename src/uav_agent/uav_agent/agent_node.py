@@ -295,7 +295,7 @@ class AgentNode(Node):
                        for j in missing if j in self.neighbour_subs}
             if silent >= self.next_report:  # 2 s, 4 s, 8 s, ... into the step: a log, not a flood
                 self.next_report = 2 * silent
-                self.get_logger().warning(f'step {self.pending.step}: waiting {silent:.0f} s for neighbours '
+                self.get_logger().info(f'step {self.pending.step}: waiting {silent:.0f} s for neighbours '
                                           f'(id: last step heard) {missing}, (id: writers matched, listed) '
                                           f'{matched}, clusters known: {self.clusters is not None}')
             if not self.realtime:
@@ -321,7 +321,7 @@ class AgentNode(Node):
             if matched and self.pending is not None:
                 taken += self.take_waiting_of(j)
         if taken:
-            self.get_logger().warning(f'took {taken} state samples of {list(silent_writers)} by hand '
+            self.get_logger().info(f'took {taken} state samples of {list(silent_writers)} by hand '
                                       'that the executor had not delivered')
             return
         tries = self.resubscribed[1] if self.resubscribed[0] == self.step else 0
@@ -330,7 +330,7 @@ class AgentNode(Node):
             self.resubscribed = (self.step, tries + 1)
             for j in silent_writers:
                 self.subscribe(j)
-            self.get_logger().warning(f'step {self.pending.step}: subscribed anew to the states of '
+            self.get_logger().info(f'step {self.pending.step}: subscribed anew to the states of '
                                       f'{list(silent_writers)}')
 
     def take_waiting_of(self, j: int) -> int:

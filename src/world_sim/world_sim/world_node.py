@@ -415,7 +415,8 @@ class WorldNode(Node):
             for row, i in enumerate(s.ids.tolist()):
                 if i in stalled:
                     again.update(s.ids[s.neighbours(row)].tolist())
-            self.get_logger().warning(f'step {s.k} stalled {time.monotonic() - self.step_started:.0f} s waiting for '
+            # A delay, not a change: lockstep results do not depend on it. Logged, counted, said once at the end.
+            self.get_logger().info(f'step {s.k} stalled {time.monotonic() - self.step_started:.0f} s waiting for '
                                       f'MAPs {waiting}: sensing sent again to them and their neighbours '
                                       f'(time {self.resent})')
             self.step_started = time.monotonic()
@@ -433,6 +434,9 @@ class WorldNode(Node):
     def finish(self, ok: bool) -> None:
         self.finished = True
         self.ok = ok
+        if self.resent:
+            print(f'{self.resent} stalled steps had their sensing sent again (delays of discovery or delivery; '
+                  'lockstep results do not depend on them; logs/world.log says which)', flush=True)
         if ok:
             self.finished_pub.publish(Int64(data=int(self.world.k)))
         self.recorder_moved = time.monotonic()
