@@ -214,3 +214,15 @@ def test_topics_are_listed_in_natural_order() -> None:
     from uav_flock_tools.echo import natural
     names = ['/map_10/state', '/map_2/state', '/metrics', '/map_1/cmd', '/map_2/cmd']
     assert sorted(names, key=natural) == ['/map_1/cmd', '/map_2/cmd', '/map_2/state', '/map_10/state', '/metrics']
+
+
+def test_floor_names_the_lb_of_any_scenario_and_sim_says_when_maps_are_below_it(tmp_path: Path) -> None:
+    from world_sim.core import layouts
+    from world_sim.shipped import load_scenario
+    lb = layouts.floor(load_scenario('paper')).total
+    floor = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'floor'], capture_output=True, text=True,
+                           timeout=60)
+    assert floor.returncode == 0 and f'LB = {lb} MAPs' in floor.stdout, floor.stdout + floor.stderr
+    below = sim('--maps', str(lb - 1), '--duration', '1', '--out', str(tmp_path / 'below'))
+    above = sim('--maps', str(lb), '--duration', '1', '--out', str(tmp_path / 'above'))
+    assert f'below the floor of this layout, LB = {lb} MAPs' in below.stdout and 'note:' not in above.stdout

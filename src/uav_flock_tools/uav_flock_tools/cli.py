@@ -2,7 +2,7 @@
 
 Running a scenario: `sim` (batch, in one process), `run` (the main job), `up` (distributed: world_sim and
 the MAP agents as processes), `agents` (agents of another host joining an `up --listen`). Looking into a run:
-`kill`, `echo`, `topics`, `report`, `replay`. Measuring the method: `layouts`, `paper`.
+`kill`, `echo`, `topics`, `report`, `replay`. Measuring a layout or the method: `floor`, `layouts`, `paper`.
 """
 from __future__ import annotations
 
@@ -202,6 +202,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     out = run_folder(Path(args.out) if args.out else default_out('sim'), 'sim: --out', args.replace)
     runs = simrun.grid(base, maps, seeds, duration=args.duration, fail_at=args.fail_at,
                        fail_fraction=args.fail_fraction)
+    say_floor(base, min(maps))
     several = len(runs) > 1
     total = sum(s.steps for s in runs)
     done: list[tuple[str, object]] = []
@@ -269,6 +270,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     if args.agents_here is not None and args.agents_here > s.maps:
         raise UsageError(f'up: --agents-here {args.agents_here}: the run has {s.maps} MAPs')
     out = run_folder(Path(args.out) if args.out else default_out('up'), 'up: --out', args.replace)
+    say_floor(s, s.maps)
     try:
         code, result = launcher.up(path.resolve(), s, out.resolve(), args.agents_per_process, args.domain_id,
                                    args.discovery, args.record, args.sync, args.rate, args.listen, args.agents_here)
@@ -283,6 +285,31 @@ def cmd_up(args: argparse.Namespace) -> int:
     if args.record:
         say_what_the_bag_lacks(out / 'bag')
     return code
+
+
+def cmd_floor(args: argparse.Namespace) -> int:
+    from world_sim.core import layouts
+
+    from . import simrun
+    s = simrun.load_scenario(args.scenario)
+    floor = layouts.floor(s)
+    print(f'{s.name}: LB = {floor.total} MAPs ({sum(floor.per_cluster)} to cover the clusters, '
+          f'{sum(floor.per_edge)} to relay along the tree; the scenario flies {s.maps})')
+    for k, n in enumerate(floor.per_cluster):
+        print(f'  cluster {k}: {n}')
+    for (a, b), n in zip(floor.edges, floor.per_edge):
+        print(f'  edge {a}-{b}: {n}')
+    return 0
+
+
+def say_floor(s: 'Scenario', maps: int) -> None:
+    """One line when the MAPs asked for are below the floor LB of the scenario's layout (docs/allocation.md)."""
+    from world_sim.core import layouts
+    floor = layouts.floor(s).total
+    if maps < floor:
+        print(f'note: {maps} MAPs is below the floor of this layout, LB = {floor} MAPs (coverage discs and relay '
+              'chains no method can do without, docs/allocation.md): expect users uncovered or the network split',
+              flush=True)
 
 
 def say_what_the_bag_lacks(path: Path) -> None:
@@ -508,7 +535,9 @@ def add_inspect_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
 
 
 def add_study_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
-    """layouts and paper: what measures the method over many runs."""
+    """floor, layouts and paper: what measures a layout, or the method over many runs."""
+    p = command(sub, 'floor', cmd_floor, "the floor LB of a scenario's layout: the MAPs no method can do without")
+    p.add_argument('--scenario', default='paper', help=SCENARIO_HELP)
     p = command(sub, 'layouts', cmd_layouts, 'draw random cluster layouts as scenario files, with the MAP floor of each')
     p.add_argument('--count', type=positive_int, default=10, help='layouts to draw (default: 10)')
     p.add_argument('--clusters', type=count_range, default=(3, 6), help='clusters per layout, N or LOW-HIGH '
