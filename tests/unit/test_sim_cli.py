@@ -1,6 +1,7 @@
 """The command line: the files `sim` writes, one folder per run when there are several; user mistakes and Ctrl-C."""
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -40,6 +41,9 @@ def test_several_runs_get_a_folder_each_and_failures_drop_maps(tmp_path: Path) -
     for n in (10, 20):
         m = read_csv(tmp_path / f'maps{n}_seed0' / 'metrics.csv')
         assert m['alive'][0] == n and m['alive'][-1] == n // 2
+        failures = json.loads((tmp_path / f'maps{n}_seed0' / 'failures.json').read_text())
+        [event] = failures['events']
+        assert event['step'] == 10 and event['cause'] == 'scheduled' and event['ids'] == failures['failed']
     assert (tmp_path / 'coverage.png').exists() and (tmp_path / 'fiedler.png').exists()
 
 

@@ -287,6 +287,6 @@ def read_result(run: Path, scenario: Scenario) -> Optional[RunResult]:
     t = records.read_csv(run / 'trajectory.csv')
     metrics = records.rows(m, records.METRICS_COLUMNS)
     traj = records.rows(t, records.TRAJECTORY_COLUMNS)
-    failed, fail_step = records.read_failures(run / records.FAILURES_FILE)
+    failed, fail_step, events = records.read_failures(run / records.FAILURES_FILE)
     return RunResult(scenario, records.read_users(run / records.USERS_FILE), metrics, traj, failed, fail_step,
-                     records.read_motion(run / records.USERS_FILE))
+                     records.read_motion(run / records.USERS_FILE), events)

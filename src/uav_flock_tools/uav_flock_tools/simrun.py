@@ -29,7 +29,7 @@ def write_run(result: RunResult, folder: Path, label: str) -> list[Path]:
     records.write_metrics(folder / 'metrics.csv', result.metrics)
     records.write_trajectory(folder / 'trajectory.csv', result.trajectory)
     records.write_users(folder / records.USERS_FILE, result.users, result.motion)
-    records.write_failures(folder / records.FAILURES_FILE, result.failed, result.fail_step)
+    records.write_failures(folder / records.FAILURES_FILE, result.failed, result.fail_step, result.events)
     events = [result.fail_step * result.scenario.dt] if result.fail_step is not None and len(result.failed) else []
     u, dt = result.users, result.scenario.dt
     moving = None if result.motion is None else (lambda t: result.motion.at(int(round(t / dt))))

@@ -352,7 +352,7 @@ class WorldNode(Node):
     # ------------------------------------------------------------------ failures
     def drop(self, ids: np.ndarray, cause: str) -> None:
         ids = np.asarray(sorted(int(i) for i in ids), dtype=np.intp)
-        self.world.drop(ids)
+        self.world.drop(ids, cause)
         for i in ids.tolist():
             self.commands.pop(i, None)  # a dropped MAP flies no command any more
         self.failure_pub.publish(convert.FailureData(self.world.k, tuple(ids.tolist()), cause).to_msg(self.header()))
@@ -448,7 +448,7 @@ class WorldNode(Node):
             records.write_metrics(self.out / 'metrics.csv', result.metrics)
             records.write_trajectory(self.out / 'trajectory.csv', result.trajectory)
             records.write_users(self.out / records.USERS_FILE, result.users, result.motion)
-            records.write_failures(self.out / records.FAILURES_FILE, result.failed, result.fail_step)
+            records.write_failures(self.out / records.FAILURES_FILE, result.failed, result.fail_step, result.events)
 
 
 def main(argv: Optional[list[str]] = None) -> int:

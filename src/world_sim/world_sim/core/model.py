@@ -25,6 +25,7 @@ class RunResult:
     failed: np.ndarray = field(default_factory=lambda: np.zeros(0, np.intp))
     fail_step: Optional[int] = None
     motion: Optional[Motion] = None          # users that move: their positions at each survey step
+    events: list[tuple[int, list[int], str]] = field(default_factory=list)  # (step, ids, cause) of each drop
 
 
 @dataclass
@@ -76,6 +77,7 @@ class World:
         self.k = 0
         self.fail_step = None if scenario.fail_at is None else int(round(scenario.fail_at / scenario.dt))
         self.failed = np.zeros(0, np.intp)
+        self.events: list[tuple[int, list[int], str]] = []  # (step, ids, 'scheduled' or 'killed'), as they came
         self._metrics: list[np.ndarray] = []
         self._traj: list[np.ndarray] = []
         self.place_users()  # the clusters the MAPs are given before the first step, as version 0
@@ -136,9 +138,10 @@ class World:
             return np.zeros(0, np.intp)
         return physics.failure_ids(self.scenario, self.ids[self.alive], self._fail_rng)
 
-    def drop(self, ids: np.ndarray) -> None:
+    def drop(self, ids: np.ndarray, cause: str = 'scheduled') -> None:
         """MAPs that stopped flying: they leave the graph and serve no one from now on."""
         ids = np.asarray(ids, dtype=np.intp)
+        self.events.append((int(self.k), sorted(int(i) for i in ids), cause))
         self.alive[ids] = False
         self.failed = np.union1d(self.failed, ids).astype(np.intp)
 
@@ -183,4 +186,4 @@ class World:
             steps, xy, present, label = zip(*self._motion)
             motion = Motion(np.array(steps), np.stack(xy), np.stack(present), np.stack(label))
         return RunResult(self.scenario, self.drawn, np.array(self._metrics).reshape(-1, 9), traj, self.failed,
-                         self.fail_step if self.scenario.fail_fraction > 0 else None, motion)
+                         self.fail_step if self.scenario.fail_fraction > 0 else None, motion, list(self.events))

@@ -4,7 +4,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -84,11 +84,16 @@ def read_motion(path: Path) -> Optional[Motion]:
         return Motion(f['motion_steps'], f['motion_xy'], f['motion_present'], f['motion_label'])
 
 
-def write_failures(path: Path, failed: np.ndarray, fail_step: Optional[int]) -> None:
-    """The MAPs that left the run (failed by the schedule or killed) and the scheduled failure's step."""
-    path.write_text(json.dumps({'failed': [int(i) for i in failed], 'fail_step': fail_step}))
+def write_failures(path: Path, failed: np.ndarray, fail_step: Optional[int],
+                   events: Sequence[tuple[int, list[int], str]] = ()) -> None:
+    """The MAPs that left the run (failed by the schedule or killed), the scheduled failure's step, and each
+    drop as it came: step, ids and cause ('scheduled', or 'killed': its process or host gone)."""
+    path.write_text(json.dumps({'failed': [int(i) for i in failed], 'fail_step': fail_step,
+                                'events': [{'step': int(k), 'ids': [int(i) for i in ids], 'cause': cause}
+                                           for k, ids, cause in events]}))
 
 
-def read_failures(path: Path) -> tuple[np.ndarray, Optional[int]]:
+def read_failures(path: Path) -> tuple[np.ndarray, Optional[int], list[tuple[int, list[int], str]]]:
     doc = json.loads(path.read_text())
-    return np.asarray(doc['failed'], dtype=np.intp), doc['fail_step']
+    events = [(int(e['step']), [int(i) for i in e['ids']], str(e['cause'])) for e in doc.get('events', [])]
+    return np.asarray(doc['failed'], dtype=np.intp), doc['fail_step'], events
