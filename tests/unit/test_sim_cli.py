@@ -59,7 +59,8 @@ def test_same_seed_same_run(tmp_path: Path) -> None:
     (('up', '--out', '{file}/run', '--duration', '1'), 'cannot create'),
     (('run', '--out', '{file}/run'), 'cannot create'),
     (('run', '--batch', '--out', '{file}/run'), 'cannot create'),
-    (('paper', '--out', '{folder}/figures', '--docs', '{file}/results.md'), 'exists and is not a folder'),
+    (('paper', '--out', '{file}'), 'exists and is not a folder'),
+    (('paper', '--out', '{folder}/p', '--docs'), 'give one'),
     (('sim', '--scenario', '{folder}'), 'cannot read the scenario'),
     (('sim', '--scenario', sys.executable), 'not a text file'),
     (('up', '--domain-id', '233'), 'expected an integer from 0 to 232'),
@@ -114,8 +115,8 @@ def test_ctrl_c_ends_the_paper_sweep_without_running_the_rest(tmp_path: Path) ->
     the runs not yet started must be dropped, not run to the end before the exit."""
     log = tmp_path / 'stderr.txt'
     with open(log, 'w') as err:
-        proc = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'paper', '--out', str(tmp_path / 'fig'),
-                                 '--docs', str(tmp_path / 'results.md')], stdout=subprocess.DEVNULL, stderr=err,
+        proc = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'paper', '--out', str(tmp_path / 'p')],
+                                stdout=subprocess.DEVNULL, stderr=err,
                                 start_new_session=True)
     try:
         deadline = time.monotonic() + 120
@@ -130,7 +131,7 @@ def test_ctrl_c_ends_the_paper_sweep_without_running_the_rest(tmp_path: Path) ->
             proc.wait()
     assert proc.returncode == 130, log.read_text()
     assert log.read_text().strip().splitlines()[-1].endswith('uav-flock: interrupted')
-    assert not (tmp_path / 'results.md').exists()
+    assert not (tmp_path / 'p' / 'results.md').exists()
 
 
 def test_kill_on_an_ended_run_spares_processes_that_now_hold_its_pids(tmp_path: Path) -> None:

@@ -431,12 +431,27 @@ def cmd_layouts(args: argparse.Namespace) -> int:
     return layouts.write(drawn, args.seed, args.factor, args.duration, make_folder(out, 'layouts: --out'))
 
 
+DOCS = Path(__file__).resolve().parents[3] / 'docs'  # the repository's own docs/, beside src/ (paper --docs)
+
+
 def cmd_paper(args: argparse.Namespace) -> int:
+    """Into a run folder by default; into the tracked docs/results.md and docs/figures only with --docs."""
     from . import paper
-    make_folder(Path(args.docs).parent, 'paper: --docs')
-    make_folder(Path(args.out), 'paper: --out')
-    return paper.main(seeds=args.seeds, out=Path(args.out), docs=Path(args.docs), scenario=args.scenario,
+    if args.docs and args.out:
+        raise UsageError('paper: --docs writes docs/results.md and docs/figures; --out names another folder: give one')
+    if args.docs:
+        if not (DOCS / 'results.md').exists():
+            raise UsageError(f'paper: --docs: no docs/results.md at {DOCS} (a copy of the repository is needed)')
+        results, figures = DOCS / 'results.md', DOCS / 'figures'
+    else:
+        folder = run_folder(Path(args.out) if args.out else default_out('paper'), 'paper: --out', args.replace)
+        results, figures = folder / 'results.md', folder / 'figures'
+    make_folder(figures, 'paper: --out')
+    code = paper.main(seeds=args.seeds, out=figures, docs=results, scenario=args.scenario,
                       ablation=not args.no_ablation, random_layouts=args.layouts)
+    if code == 0:
+        print(f'results in {results}, figures in {figures}')
+    return code
 
 
 RUN_INFO_TIMEOUT_S = 20.0  # agents --join: how long a run's /run_info is waited for
@@ -552,8 +567,10 @@ def add_study_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
     p = command(sub, 'paper', cmd_paper, "regenerate the paper's figures over several seeds and docs/results.md")
     p.add_argument('--scenario', default='paper', help=SCENARIO_HELP)
     p.add_argument('--seeds', type=positive_int, default=5, help='seeds per configuration (default: 5)')
-    p.add_argument('--out', default='docs/figures', help='figure folder (default: docs/figures)')
-    p.add_argument('--docs', default='docs/results.md', help='results page to write (default: docs/results.md)')
+    p.add_argument('--out', help='a new folder for results.md and figures/ (default: runs/paper-<time>)')
+    p.add_argument('--replace', action='store_true', help='replace an earlier run in --out (refused otherwise)')
+    p.add_argument('--docs', action='store_true',
+                   help="write the repository's docs/results.md and docs/figures instead (what the docs show)")
     p.add_argument('--no-ablation', action='store_true', help="skip measuring the effect of each open choice")
     p.add_argument('--layouts', type=non_negative_int, default=20,
                    help='random layouts to compare the policy sets on (default: 20; 0 skips them)')
