@@ -45,6 +45,9 @@ def test_several_runs_get_a_folder_each_and_failures_drop_maps(tmp_path: Path) -
         [event] = failures['events']
         assert event['step'] == 10 and event['cause'] == 'scheduled' and event['ids'] == failures['failed']
     assert (tmp_path / 'coverage.png').exists() and (tmp_path / 'fiedler.png').exists()
+    summary = read_csv(tmp_path / 'summary.csv')
+    assert summary['maps'].tolist() == [10, 20] and summary['alive'].tolist() == [5, 10], 'one row per run'
+    assert '| 10 | 1 |' in proc.stdout and 'time to success' in proc.stdout, 'mean ± std per MAP count'
 
 
 def test_same_seed_same_run(tmp_path: Path) -> None:

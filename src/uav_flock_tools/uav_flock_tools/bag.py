@@ -25,7 +25,7 @@ from rosbags.typesys.store import Typestore
 
 from uav_agent.core.params import FlockParams
 from uav_flock_ros import convert
-from world_sim.core import physics, records
+from world_sim.core import outcome, physics, records
 
 MSG_PACKAGE = 'uav_flock_msgs'
 PARAMS_KEY = 'uav_flock.params'      # custom_data key: the run's FlockParams as JSON
@@ -290,6 +290,10 @@ def missing_commands(run: BagRun) -> Optional[dict[int, list[int]]]:
     return missing
 
 
+def _finite(v: float) -> Optional[float]:
+    return v if np.isfinite(v) else None
+
+
 def summary(run: BagRun) -> dict[str, Any]:
     """The figures a reader of a run wants first."""
     m = run.metrics
@@ -303,6 +307,7 @@ def summary(run: BagRun) -> dict[str, Any]:
         'maps_end': int(m[-1, 4]),
         'final_coverage': float(rc[-1]),
         'final_fiedler': float(lam2[-1]),
+        'time_to_success_s': _finite(outcome.time_to_success(m)),
         'time_to_95_coverage_s': first_time(t, rc >= 0.95),
         'time_to_connectivity_s': first_time(t, lam2 > 0),
         'failures': [{'t_s': step * run.dt, 'ids': ids, 'cause': cause} for step, ids, cause in run.failures],

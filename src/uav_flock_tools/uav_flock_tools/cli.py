@@ -229,6 +229,10 @@ def cmd_sim(args: argparse.Namespace) -> int:
         m = r.metrics
         print(f'{label}: t = {m[-1, 1]:.1f} s, R_c = {100 * m[-1, 2]:.1f} %, Fiedler = {m[-1, 3]:.4f}, '
               f'components = {int(m[-1, 5])}, alive = {int(m[-1, 4])}')
+    if several:
+        table = simrun.write_summary([r for _, r in done], out)
+        print('\n'.join(['', 'Mean ± std over the seeds (time to success: first t with R_c ≥ 95 % and λ2 > 0):',
+                          *table, f'one row per run in {out / simrun.SUMMARY_FILE}']))
     print(f'results in {out}')
     return 0
 

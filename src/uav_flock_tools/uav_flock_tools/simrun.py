@@ -11,7 +11,7 @@ import numpy as np
 
 from world_sim.batch import BatchSimulator
 from world_sim.core.model import RunResult
-from world_sim.core import records
+from world_sim.core import outcome, records
 from world_sim.core.crowd import events as events_of
 from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario  # noqa: F401 (the CLI, paper and benchmarks read it here)
@@ -80,3 +80,32 @@ def sweep(scenarios: list[Scenario], on_done: Callable[[], None], workers: int |
 
 def grid(base: Scenario, maps: Iterable[int], seeds: Iterable[int], **overrides: object) -> list[Scenario]:
     return [base.with_overrides(maps=n, seed=k, **overrides) for n in maps for k in seeds]
+
+
+SUMMARY_FILE = 'summary.csv'
+
+
+def write_summary(results: list[RunResult], out: Path) -> list[str]:
+    """A sweep's summary.csv (one row per run: its final values and time to success) and, returned, a table of
+    mean ± std over the seeds of each MAP count."""
+    rows = ['maps,seed,final_coverage,final_fiedler,components,alive,time_to_success_s']
+    by_maps: dict[int, list[list[float]]] = {}
+    for r in results:
+        m = r.metrics
+        t = outcome.time_to_success(m)
+        values = [float(m[-1, 2]), float(m[-1, 3]), float(m[-1, 5]), float(m[-1, 4]), t]
+        rows.append(f'{r.scenario.maps},{r.scenario.seed},{values[0]:.6f},{values[1]:.6f},{int(values[2])},'
+                    f'{int(values[3])},{"" if not np.isfinite(t) else f"{t:.1f}"}')
+        by_maps.setdefault(r.scenario.maps, []).append(values)
+    (out / SUMMARY_FILE).write_text('\n'.join(rows) + '\n')
+    table = ['| MAPs | runs | final R_c | final λ2 | components | time to success (runs reaching it) |',
+             '|---|---|---|---|---|---|']
+    for maps, v in sorted(by_maps.items()):
+        a = np.array(v)
+        reached = a[np.isfinite(a[:, 4]), 4]
+        success = f'{reached.mean():.1f} ± {reached.std():.1f} s ({len(reached)}/{len(a)})' if len(reached) else \
+            f'never (0/{len(a)})'
+        table.append(f'| {maps} | {len(a)} | {100 * a[:, 0].mean():.1f} ± {100 * a[:, 0].std():.1f} % | '
+                     f'{a[:, 1].mean():.4f} ± {a[:, 1].std():.4f} | {a[:, 2].mean():.1f} ± {a[:, 2].std():.1f} | '
+                     f'{success} |')
+    return table

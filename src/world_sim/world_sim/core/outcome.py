@@ -34,13 +34,19 @@ class Outcome:
     in_m0: int                        # MAPs whose last mode is M0
 
 
+def time_to_success(metrics: np.ndarray) -> float:
+    """Time to success, the one definition every figure uses: the first t with R_c >= 95 % and lambda2 > 0
+    (s), inf if never."""
+    good = (metrics[:, R_C] >= COVERED) & (metrics[:, FIEDLER] > 0)
+    return float(metrics[np.argmax(good), T]) if good.any() else float('inf')
+
+
 def judge(s: Scenario, metrics: np.ndarray, trajectory: np.ndarray) -> Outcome:
     t = metrics[:, T]
     tail = t >= t[-1] - TAIL + 1e-9
     cov = float(metrics[tail, R_C].mean())
     connected = bool(np.all(metrics[tail, FIEDLER] > 0))
-    good = (metrics[:, R_C] >= COVERED) & (metrics[:, FIEDLER] > 0)
-    first = float(t[np.argmax(good)]) if good.any() else float('inf')
+    first = time_to_success(metrics)
     step = trajectory[:, TRAJECTORY_COLUMNS.index('step')]
     last = trajectory[step == step.max()]
     xy = last[:, [TRAJECTORY_COLUMNS.index('x'), TRAJECTORY_COLUMNS.index('y')]]
