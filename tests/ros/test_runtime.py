@@ -277,7 +277,8 @@ def test_agents_listen_only_to_maps_in_radio_range(tmp_path: Path, ros_env: dict
 
 
 def test_echo_once_on_a_killed_map_ends_within_its_timeout(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    """The killed MAP's stale endpoint still counts as a publisher, but no message comes: one line, exit 2."""
+    """The killed MAP's stale endpoint still counts as a publisher and no message comes: echo says at once that the
+    MAP was killed, and when world_sim dropped it (from the failure events world_sim keeps)."""
     run = tmp_path / 'up'
     proc = up('--maps', '4', '--seed', '0', '--duration', '600', '--out', str(run), env=ros_env)
     try:
@@ -289,7 +290,7 @@ def test_echo_once_on_a_killed_map_ends_within_its_timeout(tmp_path: Path, ros_e
         proc.send_signal(signal.SIGINT)
         proc.communicate(timeout=30)
     assert echoed.returncode == 2 and len(echoed.stderr.strip().splitlines()) == 1, echoed.stdout + echoed.stderr
-    assert '/map_3/state' in echoed.stderr and 'within 5 s' in echoed.stderr, echoed.stderr
+    assert 'MAP 3 of this run was killed' in echoed.stderr and 'dropped it at t =' in echoed.stderr, echoed.stderr
 
 
 def test_echo_and_topics_show_a_live_run(tmp_path: Path, ros_env: dict[str, str]) -> None:
@@ -300,8 +301,14 @@ def test_echo_and_topics_show_a_live_run(tmp_path: Path, ros_env: dict[str, str]
         wait_for_line(proc, 't =   1.0 s', 120)
         echoed = cli('echo', '/metrics', '--once', '--run', str(run), timeout=60)
         listed = cli('topics', '--run', str(run), timeout=60)
+        # A topic the run does not have is one line and exit 2 at once, not a wait for its timeout.
+        for topic in ('/no_such_topic', '/map_99/state'):
+            t0 = time.monotonic()
+            absent = cli('echo', topic, '--run', str(run), '--timeout', '60', timeout=60)
+            assert absent.returncode == 2 and 'is not a topic of the run' in absent.stderr, absent.stderr
+            assert len(absent.stderr.strip().splitlines()) == 1 and time.monotonic() - t0 < 30
         # `kill PID` ends an echo as Ctrl-C does: quietly once it prints, "interrupted" (130) while it waits.
-        for topic, code in (('/metrics', 0), ('/no_such_topic', 130)):
+        for topic, code in (('/metrics', 0), ('/events/finished', 130)):  # the latter comes only at the end
             streaming = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'echo', topic, '--run',
                                           str(run), '--timeout', '100'], stdout=subprocess.PIPE,
                                          stderr=subprocess.PIPE, text=True)

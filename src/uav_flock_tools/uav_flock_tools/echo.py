@@ -144,6 +144,54 @@ def full_topic_name(topic: str) -> str:
     return name
 
 
+RUN_EXTRA_TOPICS = ('/rosout', '/parameter_events', '/recorder/progress', '/run_info')
+FAILURES_WAIT_S = 2.0  # how long the failure events kept by world_sim may take to come in
+
+
+def run_map(run: str, topic: str) -> tuple[Optional[int], bool]:
+    """(MAP id of a /map_<id>/... topic, or None; whether the topic is one the run publishes)."""
+    from . import bag
+    maps = int(json.loads((Path(run) / 'run.json').read_text()).get('maps', 0))
+    m = re.fullmatch(r'/map_(\d+)/\w+', topic)
+    return (int(m[1]) if m else None), topic in set(bag.run_topics(maps)) | set(RUN_EXTRA_TOPICS)
+
+
+def dropped_at(node: Any, map_id: int) -> Optional[tuple[int, float, str]]:
+    """(step, t, cause) at which world_sim dropped a MAP, from the failure events it keeps (transient-local)."""
+    import rclpy
+    from uav_flock_msgs.msg import FailureEvent
+    from uav_flock_ros.convert import FailureData
+    from uav_flock_ros.qos import STEP_QOS
+    seen: list[tuple[int, float, str]] = []
+
+    def on_event(msg: FailureEvent) -> None:
+        e = FailureData.from_msg(msg)
+        if map_id in e.ids:
+            seen.append((e.step, msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, e.cause))
+
+    sub = node.create_subscription(FailureEvent, '/events/failure', on_event, STEP_QOS)
+    end = time.monotonic() + FAILURES_WAIT_S
+    while not seen and time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.1)
+    node.destroy_subscription(sub)
+    return seen[0] if seen else None
+
+
+def check_in_run(node: Any, run: str, topic: str) -> None:
+    """EchoError at once for a topic the run does not have, or of a MAP whose process is gone."""
+    from .kill import agent_of_run
+    from .spawn import read_pid_table
+    map_id, known = run_map(run, topic)
+    if not known:
+        raise EchoError(f'{topic} is not a topic of the run in {run} (`./uav-flock topics --run {run}` lists them)')
+    table = read_pid_table(Path(run)) if (Path(run) / 'pids.json').exists() else {}
+    if map_id is None or map_id not in table or agent_of_run(table[map_id], Path(run).resolve() / 'agent_params.yaml'):
+        return
+    when = dropped_at(node, map_id)
+    said = f': world_sim dropped it at t = {when[1]:.1f} s (step {when[0]}, {when[2]})' if when else ''
+    raise EchoError(f'MAP {map_id} of this run was killed (its process is gone){said}; {topic} has no publisher')
+
+
 def echo(topic: str, once: bool, timeout: float, run: Optional[str], domain_id: Optional[int]) -> int:
     use_domain(run, domain_id)
     topic = full_topic_name(topic)
@@ -152,6 +200,8 @@ def echo(topic: str, once: bool, timeout: float, run: Optional[str], domain_id: 
     stop = _init_rclpy()
     try:
         node = rclpy.create_node('uav_flock_echo')
+        if run is not None:
+            check_in_run(node, run, topic)
         end = time.monotonic() + timeout
         infos = []
         while time.monotonic() < end and not infos and not stop.received:
