@@ -17,7 +17,7 @@ from typing import Any, Optional
 import numpy as np
 
 from uav_flock_tools import plots
-from world_sim.batch import BatchSimulator
+from uav_flock_tools.batch import BatchSimulator
 from world_sim.core.crowd import events
 from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario

@@ -25,7 +25,7 @@ import numpy as np
 
 from uav_agent.core import demand, keys
 from uav_flock_tools.layouts import draw, policy_sets
-from world_sim.batch import BatchSimulator
+from uav_flock_tools.batch import BatchSimulator
 from world_sim.core import layouts
 from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario

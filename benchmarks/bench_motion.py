@@ -32,7 +32,7 @@ import numpy as np
 from uav_agent.core.clusters import mst_edges
 from uav_agent.core.state import M1
 from uav_flock_tools.layouts import draw, policy_sets
-from world_sim.batch import BatchSimulator
+from uav_flock_tools.batch import BatchSimulator
 from world_sim.core import layouts
 from world_sim.core.scenario import Cluster, Scenario
 from world_sim.shipped import load_scenario

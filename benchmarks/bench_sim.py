@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from uav_flock_tools.simrun import load_scenario
-from world_sim.batch import BatchSimulator
+from uav_flock_tools.batch import BatchSimulator
 from world_sim.core.scenario import Cluster, Scenario
 
 

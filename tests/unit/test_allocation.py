@@ -15,7 +15,7 @@ from uav_agent.core import policies, state
 from uav_agent.core.policies import decide
 from uav_agent.core.state import M0, M1, M2, Memory, Told
 from uav_agent.core.params import FlockParams
-from world_sim.batch import BatchSimulator
+from uav_flock_tools.batch import BatchSimulator
 from world_sim.core import layouts, outcome
 from world_sim.core.scenario import load
 

@@ -17,7 +17,7 @@ from uav_agent.core.demand import demand_switch, en_route, pivot, swing_place
 from uav_agent.core.policies import reference
 from uav_agent.core.state import M0, M1, M2, Memory
 from uav_agent.core.params import FlockParams
-from world_sim.batch import BatchSimulator
+from uav_flock_tools.batch import BatchSimulator
 from world_sim.core.crowd import center_at
 from world_sim.core.scenario import Cluster, ScenarioError, parse
 from world_sim.core.survey import NONE, settle, survey

@@ -10,7 +10,7 @@ import pytest
 from uav_agent.core.agent import Neighbourhood, agent_step
 from uav_agent.core.state import Told
 from uav_agent.core.params import FlockParams
-from world_sim.batch import BatchSimulator
+from uav_flock_tools.batch import BatchSimulator
 from world_sim.core import layouts, physics
 from world_sim.core.scenario import load
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from world_sim.batch import BatchSimulator
+from uav_flock_tools.batch import BatchSimulator
 from world_sim.core.scenario import load
 
 

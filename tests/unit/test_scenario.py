@@ -51,7 +51,7 @@ def test_bad_scenarios_name_the_key(doc: dict[str, Any], edit: Any, key: str) ->
 
 def test_radio_power_and_exponent_are_optional_and_do_not_change_association(doc: dict[str, Any]) -> None:
     """Eq. 2's strongest signal is the nearest MAP for every rho, eta > 0, so both may be left out."""
-    from world_sim.batch import BatchSimulator
+    from uav_flock_tools.batch import BatchSimulator
     short = {'duration': 3.0, 'maps': 30}
     doc['radio'].pop('rho'), doc['radio'].pop('eta')
     default = parse(doc).with_overrides(**short)

@@ -14,7 +14,7 @@ import numpy as np
 import yaml
 
 from uav_agent.core.params import POLICY_VALUES, FlockParams
-from world_sim.batch import BatchSimulator
+from uav_flock_tools.batch import BatchSimulator
 from world_sim.core import layouts, outcome
 from world_sim.core.scenario import Scenario, ScenarioError, to_doc
 from world_sim.shipped import load_scenario

@@ -9,7 +9,7 @@ from typing import Callable, Iterable, Optional
 
 import numpy as np
 
-from world_sim.batch import BatchSimulator
+from uav_flock_tools.batch import BatchSimulator
 from world_sim.core.model import RunResult
 from world_sim.core import outcome, records
 from world_sim.core.crowd import events as events_of

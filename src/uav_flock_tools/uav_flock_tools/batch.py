@@ -14,8 +14,8 @@ from uav_agent.core.control import control_input
 from uav_agent.core.policies import apart_links, decide, reference
 from uav_agent.core.state import Memory, Told
 
-from .core.model import RunResult, Sensed, World
-from .core.scenario import Scenario
+from world_sim.core.model import RunResult, Sensed, World
+from world_sim.core.scenario import Scenario
 
 
 class BatchSimulator:
