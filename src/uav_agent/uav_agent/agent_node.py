@@ -32,7 +32,8 @@ from .core.agent import Neighbourhood, agent_step
 from .core.clusters import NO_GOAL, ClusterMap, ids_of, mask_of
 from .core.state import Memory, Told
 from .core.checks import check_fields
-from .core.params import AgentNodeParams, FlockParams, check as check_params
+from .core.params import AgentNodeParams, FlockParams
+from .core.policies import check as check_params
 
 WATCH_PERIOD_S = 1.0
 WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long (after it was seen): it is gone

@@ -13,7 +13,8 @@ from typing import Callable, Iterator, Optional
 import numpy as np
 import yaml
 
-from uav_agent.core.params import POLICY_VALUES, FlockParams
+from uav_agent.core.params import FlockParams
+from uav_agent.core.policies import POLICY_VALUES
 from uav_flock_tools.batch import BatchSimulator
 from world_sim.core import layouts, outcome
 from world_sim.core.scenario import Scenario, ScenarioError, to_doc

@@ -5,11 +5,10 @@ from dataclasses import dataclass, field, fields
 from typing import Any, Callable
 
 from .checks import bound, number
-from .policies import ALLOCATIONS, DEFAULT
 
-# Names of the choices where the paper is ambiguous, with their allowed values; docs/choices.md explains them.
-POLICY_VALUES: dict[str, tuple[str, ...]] = {
-    'allocation': tuple(ALLOCATIONS),
+# Algorithm 2's open cases, where the paper is ambiguous, with their allowed values; docs/choices.md explains
+# them. Which allocation runs is the other policy: its names are policies.ALLOCATIONS'.
+OPEN_CHOICES: dict[str, tuple[str, ...]] = {
     'zero_users': ('move_on', 'static'),
     'm1_pending': ('hold', 'lead'),
     'm0_exhausted': ('bridge', 'serve'),
@@ -35,7 +34,7 @@ class FlockParams:
     n0: int = 3                # serving threshold to M1, Algorithm 2
     n1: int = 10               # serving threshold to M2, Algorithm 2
     height: float = 20.0       # flight altitude H (m)
-    allocation: str = DEFAULT  # policies.ALLOCATIONS; 'algorithm2': the paper's, with the four policies below
+    allocation: str = 'demand'  # a name of policies.ALLOCATIONS; 'algorithm2': the paper's, with the four below
     zero_users: str = 'move_on'
     m1_pending: str = 'hold'
     m0_exhausted: str = 'bridge'
@@ -45,17 +44,20 @@ class FlockParams:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
-def check(p: FlockParams, where: Callable[[str], str] = str) -> None:
+def check(p: FlockParams, where: Callable[[str], str] = str,
+          choices: dict[str, tuple[str, ...]] = OPEN_CHOICES) -> None:
     """Raise ValueError for values no run can use, naming the parameter as `where(name)` does.
 
-    The scenario loader and the agent node both call this: an agent started by hand with `-p r:=-1` is
-    refused as a scenario with `flock.r: -1` is.
+    The scenario loader and the agent node both call it through policies.check, which adds the allocation's
+    names to the choices: an agent started by hand with `-p r:=-1` is refused as a scenario with `flock.r: -1` is.
     """
     for f in fields(p):
         v = getattr(p, f.name)
-        if f.name in POLICY_VALUES:
-            if v not in POLICY_VALUES[f.name]:
-                raise ValueError(f'{where(f.name)}: must be one of {", ".join(POLICY_VALUES[f.name])}, got {v!r}')
+        if f.name in choices:
+            if v not in choices[f.name]:
+                raise ValueError(f'{where(f.name)}: must be one of {", ".join(choices[f.name])}, got {v!r}')
+        elif isinstance(f.default, str):
+            continue  # a choice whose values another module names
         elif isinstance(f.default, int):
             number(v, where(f.name), low=0, integer=True)
         else:

@@ -7,17 +7,16 @@ Nothing else in uav-flock tests an allocation's name: a new one is a module and 
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Iterable, Protocol, Sequence
+from typing import Callable, Iterable, Protocol, Sequence
 
 import numpy as np
 
 from .algorithm2 import Algorithm2
 from .clusters import NO_GOAL, ClusterMap, merge_achieved
 from .demand import Demand
+from .params import OPEN_CHOICES, FlockParams
+from .params import check as check_values
 from .state import Memory, Reference, Told
-
-if TYPE_CHECKING:
-    from .params import FlockParams
 
 
 class Allocation(Protocol):
@@ -39,7 +38,14 @@ ALLOCATIONS: dict[str, Allocation] = {
     'demand': Demand(),
     'algorithm2': Algorithm2(),
 }
-DEFAULT = 'demand'
+DEFAULT = FlockParams().allocation  # what a scenario without `policies: allocation:` runs
+# Every choice where the paper is ambiguous or leaves the method open, with its allowed values (docs/choices.md).
+POLICY_VALUES: dict[str, tuple[str, ...]] = {'allocation': tuple(ALLOCATIONS), **OPEN_CHOICES}
+
+
+def check(p: FlockParams, where: Callable[[str], str] = str) -> None:
+    """params.check with every policy's allowed values: ValueError naming the parameter as `where(name)` does."""
+    check_values(p, where, POLICY_VALUES)
 
 
 def decide(mem: Memory, agent_id: int, n_users: int, cluster_coverage: np.ndarray, q: np.ndarray,

@@ -8,7 +8,9 @@ from typing import Any, Callable
 import yaml
 
 from uav_agent.core.checks import bound, number
-from uav_agent.core.params import POLICY_VALUES, FlockParams, check as check_flock
+from uav_agent.core.params import FlockParams
+from uav_agent.core.policies import POLICY_VALUES
+from uav_agent.core.policies import check as check_flock
 
 
 class ScenarioError(ValueError):
