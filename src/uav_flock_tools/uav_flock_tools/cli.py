@@ -313,7 +313,7 @@ def say_floor(s: 'Scenario', maps: int) -> None:
     if maps < floor:
         print(f'note: {maps} MAPs is below the floor of this layout, LB = {floor} MAPs (coverage discs and relay '
               'chains no method can do without, docs/allocation.md): expect users uncovered or the network split',
-              flush=True)
+              file=sys.stderr, flush=True)
 
 
 def say_what_the_bag_lacks(path: Path) -> None:

@@ -231,7 +231,9 @@ def echo(topic: str, once: bool, timeout: float, run: Optional[str], domain_id: 
         # endpoint of a SIGKILLed MAP counts as one until DDS notices it is gone).
         while not shown and not stop.received and time.monotonic() < end:
             rclpy.spin_once(node, timeout_sec=0.1)
-        if not shown and not stop.received:
+        if not shown and stop.received:
+            raise KeyboardInterrupt  # while still waiting for the first message
+        if not shown:
             raise EchoError(f'no message on {topic} within {timeout:g} s ({len(infos)} publisher(s) known, '
                             'none sending)')
         while not done and not stop.received:  # Ctrl-C is the usual way to end an echo: exit 0, as ros2 does
