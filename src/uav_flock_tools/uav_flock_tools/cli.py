@@ -202,7 +202,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
     out = run_folder(Path(args.out) if args.out else default_out('sim'), 'sim: --out', args.replace)
     runs = simrun.grid(base, maps, seeds, duration=args.duration, fail_at=args.fail_at,
                        fail_fraction=args.fail_fraction)
-    say_floor(base, min(maps))
+    if (note := floor_note(base, min(maps))) is not None:
+        print(note, file=sys.stderr, flush=True)
     several = len(runs) > 1
     total = sum(s.steps for s in runs)
     done: list[tuple[str, object]] = []
@@ -274,10 +275,10 @@ def cmd_up(args: argparse.Namespace) -> int:
     if args.agents_here is not None and args.agents_here > s.maps:
         raise UsageError(f'up: --agents-here {args.agents_here}: the run has {s.maps} MAPs')
     out = run_folder(Path(args.out) if args.out else default_out('up'), 'up: --out', args.replace)
-    say_floor(s, s.maps)
     try:
         code, result = launcher.up(path.resolve(), s, out.resolve(), args.agents_per_process, args.domain_id,
-                                   args.discovery, args.record, args.sync, args.rate, args.listen, args.agents_here)
+                                   args.discovery, args.record, args.sync, args.rate, args.listen, args.agents_here,
+                                   floor_note(s, s.maps))
     except (FileExistsError, ValueError, domains.DomainInUse) as exc:
         raise UsageError(f'up: {exc}') from None
     if result is None:
@@ -306,14 +307,14 @@ def cmd_floor(args: argparse.Namespace) -> int:
     return 0
 
 
-def say_floor(s: 'Scenario', maps: int) -> None:
+def floor_note(s: 'Scenario', maps: int) -> Optional[str]:
     """One line when the MAPs asked for are below the floor LB of the scenario's layout (docs/allocation.md)."""
     from world_sim.core import layouts
     floor = layouts.floor(s).total
-    if maps < floor:
-        print(f'note: {maps} MAPs is below the floor of this layout, LB = {floor} MAPs (coverage discs and relay '
-              'chains no method can do without, docs/allocation.md): expect users uncovered or the network split',
-              file=sys.stderr, flush=True)
+    if maps >= floor:
+        return None
+    return (f'note: {maps} MAPs is below the floor of this layout, LB = {floor} MAPs (coverage discs and relay '
+            'chains no method can do without, docs/allocation.md): expect users uncovered or the network split')
 
 
 def say_what_the_bag_lacks(path: Path) -> None:

@@ -255,14 +255,18 @@ class Run:
 def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: int = 1,
        domain_id: Optional[int] = None, discovery: str = 'auto', record: bool = False,
        sync: str = 'lockstep', rate: float = 1.0, listen: Optional[str] = None,
-       agents_here: Optional[int] = None) -> tuple[int, Optional[RunResult]]:
-    """Run the scenario distributed, in stages; returns (exit code, result read back from the run folder)."""
+       agents_here: Optional[int] = None, note: Optional[str] = None) -> tuple[int, Optional[RunResult]]:
+    """Run the scenario distributed, in stages; returns (exit code, result read back from the run folder).
+    A note (e.g. too few MAPs for the layout) goes to stderr once the run is planned and its files written."""
     r = Run(plan(scenario_path, scenario, run, agents_per_process, domain_id, discovery, record, sync, rate,
                  listen, agents_here))
     old_int, old_term = signal.signal(signal.SIGINT, r.on_signal), signal.signal(signal.SIGTERM, r.on_signal)
     try:
         try:
-            r.start(r.write_files())
+            params = r.write_files()
+            if note:
+                print(note, file=sys.stderr, flush=True)
+            r.start(params)
             code = r.supervise()
         except KeyboardInterrupt:
             code = 130
