@@ -153,7 +153,7 @@ class Nearest:
     """The allocation of docs/design.md's example: serve the nearest cluster, attract only its other servers."""
 
     def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
-               fp: FlockParams) -> Memory:
+               fp: FlockParams, step: int) -> Memory:
         from uav_agent.core.clusters import NO_GOAL
         goal = clusters.nearest(q, 0)
         return mem._replace(goal=goal, mode=M2 if goal != NO_GOAL and r_g > fp.r0 else M0)

@@ -238,7 +238,7 @@ class AgentNode(Node):
     def publish_state(self, s: convert.SensingData) -> None:
         mem = self.memory
         msg = convert.AgentStateData(self.map_id, s.step, s.q, s.p, s.n_users, mem.mode, mem.goal, mem.bridge,
-                                     tuple(ids_of(mem.achieved))).to_msg(self.pending_header)
+                                     tuple(ids_of(mem.achieved)), mem.seen, mem.lost).to_msg(self.pending_header)
         self.state_pub.publish(msg)
         self.last_state = msg
 
@@ -259,12 +259,13 @@ class AgentNode(Node):
             p=np.array([m.p for m in heard]).reshape(-1, 3),
             n_users=np.array([float(m.n_users) for m in heard]),
             achieved=[mask_of(m.achieved) for m in heard],
-            told=[Told(m.mode, m.goal, m.bridge) for m in heard])
+            told=[Told(m.mode, m.goal, m.bridge) for m in heard],
+            seen=[m.seen for m in heard], lost=[m.lost for m in heard])
         coverage = np.zeros(self.clusters.count)
         if self.memory.goal != NO_GOAL:
             coverage[self.memory.goal] = s.goal_coverage  # r_g of the goal the world knows we hold
         u, mem = agent_step(self.memory, self.map_id, s.q, s.p, s.n_users, coverage, hood, self.clusters,
-                            self.params)
+                            self.params, s.step)
         if not np.all(np.isfinite(u)):
             self.reject('core', f'non-finite control input at step {s.step}; holding u = 0')
             u = np.zeros(3)

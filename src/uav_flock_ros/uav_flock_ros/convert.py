@@ -56,19 +56,26 @@ class AgentStateData(NamedTuple):
     goal: int
     bridge: Optional[tuple[int, int]]  # the two clusters an M1 MAP connects, None otherwise
     achieved: tuple[int, ...]       # cluster indices known as achieved, ascending
+    seen: tuple[tuple[int, int], ...] = ()      # (role code, last step a member was heard of)
+    lost: tuple[tuple[float, float], ...] = ()  # key spans [lo, hi) known lost
 
     def to_msg(self, header: Header) -> AgentState:
         return AgentState(header=header, id=int(self.id), step=int(self.step), position=point(self.q),
                           velocity=vector(self.p), user_count=int(self.n_users), mode=int(self.mode),
                           goal=int(self.goal), bridge=list(self.bridge) if self.bridge else [],
-                          achieved_goals=[int(k) for k in self.achieved])
+                          achieved_goals=[int(k) for k in self.achieved],
+                          roles_heard=[int(c) for c, _ in self.seen], roles_heard_step=[int(k) for _, k in self.seen],
+                          lost_keys=[float(x) for span in self.lost for x in span])
 
     @classmethod
     def from_msg(cls, msg: Any) -> 'AgentStateData':
         bridge = tuple(int(c) for c in msg.bridge)
+        lost = [float(x) for x in msg.lost_keys]
         return cls(int(msg.id), int(msg.step), xyz(msg.position), xyz(msg.velocity), int(msg.user_count),
                    int(msg.mode), int(msg.goal), (bridge[0], bridge[1]) if len(bridge) == 2 else None,
-                   tuple(int(k) for k in msg.achieved_goals))
+                   tuple(int(k) for k in msg.achieved_goals),
+                   tuple((int(c), int(k)) for c, k in zip(msg.roles_heard, msg.roles_heard_step)),
+                   tuple(zip(lost[::2], lost[1::2])))
 
 
 class CommandData(NamedTuple):

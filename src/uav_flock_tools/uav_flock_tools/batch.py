@@ -50,7 +50,9 @@ class BatchSimulator:
         for n, i in enumerate(rows.tolist()):
             near = nbr[bounds[n]:bounds[n + 1]]
             heard = [achieved_stated[j] for j in near]
-            mem = decide(self.memory[i], i, counts[n], sensed.cluster_coverage, sensed.q[n], heard, w.clusters, fp)
+            roles_heard = ([stated[j].seen for j in near], [stated[j].lost for j in near])
+            mem = decide(self.memory[i], i, counts[n], sensed.cluster_coverage, sensed.q[n], heard, w.clusters, fp,
+                         sensed.k, roles_heard)
             self.memory[i] = mem
             heard_roles = [roles_stated[j] for j in near]
             refs.append(reference(mem, i, sensed.q[n], sensed.q[near], heard_roles, w.clusters, fp))

@@ -1,7 +1,7 @@
 """One MAP's whole step, as its node runs it: neighbours' messages and own sensing in, u_i and memory out."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -21,6 +21,8 @@ class Neighbourhood:
     n_users: np.ndarray    # (n,) N_u^j
     achieved: list[int]    # achieved-goal masks
     told: list[Told]       # mode, goal and bridge each one stated
+    seen: list[tuple[tuple[int, int], ...]] = field(default_factory=list)    # roles each one heard of (vacancy.py)
+    lost: list[tuple[tuple[float, float], ...]] = field(default_factory=list)  # keys each one knows lost
 
     @classmethod
     def empty(cls) -> 'Neighbourhood':
@@ -28,9 +30,10 @@ class Neighbourhood:
 
 
 def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_users: int, cluster_coverage: np.ndarray,
-               nbrs: Neighbourhood, clusters: ClusterMap, params: FlockParams) -> tuple[np.ndarray, Memory]:
-    """Algorithm 1 lines 3-6 for one MAP: gossip, mode switch (Alg. 2), control input (eq. 9)."""
-    mem = decide(mem, agent_id, n_users, cluster_coverage, q, nbrs.achieved, clusters, params)
+               nbrs: Neighbourhood, clusters: ClusterMap, params: FlockParams, step: int = 0) -> tuple[np.ndarray, Memory]:
+    """Algorithm 1 lines 3-6 for one MAP at step k: gossip, mode switch (Alg. 2), control input (eq. 9)."""
+    mem = decide(mem, agent_id, n_users, cluster_coverage, q, nbrs.achieved, clusters, params, step,
+                 (nbrs.seen, nbrs.lost))
     ref = reference(mem, agent_id, q, nbrs.q, nbrs.told, clusters, params)
     owner = np.zeros(len(nbrs.q), dtype=np.intp)
     u = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([ref.mode]),

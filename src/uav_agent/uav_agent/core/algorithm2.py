@@ -70,7 +70,7 @@ class Algorithm2:
     """Algorithm 2 as an allocation (policies.Allocation)."""
 
     def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
-               fp: FlockParams) -> Memory:
+               fp: FlockParams, step: int = 0) -> Memory:
         mem = mode_switch(mem, n_users, r_g, q, clusters, fp)
         return choose_bridge(mem, agent_id, q, clusters, fp)
 

@@ -9,8 +9,10 @@ from typing import TYPE_CHECKING, Optional, Sequence
 
 import numpy as np
 
+from . import keys
 from .clusters import NO_GOAL, ClusterMap, Edge, key_of
 from .state import M0, M1, M2, Memory, Reference, Told, aim, hold
+from .vacancy import vacate, view
 
 if TYPE_CHECKING:
     from .params import FlockParams
@@ -35,35 +37,41 @@ def served(mem: Memory, r_g: float, arrived: bool, fp: FlockParams) -> Memory:
     return mem
 
 
-def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
-                  fp: FlockParams) -> Memory:
+def _anew(mem: Memory, **role: object) -> Memory:
+    """A MAP's memory for a new role: what it knows of the clusters and the roles stays."""
+    return Memory(achieved=mem.achieved, settled=mem.settled, seen=mem.seen, lost=mem.lost, since=mem.since,
+                  **role)  # type: ignore[arg-type]
+
+
+def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, clusters: ClusterMap, fp: FlockParams,
+                  step: int = 0) -> Memory:
     """The demand allocation for one MAP at one step: its role from its key, then its mode.
 
     A server flies to its cluster in M0 and holds it in M2 once the cluster is served; a relay bridges
-    its edge in M1 from the start, so the tree never waits for clusters to be achieved.
+    its edge in M1 from the start, so the tree never waits for clusters to be achieved. Keys known lost
+    (vacancy.py) are squeezed out of the line first, so the survivors staff every role.
     """
-    roles = clusters.roles(fp.d)
     if not clusters.live:  # no cluster to serve or bridge: hold where it is until one appears
-        return mem if mem.goal == NO_GOAL and mem.mode == M2 else \
-            Memory(mode=M2, achieved=mem.achieved, settled=mem.settled)
-    role = roles.of(key_of(agent_id))
+        return mem if mem.goal == NO_GOAL and mem.mode == M2 else _anew(mem, mode=M2)
+    mem = vacate(mem, step, q, clusters, fp)
+    roles = view(clusters.roles(fp.d), mem.lost)
+    role = roles.of(keys.squeeze(key_of(agent_id), mem.lost))
     if role < clusters.count:
         if mem.goal != role or mem.mode == M1:
-            mem = Memory(mode=M0, goal=role, achieved=mem.achieved, settled=mem.settled, transit=mem.settled)
+            mem = _anew(mem, mode=M0, goal=role, transit=mem.settled)
             r_g = 0.0
         arrived = float(np.hypot(*(np.asarray(q, dtype=float)[:2] - clusters.xy[role]))) <= clusters.radii[role]
         if arrived and (mem.transit or not mem.settled):
-            mem = mem._replace(settled=True, transit=False)
+            mem = mem._replace(settled=True, transit=False, since=step)
         mem = served(mem, r_g, arrived, fp)
         if mem.mode == M0 and mem.achieved >> mem.goal & 1:
             mem = mem._replace(mode=M2)
         return mem
     edge = roles.edges[role - clusters.count]
     if mem.mode != M1 or mem.bridge != edge:
-        mem = Memory(mode=M1, goal=edge[0], achieved=mem.achieved, bridge=edge, settled=mem.settled,
-                     transit=mem.settled, swing=pivot(mem, q, edge, clusters, fp))
+        mem = _anew(mem, mode=M1, goal=edge[0], bridge=edge, transit=mem.settled, swing=pivot(mem, q, edge, clusters, fp))
     if (mem.transit or not mem.settled) and clusters.segment_distance(q, edge) <= fp.d:
-        mem = mem._replace(settled=True, transit=False)
+        mem = mem._replace(settled=True, transit=False, since=step)
     if mem.swing is not None:
         a, u, _ = clusters.axis(edge)
         if float(np.linalg.norm(a + u * swing_place(mem.swing, edge, clusters, fp) - np.asarray(q)[:2])) <= fp.d:
@@ -111,7 +119,7 @@ def swing_place(swing: tuple[int, float], edge: Edge, clusters: ClusterMap, fp: 
 
 
 def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, told: Sequence[Told],
-                clusters: ClusterMap, fp: FlockParams) -> float:
+                clusters: ClusterMap, fp: FlockParams, lost: tuple[keys.Span, ...] = ()) -> float:
     """Where along its edge a relay aims (m from the first cluster's centre): midway along its chain.
 
     The chain of an edge (a, b) is its relays and the servers of a and b. Servers of a lie on the a side
@@ -151,9 +159,10 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
         return min(below + fp.d, length)
     if math.isfinite(above):
         return max(above - fp.d, 0.0)
-    roles = clusters.roles(fp.d)
+    roles = view(clusters.roles(fp.d), lost)
     start, stop = clusters.gap(edge, fp.d / 2)
-    return start + roles.place(key_of(agent_id), clusters.count + roles.edges.index(edge)) * (stop - start)
+    at = roles.place(keys.squeeze(key_of(agent_id), lost), clusters.count + roles.edges.index(edge))
+    return start + at * (stop - start)
 
 
 def _in_place(qj: np.ndarray, tj: 'Told', edge: Edge, clusters: ClusterMap, fp: FlockParams) -> bool:
@@ -219,8 +228,8 @@ class Demand:
     """The demand allocation as an allocation (policies.Allocation)."""
 
     def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
-               fp: FlockParams) -> Memory:
-        return demand_switch(mem, agent_id, r_g, q, clusters, fp)
+               fp: FlockParams, step: int = 0) -> Memory:
+        return demand_switch(mem, agent_id, r_g, q, clusters, fp, step)
 
     def reference(self, mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],
                   clusters: ClusterMap, fp: FlockParams) -> Reference:
@@ -234,7 +243,7 @@ class Demand:
         if mem.mode == M1 and mem.bridge is not None:
             va, vb = clusters.velocities[mem.bridge[0]], clusters.velocities[mem.bridge[1]]
             place = swing_place(mem.swing, mem.bridge, clusters, fp) if mem.swing is not None else \
-                relay_place(agent_id, q, mem.bridge, nbr_q, told, clusters, fp)
+                relay_place(agent_id, q, mem.bridge, nbr_q, told, clusters, fp, mem.lost)
             q1, q2 = relay_slot(place, mem.bridge, clusters, fp)
             # The slot moves as its point of the edge does: at the velocity interpolated between the ends.
             length = clusters.axis(mem.bridge)[2]

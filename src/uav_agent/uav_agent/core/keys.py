@@ -126,3 +126,47 @@ def _merged(pieces: list[list]) -> list[list]:
         else:
             out.append(list(p))
     return out
+
+
+Span = tuple[float, float]  # keys [lo, hi) of MAPs known lost (docs/dynamics.md, "Vacated roles")
+
+
+def united(*spans: Iterable[Span]) -> tuple[Span, ...]:
+    """The union of sets of spans, as sorted disjoint spans: merging what neighbours know is lost."""
+    out: list[list[float]] = []
+    for lo, hi in sorted(s for group in spans for s in group if s[1] - s[0] > _EPS):
+        if out and lo <= out[-1][1] + _EPS:
+            out[-1][1] = max(out[-1][1], hi)
+        else:
+            out.append([lo, hi])
+    return tuple((lo, hi) for lo, hi in out)
+
+
+def squeeze(key: float, lost: Sequence[Span]) -> float:
+    """Where key lies on [0, 1) once the lost spans are cut out and the rest stretched over [0, 1).
+
+    Keys in a lost span belong to MAPs that failed (or were taken for failed): cut out, the survivors'
+    keys spread over the whole line again, so every role's share is staffed by MAPs that are there.
+    A key inside a lost span lands at the span's cut.
+    """
+    gone = below = 0.0
+    for lo, hi in lost:
+        gone += hi - lo
+        below += min(max(key - lo, 0.0), hi - lo)
+    return (key - below) / (1.0 - gone) if gone < 1.0 - _EPS else 0.0
+
+
+def expand(at: float, lost: Sequence[Span]) -> float:
+    """The key that squeeze maps to `at` (the high end of a cut, where a cut lands there)."""
+    gone = sum(hi - lo for lo, hi in lost)
+    x = at * (1.0 - gone)
+    for lo, hi in lost:  # sorted: each span below the point pushes it up by its length
+        if x >= lo - _EPS:
+            x += hi - lo
+    return min(x, 1.0)
+
+
+def squeezed(pieces: Sequence[Piece], lost: Sequence[Span]) -> tuple[Piece, ...]:
+    """A layout on the squeezed line; a role whose keys are all lost keeps an empty piece where they were,
+    so that `carry` grows it from its neighbours on the line first."""
+    return tuple((squeeze(lo, lost), squeeze(hi, lost), role) for lo, hi, role in pieces)

@@ -7,7 +7,7 @@ Nothing else in uav-flock tests an allocation's name: a new one is a module and 
 """
 from __future__ import annotations
 
-from typing import Callable, Iterable, Protocol, Sequence
+from typing import Callable, Iterable, Optional, Protocol, Sequence
 
 import numpy as np
 
@@ -17,14 +17,15 @@ from .demand import Demand
 from .params import OPEN_CHOICES, FlockParams
 from .params import check as check_values
 from .state import Memory, Reference, Told
+from .vacancy import Heard, gossip
 
 
 class Allocation(Protocol):
     """One MAP's discrete update and goal under an allocation, from its own sensing and its neighbours' words."""
 
     def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
-               fp: FlockParams) -> Memory:
-        """Mode, goal and bridge after this step's gossip (Algorithm 2's place in Algorithm 1)."""
+               fp: FlockParams, step: int = 0) -> Memory:
+        """Mode, goal and bridge after this step's gossip (Algorithm 2's place in Algorithm 1), at step k."""
 
     def reference(self, mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],
                   clusters: ClusterMap, fp: FlockParams) -> Reference:
@@ -49,13 +50,16 @@ def check(p: FlockParams, where: Callable[[str], str] = str) -> None:
 
 
 def decide(mem: Memory, agent_id: int, n_users: int, cluster_coverage: np.ndarray, q: np.ndarray,
-           neighbour_achieved: Iterable[int], clusters: ClusterMap, fp: FlockParams) -> Memory:
-    """One MAP's discrete update at step k: gossip, then its allocation."""
+           neighbour_achieved: Iterable[int], clusters: ClusterMap, fp: FlockParams, step: int = 0,
+           heard: Optional[Heard] = None) -> Memory:
+    """One MAP's discrete update at step k: gossip (achieved goals; roles heard of and keys lost), then its
+    allocation."""
     achieved = merge_achieved(mem.achieved, neighbour_achieved)
     if achieved != mem.achieved:
         mem = mem._replace(achieved=achieved)
+    mem = gossip(mem, step, *(heard or ((), ())))
     r_g = float(cluster_coverage[mem.goal]) if mem.goal != NO_GOAL else 0.0
-    return ALLOCATIONS[fp.allocation].decide(mem, agent_id, n_users, r_g, q, clusters, fp)
+    return ALLOCATIONS[fp.allocation].decide(mem, agent_id, n_users, r_g, q, clusters, fp, step)
 
 
 def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],

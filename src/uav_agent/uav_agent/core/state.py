@@ -16,7 +16,9 @@ class Memory(NamedTuple):
     and (demand allocation) the best coverage of its goal so far, the steps since it last grew, and
     whether it has reached its role's place once, and whether it is on its way to a new role since
     (transit: a role change after settling, flown along the tree); a relay whose edge left the tree for
-    one with a cluster in common swings about that cluster (swing: the pivot and its place along the gap)."""
+    one with a cluster in common swings about that cluster (swing: the pivot and its place along the gap).
+    What it gossips of the roles (vacancy.py): the last step a member of each role was heard of, as sorted
+    (role code, step) pairs; the spans of keys known lost; and the step it last reached its role's place."""
 
     mode: int = M0
     goal: int = NO_GOAL
@@ -27,6 +29,9 @@ class Memory(NamedTuple):
     settled: bool = False
     transit: bool = False
     swing: Optional[tuple[int, float]] = None
+    seen: tuple[tuple[int, int], ...] = ()
+    lost: tuple[tuple[float, float], ...] = ()
+    since: int = -1
 
 
 class Told(NamedTuple):

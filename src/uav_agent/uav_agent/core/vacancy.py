@@ -1,0 +1,107 @@
+"""Roles emptied by failures, noticed and re-staffed with no count of MAPs (docs/dynamics.md, "Vacated roles").
+
+Under the demand allocation a role is the set of keys in its pieces of [0, 1). MAPs that fail keep their
+keys, so a role whose MAPs all failed keeps its share and nobody takes it: a cluster stays uncovered, or
+the tree stays cut, for good. Two gossiped values close that gap, each merged like the achieved goals:
+- per role, the last step a member was heard of (a MAP states its own role now; merge: the larger step);
+- the spans of keys known lost (merge: union).
+A MAP at a role's place (its cluster's disc, or along its edge) that has heard of no member for
+VACANT_STEPS, while its component hears of most roles, declares that role's keys lost. Every MAP then
+squeezes the lost spans out of the key line (keys.squeeze): the survivors' keys cover [0, 1) again, and the
+emptied role takes its share back from its neighbours on the line and the others' surplus (keys.carry).
+A message carries O(roles) numbers, never O(MAPs).
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import TYPE_CHECKING, Iterable, Optional, Sequence
+
+import numpy as np
+
+from . import keys
+from .clusters import NO_GOAL, ClusterMap, Roles
+from .state import M1, Memory, Told
+
+if TYPE_CHECKING:
+    from .params import FlockParams
+
+VACANT_STEPS = 100  # 10 s at Δt = 0.1 s: longer than the outages of a formation that merely moves
+EDGE_CODE = 64      # role codes: cluster k is k (< 63 ids a run may use), edge (a, b) is 64 + 64 a + b
+
+
+def code(role: keys.RoleId) -> int:
+    return role if isinstance(role, int) else EDGE_CODE + EDGE_CODE * role[0] + role[1]
+
+
+def stated_role(t: Told) -> Optional[int]:
+    """The code of the role a MAP states (a relay's edge, a server's cluster), None before it has one."""
+    if t.mode == M1 and t.bridge is not None:
+        return code(t.bridge)
+    return None if t.goal == NO_GOAL else t.goal
+
+
+Seen = Sequence[tuple[int, int]]  # (role code, last step a member was heard of), as a state message carries it
+# What the neighbours' state messages said: each one's roles heard of, and each one's lost spans.
+Heard = tuple[Sequence[Seen], Sequence[Sequence[keys.Span]]]
+
+
+def gossip(mem: Memory, step: int, heard_seen: Iterable[Seen], heard_lost: Iterable[Sequence[keys.Span]]) -> Memory:
+    """Merge what the neighbours told of roles and lost keys, and state this MAP's own role as heard now."""
+    seen = dict(mem.seen)
+    for told in heard_seen:
+        for c, k in told:
+            if k > seen.get(c, -1):
+                seen[c] = k
+    own = stated_role(Told(mem.mode, mem.goal, mem.bridge))
+    if own is not None:
+        seen[own] = step
+    lost = keys.united(mem.lost, *heard_lost)
+    return mem._replace(seen=tuple(sorted(seen.items())), lost=lost)
+
+
+@lru_cache(maxsize=256)
+def view(roles: Roles, lost: tuple[keys.Span, ...]) -> Roles:
+    """The roles with the lost keys squeezed out: each role's share laid over the survivors' keys."""
+    if not lost or not sum(roles.share) > 0:
+        return roles
+    count = len(roles.demand) - len(roles.edges)
+    ids: list[keys.RoleId] = [*range(count), *roles.edges]
+    return roles._replace(pieces=keys.carry(keys.squeezed(roles.pieces, lost), dict(zip(ids, roles.share))))
+
+
+def standing(mem: Memory, agent_id_key: float, clusters: ClusterMap, fp: FlockParams) -> tuple[Roles, float]:
+    """The roles this MAP lays out, and where its key lies among the survivors' keys."""
+    return view(clusters.roles(fp.d), mem.lost), keys.squeeze(agent_id_key, mem.lost)
+
+
+def vacate(mem: Memory, step: int, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) -> Memory:
+    """Declare lost the keys of each role this MAP is at and has heard no member of for VACANT_STEPS.
+
+    Only a role heard of since this MAP last reached its place can be declared: one whose MAPs are still on
+    their way (the formation forming, or a tree that changed) was never there to be lost. Only a MAP whose
+    component hears of two roles or more, and of at least a third of all, declares: a MAP cut off alone, or
+    a small piece of the formation split off, never takes the rest for lost. A declared role counts as heard
+    now, so its new members have VACANT_STEPS to arrive.
+    """
+    roles = view(clusters.roles(fp.d), mem.lost)
+    current = [r for r in (*range(clusters.count), *roles.edges) if roles.share[roles.index(r)] > 0]
+    codes = {code(r) for r in current}
+    seen = {c: k for c, k in mem.seen if c in codes}  # roles that left the layout are forgotten
+    stale = [r for r in current if code(r) not in seen or step - seen[code(r)] > VACANT_STEPS]
+    lost = mem.lost
+    fresh = len(current) - len(stale)
+    if mem.since >= 0 and stale and fresh >= 2 and len(stale) <= 2 * fresh:
+        for r in stale:
+            if seen.get(code(r), -1) > mem.since and _at(q, r, clusters, fp):
+                mine = [(keys.expand(lo, lost), keys.expand(hi, lost)) for lo, hi, role in roles.pieces if role == r]
+                lost = keys.united(lost, mine)
+                seen[code(r)] = step
+    new = tuple(sorted(seen.items()))
+    return mem if new == mem.seen and lost == mem.lost else mem._replace(seen=new, lost=lost)
+
+
+def _at(q: np.ndarray, role: keys.RoleId, clusters: ClusterMap, fp: FlockParams) -> bool:
+    """Whether a MAP at q is where the role's members would be heard: within r of its disc or its edge."""
+    if isinstance(role, int):
+        return float(np.hypot(*(np.asarray(q, dtype=float)[:2] - clusters.xy[role]))) <= clusters.radii[role] + fp.r
+    return clusters.segment_distance(q, role) <= fp.r

@@ -1,0 +1,115 @@
+"""Roles emptied by failures (core/vacancy.py): noticed from gossip alone, and re-staffed from the survivors."""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from uav_agent.core import keys
+from uav_agent.core.clusters import ClusterMap, key_of
+from uav_agent.core.params import FlockParams
+from uav_agent.core.state import M1, M2, Memory
+from uav_agent.core.vacancy import VACANT_STEPS, code, gossip, vacate, view
+from uav_flock_tools.batch import BatchSimulator
+from world_sim.core import layouts
+from world_sim.core.scenario import load
+
+P = FlockParams()
+# Three clusters in a row, 100 m apart: roles 0, 1, 2 (servers) and the edges (0, 1), (1, 2) (relays).
+ROW = ClusterMap(np.array([[0.0, 0.0], [100.0, 0.0], [200.0, 0.0]]), P.height, radii=np.array([25.0, 25.0, 25.0]))
+ROLES = ROW.roles(P.d)
+ALL = (0, 1, 2, (0, 1), (1, 2))
+NOW = 500
+
+
+def heard(at: dict[object, int]) -> tuple[tuple[int, int], ...]:
+    return tuple(sorted((code(r), k) for r, k in at.items()))
+
+
+def near_cluster_2() -> np.ndarray:
+    return np.array([160.0, 0.0, P.height])  # on edge (1, 2), 40 m from cluster 2's centre
+
+
+def relay_of_edge_12(**kw: object) -> Memory:
+    return Memory(mode=M1, goal=1, bridge=(1, 2), settled=True, since=100, **kw)  # type: ignore[arg-type]
+
+
+spans = st.lists(st.tuples(st.floats(0, 1), st.floats(0, 0.2)), max_size=4).map(
+    lambda pairs: keys.united([(lo, min(lo + w, 1.0)) for lo, w in pairs]))
+
+
+@settings(max_examples=200, deadline=None)
+@given(spans, st.floats(0, 1, exclude_max=True))
+def test_squeezing_keeps_the_survivors_order_and_expand_undoes_it(lost: tuple[keys.Span, ...], key: float) -> None:
+    if sum(hi - lo for lo, hi in lost) > 0.9 or any(lo - 1e-9 <= key < hi + 1e-9 for lo, hi in lost):
+        return
+    at = keys.squeeze(key, lost)
+    assert 0.0 <= at <= 1.0
+    assert math.isclose(keys.expand(at, lost), key, abs_tol=1e-9)
+    assert keys.squeeze(min(key + 1e-6, 1.0), lost) >= at
+
+
+def test_gossip_keeps_the_latest_step_of_each_role_and_the_union_of_lost_keys() -> None:
+    mine = Memory(mode=M2, goal=0, seen=heard({0: 3, 1: 7}), lost=((0.1, 0.2),))
+    out = gossip(mine, 9, [heard({1: 5, 2: 8})], [((0.15, 0.3),), ((0.5, 0.6),)])
+    assert dict(out.seen) == {0: 9, 1: 7, 2: 8}  # own role: heard now
+    assert out.lost == ((0.1, 0.3), (0.5, 0.6))
+
+
+def test_a_role_emptied_by_failures_is_restaffed_from_the_survivors() -> None:
+    """Cluster 2's servers are silent for longer than VACANT_STEPS: a relay at cluster 2 declares their keys
+    lost, and cluster 2's share is laid over survivors' keys again."""
+    at = {r: NOW for r in ALL} | {2: NOW - VACANT_STEPS - 1}
+    mem = vacate(relay_of_edge_12(seen=heard(at)), NOW, near_cluster_2(), ROW, P)
+    servers_2 = [(lo, hi) for lo, hi, r in ROLES.pieces if r == 2]
+    assert mem.lost == keys.united(servers_2), 'the silent role\'s keys are known lost'
+    assert dict(mem.seen)[2] == NOW, 'its new members get VACANT_STEPS to arrive'
+    after = view(ROLES, mem.lost)
+    held = keys.totals(after.pieces)
+    assert math.isclose(held[2], ROLES.share[2], abs_tol=1e-9), 'cluster 2 holds its share of the survivors\' keys'
+    n = 60
+    survivors = [i for i in range(n) if not any(lo <= key_of(i) < hi for lo, hi in mem.lost)]
+    to_2 = [i for i in survivors if after.of(keys.squeeze(key_of(i), mem.lost)) == 2]
+    assert len(to_2) >= math.floor(ROLES.share[2] * len(survivors)), (len(to_2), ROLES.share[2] * len(survivors))
+    moved = [i for i in survivors if after.of(keys.squeeze(key_of(i), mem.lost)) != ROLES.of(key_of(i))]
+    assert sorted(moved) == sorted(to_2), 'only the MAPs that restaff cluster 2 change role'
+
+
+def test_a_map_cut_off_alone_or_away_from_the_role_declares_nothing() -> None:
+    alone = {(1, 2): NOW} | {r: NOW - VACANT_STEPS - 1 for r in ALL if r != (1, 2)}
+    assert vacate(relay_of_edge_12(seen=heard(alone)), NOW, near_cluster_2(), ROW, P).lost == ()
+    quiet_2 = {r: NOW for r in ALL} | {2: NOW - VACANT_STEPS - 1}
+    far = np.array([20.0, 0.0, P.height])  # at cluster 0, 180 m from cluster 2
+    assert vacate(relay_of_edge_12(seen=heard(quiet_2)), NOW, far, ROW, P).lost == ()
+
+
+def test_a_role_not_heard_since_the_map_reached_its_place_is_not_declared() -> None:
+    """While the formation forms, a role's MAPs may still be elsewhere: only a role that was there can be lost."""
+    before = {r: NOW for r in ALL} | {2: 90}  # heard last before this MAP settled (since = 100)
+    mem = relay_of_edge_12(seen=heard(before))
+    assert vacate(mem, NOW, near_cluster_2(), ROW, P).lost == ()
+    assert vacate(mem._replace(since=-1), NOW, near_cluster_2(), ROW, P).lost == (), 'never settled: nothing'
+
+
+def test_a_wiped_out_cluster_is_served_again_in_a_batch_run(paper_scenario_path: str) -> None:
+    """Every server of one cluster fails at once: the survivors learn it by gossip, and some take the role."""
+    paper = load(paper_scenario_path)
+    lay = layouts.draw(paper, layouts.LayoutSpec(), np.random.default_rng(7))
+    lay = dataclasses.replace(lay, flock=dataclasses.replace(lay.flock, **{
+        k: getattr(FlockParams(), k) for k in ('allocation', 'edge_choice')}))  # the default policies
+    s = dataclasses.replace(lay, maps=math.ceil(1.8 * layouts.floor(lay).total), duration=70.0)
+    sim = BatchSimulator(s)
+    wiped: list[int] = []
+    for _ in range(s.steps):
+        if sim.world.k == 300:
+            wiped = [i for i in range(s.maps) if sim.memory[i].mode != M1 and sim.memory[i].goal == 0]
+            assert wiped, 'cluster 0 must have servers to lose'
+            sim.world.drop(np.array(wiped))
+        sim.step()
+    live = np.flatnonzero(sim.alive).tolist()
+    assert [i for i in live if sim.memory[i].mode != M1 and sim.memory[i].goal == 0], 'nobody serves cluster 0 again'
+    assert {sim.memory[i].lost for i in live} == {sim.memory[live[0]].lost} != (), 'every MAP squeezes the same keys'
+    assert all(any(lo <= key_of(i) < hi for lo, hi in sim.memory[live[0]].lost) for i in wiped)
