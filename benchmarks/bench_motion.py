@@ -1,6 +1,7 @@
 """Moving users and lost MAPs on random layouts, with the case drawn at random too: how long the network holds.
 
 Run: ./uav-flock exec python benchmarks/bench_motion.py [--layouts 30 --seeds 2 --kinds drift2,loss,...]
+     [--per-run runs.csv]  (one row per run: which layout, seed and case failed, to look into)
 Layout n is layout n of `./uav-flock layouts --seed 0` (3 to 6 clusters); default policies, online survey,
 batch runs. Per layout and seed, one case of each kind, drawn with the job's own generator:
   drift1/2/3  a cluster picked at random drifts in a random direction at 1, 2 or 3 m/s for the whole 90 s;
@@ -21,6 +22,7 @@ and connected again, and how many runs end covered and connected over their last
 from __future__ import annotations
 
 import argparse
+import csv
 import dataclasses
 import math
 import time
@@ -126,6 +128,7 @@ def run(job: tuple[str, Scenario, int]) -> dict[str, Optional[float]]:
                                        'recovery': None, 'ends_ok': None}
     held = int(round(HELD_S / s.dt))
     out['ends_ok'] = float(ok[-held:].all())
+    out['end_rc'], out['end_components'] = float(rc[-1]), float(m[-1, 5])
     if event is not None:
         after = np.flatnonzero(ok & (t >= event + s.dt / 2))
         out['recovery'] = float(t[after[0]] - event) if len(after) else None
@@ -160,6 +163,7 @@ def main() -> int:
     ap.add_argument('--seeds', type=int, default=2, help='seeds per layout (default: 2)')
     ap.add_argument('--kinds', default=','.join(KINDS), help=f'comma-separated, of: {", ".join(KINDS)} (default: all)')
     ap.add_argument('--workers', type=int, default=2, help='processes (default: 2)')
+    ap.add_argument('--per-run', metavar='CSV', help='also write one row per run (kind, layout, seed, figures)')
     args = ap.parse_args()
     kinds = [k.strip() for k in args.kinds.split(',') if k.strip()]
     if not kinds or any(k not in KINDS for k in kinds):
@@ -167,7 +171,7 @@ def main() -> int:
     if args.layouts < 1 or args.seeds < 1 or args.workers < 1:
         ap.error('--layouts, --seeds and --workers must be at least 1')
     flock = policy_sets(load_scenario('paper'))['default']
-    jobs = []
+    jobs, where = [], []
     for n, lay in enumerate(draw('paper', args.layouts, (3, 6), 0)):
         lay = dataclasses.replace(lay, flock=flock)
         for seed in range(args.seeds):
@@ -175,6 +179,7 @@ def main() -> int:
                 draw_seed = n * 1000 + seed * 10 + KINDS.index(kind)  # the case's own draws, reproducible
                 rng = np.random.default_rng(draw_seed)
                 jobs.append((kind, case(kind, lay, seed, rng), draw_seed + 7))
+                where.append((kind, n, seed))
     print(f'{len(jobs)} runs: {args.layouts} layouts x {args.seeds} seeds x {len(kinds)} kinds, '
           f'{args.workers} processes', flush=True)
     t0 = time.perf_counter()
@@ -190,6 +195,13 @@ def main() -> int:
     print('|---|---|---|---|---|---|---|---|---|')
     for kind in kinds:
         print(report(kind, [r for (k, _, _), r in zip(jobs, results) if k == kind]))
+    if args.per_run:
+        fields = list(results[0])
+        with open(args.per_run, 'w', newline='') as f:
+            out = csv.writer(f)
+            out.writerow(['kind', 'layout', 'seed', *fields])
+            out.writerows([*w, *('' if r[k] is None else f'{r[k]:.4g}' for k in fields)] for w, r in zip(where, results))
+        print(f'one row per run in {args.per_run}')
     print(f'\n{time.perf_counter() - t0:.0f} s in all')
     return 0
 

@@ -30,7 +30,7 @@ def heard(at: dict[object, int]) -> tuple[tuple[int, int], ...]:
 
 
 def near_cluster_2() -> np.ndarray:
-    return np.array([160.0, 0.0, P.height])  # on edge (1, 2), 40 m from cluster 2's centre
+    return np.array([180.0, 0.0, P.height])  # in cluster 2's disc, on the side of edge (1, 2)
 
 
 def relay_of_edge_12(**kw: object) -> Memory:
@@ -66,7 +66,7 @@ def test_a_role_emptied_by_failures_is_restaffed_from_the_survivors() -> None:
     mem = vacate(relay_of_edge_12(seen=heard(at)), NOW, near_cluster_2(), ROW, P)
     servers_2 = [(lo, hi) for lo, hi, r in ROLES.pieces if r == 2]
     assert mem.lost == keys.united(servers_2), 'the silent role\'s keys are known lost'
-    assert dict(mem.seen)[2] == NOW, 'its new members get VACANT_STEPS to arrive'
+    assert dict(mem.seen)[2] == NOW + VACANT_STEPS, 'its new members get twice VACANT_STEPS to arrive'
     after = view(ROLES, mem.lost)
     held = keys.totals(after.pieces)
     assert math.isclose(held[2], ROLES.share[2], abs_tol=1e-9), 'cluster 2 holds its share of the survivors\' keys'

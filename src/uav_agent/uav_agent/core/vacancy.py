@@ -69,19 +69,15 @@ def view(roles: Roles, lost: tuple[keys.Span, ...]) -> Roles:
     return roles._replace(pieces=keys.carry(keys.squeezed(roles.pieces, lost), dict(zip(ids, roles.share))))
 
 
-def standing(mem: Memory, agent_id_key: float, clusters: ClusterMap, fp: FlockParams) -> tuple[Roles, float]:
-    """The roles this MAP lays out, and where its key lies among the survivors' keys."""
-    return view(clusters.roles(fp.d), mem.lost), keys.squeeze(agent_id_key, mem.lost)
-
-
 def vacate(mem: Memory, step: int, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) -> Memory:
     """Declare lost the keys of each role this MAP is at and has heard no member of for VACANT_STEPS.
 
     Only a role heard of since this MAP last reached its place can be declared: one whose MAPs are still on
     their way (the formation forming, or a tree that changed) was never there to be lost. Only a MAP whose
     component hears of two roles or more, and of at least a third of all, declares: a MAP cut off alone, or
-    a small piece of the formation split off, never takes the rest for lost. A declared role counts as heard
-    now, so its new members have VACANT_STEPS to arrive.
+    a small piece of the formation split off, never takes the rest for lost; nor does a MAP in transit. A
+    declared role counts as heard VACANT_STEPS from now, so its new members, who may fly in from a part of the
+    formation not yet joined to this one, have twice that to arrive before it can be declared again.
     """
     roles = view(clusters.roles(fp.d), mem.lost)
     current = [r for r in (*range(clusters.count), *roles.edges) if roles.share[roles.index(r)] > 0]
@@ -90,18 +86,23 @@ def vacate(mem: Memory, step: int, q: np.ndarray, clusters: ClusterMap, fp: Floc
     stale = [r for r in current if code(r) not in seen or step - seen[code(r)] > VACANT_STEPS]
     lost = mem.lost
     fresh = len(current) - len(stale)
-    if mem.since >= 0 and stale and fresh >= 2 and len(stale) <= 2 * fresh:
+    if mem.since >= 0 and not mem.transit and stale and fresh >= 2 and len(stale) <= 2 * fresh:
         for r in stale:
             if seen.get(code(r), -1) > mem.since and _at(q, r, clusters, fp):
                 mine = [(keys.expand(lo, lost), keys.expand(hi, lost)) for lo, hi, role in roles.pieces if role == r]
                 lost = keys.united(lost, mine)
-                seen[code(r)] = step
+                seen[code(r)] = step + VACANT_STEPS
     new = tuple(sorted(seen.items()))
     return mem if new == mem.seen and lost == mem.lost else mem._replace(seen=new, lost=lost)
 
 
 def _at(q: np.ndarray, role: keys.RoleId, clusters: ClusterMap, fp: FlockParams) -> bool:
-    """Whether a MAP at q is where the role's members would be heard: within r of its disc or its edge."""
+    """Whether a MAP at q would hear the role's members, were they in place: inside its cluster's disc (the
+    servers spread over it), or within d of an end of its edge's gap (a chain's end relay stays in reach of
+    the outermost servers there). A MAP that merely sees the role's place from afar proves nothing."""
+    xy = np.asarray(q, dtype=float)[:2]
     if isinstance(role, int):
-        return float(np.hypot(*(np.asarray(q, dtype=float)[:2] - clusters.xy[role]))) <= clusters.radii[role] + fp.r
-    return clusters.segment_distance(q, role) <= fp.r
+        return float(np.hypot(*(xy - clusters.xy[role]))) <= clusters.radii[role]
+    a, u, _ = clusters.axis(role)
+    start, stop = clusters.gap(role, fp.d / 2)
+    return min(float(np.linalg.norm(a + u * at - xy)) for at in (start, stop)) <= fp.d
