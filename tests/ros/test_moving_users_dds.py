@@ -54,3 +54,29 @@ def test_a_run_with_moving_users_equals_sim_and_its_bag_holds_their_motion(
     assert (tmp_path / 'report' / 'formation.png').stat().st_size > 1000
     replayed = cli('replay', str(tmp_path / 'up'), '--agent', '5')
     assert replayed.returncode == 0 and 'same behaviour as recorded' in replayed.stdout, replayed.stdout + replayed.stderr
+
+
+def test_a_random_layout_with_a_drift_and_lost_maps_equals_sim_and_its_maps_gossip_the_lost_keys(
+        tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """A layout as `layouts` draws it, one cluster drifting, 30 % of the MAPs lost at 15 s: a role is emptied,
+    the MAPs declare its keys lost over DDS (AgentState.lost_keys) and re-staff it exactly as `sim` does."""
+    drawn = cli('layouts', '--count', '1', '--clusters', '3', '--seed', '1', '--duration', '30',
+                '--out', str(tmp_path / 'layouts'))
+    assert drawn.returncode == 0, drawn.stdout + drawn.stderr
+    doc: dict[str, Any] = yaml.safe_load((tmp_path / 'layouts' / 'layout-000.yaml').read_text())
+    doc['users']['survey'] = 'online'
+    doc['users']['clusters'][0]['velocity'] = [1.0, 0.0]
+    scenario = tmp_path / 'moving-layout.yaml'
+    scenario.write_text(yaml.safe_dump(doc))
+    args = ('--scenario', str(scenario), '--fail-at', '15', '--fail-fraction', '0.3')
+    distributed = cli('up', *args, '--agents-per-process', '10', '--record', '--out', str(tmp_path / 'up'),
+                      env=ros_env, timeout=600)
+    assert distributed.returncode == 0, distributed.stdout + distributed.stderr
+    assert cli('sim', *args, '--out', str(tmp_path / 'sim')).returncode == 0
+    for name in ('trajectory.csv', 'metrics.csv'):
+        assert (tmp_path / 'up' / name).read_bytes() == (tmp_path / 'sim' / name).read_bytes(), name
+    with AnyReader([tmp_path / 'up' / 'bag'], default_typestore=typestore()) as bag:
+        states = [c for c in bag.connections if c.topic.endswith('/state')]
+        said = (bag.deserialize(raw, conn.msgtype) for conn, _, raw in bag.messages(connections=states))
+        told_lost = {int(m.id) for m in said if len(m.lost_keys)}
+    assert told_lost, 'no MAP told its neighbours of lost keys: the case must empty a role (see the batch search)'
