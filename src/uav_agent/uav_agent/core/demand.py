@@ -227,6 +227,8 @@ def en_route(mem: Memory, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) 
 class Demand:
     """The demand allocation as an allocation (policies.Allocation)."""
 
+    vacates = True  # roles emptied by failures are re-staffed (vacancy.py)
+
     def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
                fp: FlockParams, step: int = 0) -> Memory:
         return demand_switch(mem, agent_id, r_g, q, clusters, fp, step)

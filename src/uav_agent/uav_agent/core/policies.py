@@ -34,6 +34,10 @@ class Allocation(Protocol):
     def related(self, a: Told, b: Told) -> bool:
         """Whether two MAPs' roles belong together: only related MAPs attract (control.flocking_terms)."""
 
+    # Optional, False if absent: the allocation's MAPs gossip the roles they state and the keys known lost,
+    # and its decide may act on them (vacancy.py; Memory.seen, Memory.lost).
+    vacates: bool
+
 
 ALLOCATIONS: dict[str, Allocation] = {
     'demand': Demand(),
@@ -57,9 +61,11 @@ def decide(mem: Memory, agent_id: int, n_users: int, cluster_coverage: np.ndarra
     achieved = merge_achieved(mem.achieved, neighbour_achieved)
     if achieved != mem.achieved:
         mem = mem._replace(achieved=achieved)
-    mem = gossip(mem, step, *(heard or ((), ())))
+    allocation = ALLOCATIONS[fp.allocation]
+    if getattr(allocation, 'vacates', False):  # re-staffs roles emptied by failures (vacancy.py)
+        mem = gossip(mem, step, *(heard or ((), ())))
     r_g = float(cluster_coverage[mem.goal]) if mem.goal != NO_GOAL else 0.0
-    return ALLOCATIONS[fp.allocation].decide(mem, agent_id, n_users, r_g, q, clusters, fp, step)
+    return allocation.decide(mem, agent_id, n_users, r_g, q, clusters, fp, step)
 
 
 def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],
