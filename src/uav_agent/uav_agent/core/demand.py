@@ -10,9 +10,9 @@ from typing import TYPE_CHECKING, Optional, Sequence
 import numpy as np
 
 from . import keys
-from .clusters import NO_GOAL, ClusterMap, Edge, key_of
+from .clusters import NO_GOAL, ClusterMap, Edge
 from .state import M0, M1, M2, Memory, Reference, Told, aim, hold
-from .vacancy import vacate, view
+from .vacancy import role_of, vacate
 
 if TYPE_CHECKING:
     from .params import FlockParams
@@ -54,8 +54,8 @@ def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, cluster
     if not clusters.live:  # no cluster to serve or bridge: hold where it is until one appears
         return mem if mem.goal == NO_GOAL and mem.mode == M2 else _anew(mem, mode=M2)
     mem = vacate(mem, step, q, clusters, fp)
-    roles = view(clusters.roles(fp.d), mem.lost)
-    role = roles.of(keys.squeeze(key_of(agent_id), mem.lost))
+    roles, key = role_of(agent_id, mem.lost, clusters, fp)
+    role = roles.of(key)
     if role < clusters.count:
         if mem.goal != role or mem.mode == M1:
             mem = _anew(mem, mode=M0, goal=role, transit=mem.settled)
@@ -159,9 +159,9 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
         return min(below + fp.d, length)
     if math.isfinite(above):
         return max(above - fp.d, 0.0)
-    roles = view(clusters.roles(fp.d), lost)
+    roles, key = role_of(agent_id, lost, clusters, fp)
     start, stop = clusters.gap(edge, fp.d / 2)
-    at = roles.place(keys.squeeze(key_of(agent_id), lost), clusters.count + roles.edges.index(edge))
+    at = roles.place(key, clusters.count + roles.edges.index(edge))
     return start + at * (stop - start)
 
 

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Iterable, Optional, Sequence
 import numpy as np
 
 from . import keys
-from .clusters import NO_GOAL, ClusterMap, Roles
+from .clusters import NO_GOAL, ClusterMap, Roles, key_of
 from .state import M1, Memory, Told
 
 if TYPE_CHECKING:
@@ -59,11 +59,18 @@ def gossip(mem: Memory, step: int, heard_seen: Iterable[Seen], heard_lost: Itera
     return mem._replace(seen=tuple(sorted(seen.items())), lost=lost)
 
 
-@lru_cache(maxsize=256)
 def view(roles: Roles, lost: tuple[keys.Span, ...]) -> Roles:
     """The roles with the lost keys squeezed out: each role's share laid over the survivors' keys."""
-    if not lost or not sum(roles.share) > 0:
-        return roles
+    return _squeezed_view(roles, lost) if lost and sum(roles.share) > 0 else roles  # no hashing on the usual path
+
+
+def role_of(agent_id: int, lost: tuple[keys.Span, ...], clusters: ClusterMap, fp: FlockParams) -> tuple[Roles, float]:
+    """The roles as this MAP lays them out, and where its key lies among the survivors' keys."""
+    return view(clusters.roles(fp.d), lost), keys.squeeze(key_of(agent_id), lost)
+
+
+@lru_cache(maxsize=256)
+def _squeezed_view(roles: Roles, lost: tuple[keys.Span, ...]) -> Roles:
     count = len(roles.demand) - len(roles.edges)
     ids: list[keys.RoleId] = [*range(count), *roles.edges]
     return roles._replace(pieces=keys.carry(keys.squeezed(roles.pieces, lost), dict(zip(ids, roles.share))))
