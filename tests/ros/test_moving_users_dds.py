@@ -56,10 +56,11 @@ def test_a_run_with_moving_users_equals_sim_and_its_bag_holds_their_motion(
     assert replayed.returncode == 0 and 'same behaviour as recorded' in replayed.stdout, replayed.stdout + replayed.stderr
 
 
-def test_a_random_layout_with_a_drift_and_lost_maps_equals_sim_and_its_maps_gossip_the_lost_keys(
+def test_a_random_layout_with_a_drift_and_lost_maps_equals_sim_and_its_maps_gossip_lost_and_short_roles(
         tmp_path: Path, ros_env: dict[str, str]) -> None:
-    """A layout as `layouts` draws it, one cluster drifting, 30 % of the MAPs lost at 15 s: a role is emptied,
-    the MAPs declare its keys lost over DDS (AgentState.lost_keys) and re-staff it exactly as `sim` does."""
+    """A layout as `layouts` draws it, one cluster drifting, 30 % of the MAPs lost at 15 s (seed 5): a role is
+    emptied and a chain left short. Over DDS the MAPs declare the keys lost and the chain short
+    (AgentState.lost_keys, roles_short) and re-staff both exactly as `sim` does."""
     drawn = cli('layouts', '--count', '1', '--clusters', '3', '--seed', '1', '--duration', '30',
                 '--out', str(tmp_path / 'layouts'))
     assert drawn.returncode == 0, drawn.stdout + drawn.stderr
@@ -68,7 +69,7 @@ def test_a_random_layout_with_a_drift_and_lost_maps_equals_sim_and_its_maps_goss
     doc['users']['clusters'][0]['velocity'] = [1.0, 0.0]
     scenario = tmp_path / 'moving-layout.yaml'
     scenario.write_text(yaml.safe_dump(doc))
-    args = ('--scenario', str(scenario), '--fail-at', '15', '--fail-fraction', '0.3')
+    args = ('--scenario', str(scenario), '--seed', '5', '--fail-at', '15', '--fail-fraction', '0.3')
     distributed = cli('up', *args, '--agents-per-process', '10', '--record', '--out', str(tmp_path / 'up'),
                       env=ros_env, timeout=600)
     assert distributed.returncode == 0, distributed.stdout + distributed.stderr
@@ -78,5 +79,6 @@ def test_a_random_layout_with_a_drift_and_lost_maps_equals_sim_and_its_maps_goss
     with AnyReader([tmp_path / 'up' / 'bag'], default_typestore=typestore()) as bag:
         states = [c for c in bag.connections if c.topic.endswith('/state')]
         said = (bag.deserialize(raw, conn.msgtype) for conn, _, raw in bag.messages(connections=states))
-        told_lost = {int(m.id) for m in said if len(m.lost_keys)}
-    assert told_lost, 'no MAP told its neighbours of lost keys: the case must empty a role (see the batch search)'
+        told = [(int(m.id), len(m.lost_keys), len(m.roles_short)) for m in said]
+    assert any(lost for _, lost, _ in told), 'no MAP told its neighbours of lost keys: the case must empty a role'
+    assert any(short for _, _, short in told), 'no MAP told its neighbours of a short chain: the case must leave one'

@@ -91,15 +91,17 @@ def test_a_relay_aims_midway_between_the_chain_members_it_hears() -> None:
     other_edge = Told(M1, 1, (1, 2))
     heard = np.array([[40.0, 0.0, 20.0], [120.0, 0.0, 20.0], [90.0, 0.0, 20.0]])
     assert relay_place(5, q, edge, heard[:2], [servers_of_0, relay], clusters, P) == 80.0
-    # a relay of another edge is not part of this chain; with the b side silent, reach d beyond the a side
-    assert relay_place(5, q, edge, heard[[0, 2]], [servers_of_0, other_edge], clusters, P) == 40.0 + P.d
+    # a relay of another edge is not part of this chain; with the b side silent, reach as far beyond the a side
+    # as the radio carries (r less 1 m): a chain short of relays then still spans r - 1 per link, not d
+    reach = P.r - 1.0
+    assert relay_place(5, q, edge, heard[[0, 2]], [servers_of_0, other_edge], clusters, P) == 40.0 + reach
     # a server still on its way to its cluster (here out along the edge) is no anchor: the relay takes its
     # own place by its key, as if it heard no one, rather than bend the chain towards it
     alone = relay_place(5, q, edge, heard[:0], [], clusters, P)
-    assert relay_place(5, q, edge, heard[[1]], [servers_of_0], clusters, P) == alone != 120.0 + P.d
+    assert relay_place(5, q, edge, heard[[1]], [servers_of_0], clusters, P) == alone != 120.0 + reach
     # so is a relay of this edge still flying in, farther than d from the edge
     assert relay_place(5, q, edge, np.array([[40.0, 0.0, 20.0], [100.0, 2 * P.d, 20.0]]), [servers_of_0, relay],
-                       clusters, P) == 40.0 + P.d
+                       clusters, P) == 40.0 + reach
 
 
 @settings(max_examples=60, deadline=None)
@@ -153,7 +155,7 @@ class Nearest:
     """The allocation of docs/design.md's example: serve the nearest cluster, attract only its other servers."""
 
     def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
-               fp: FlockParams, step: int) -> Memory:
+               fp: FlockParams, step: int, near: 'state.Near') -> Memory:
         from uav_agent.core.clusters import NO_GOAL
         goal = clusters.nearest(q, 0)
         return mem._replace(goal=goal, mode=M2 if goal != NO_GOAL and r_g > fp.r0 else M0)

@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 from uav_agent.core import keys
 from uav_agent.core.clusters import ClusterMap, key_of
 from uav_agent.core.params import FlockParams
-from uav_agent.core.state import M1, M2, Memory
+from uav_agent.core.demand import TAUT_STEPS, demand_switch, tally, taut
+from uav_agent.core.state import M1, M2, NOBODY, Memory, Near, Told
 from uav_agent.core.vacancy import VACANT_STEPS, code, gossip, vacate, view
 from uav_flock_tools.batch import BatchSimulator
 from world_sim.core import layouts
@@ -53,10 +54,11 @@ def test_squeezing_keeps_the_survivors_order_and_expand_undoes_it(lost: tuple[ke
 
 
 def test_gossip_keeps_the_latest_step_of_each_role_and_the_union_of_lost_keys() -> None:
-    mine = Memory(mode=M2, goal=0, seen=heard({0: 3, 1: 7}), lost=((0.1, 0.2),))
-    out = gossip(mine, 9, [heard({1: 5, 2: 8})], [((0.15, 0.3),), ((0.5, 0.6),)])
+    mine = Memory(mode=M2, goal=0, seen=heard({0: 3, 1: 7}), lost=((0.1, 0.2),), short=((65, 1),))
+    out = gossip(mine, 9, [heard({1: 5, 2: 8})], [((0.15, 0.3),), ((0.5, 0.6),)], [((65, 2), (130, 1))])
     assert dict(out.seen) == {0: 9, 1: 7, 2: 8}  # own role: heard now
     assert out.lost == ((0.1, 0.3), (0.5, 0.6))
+    assert out.short == ((65, 2), (130, 1)), 'the larger shortage of each role'
 
 
 def test_a_role_emptied_by_failures_is_restaffed_from_the_survivors() -> None:
@@ -113,3 +115,58 @@ def test_a_wiped_out_cluster_is_served_again_in_a_batch_run(paper_scenario_path:
     assert [i for i in live if sim.memory[i].mode != M1 and sim.memory[i].goal == 0], 'nobody serves cluster 0 again'
     assert {sim.memory[i].lost for i in live} == {sim.memory[live[0]].lost} != (), 'every MAP squeezes the same keys'
     assert all(any(lo <= key_of(i) < hi for lo, hi in sim.memory[live[0]].lost) for i in wiped)
+
+
+
+def chain_heard(*xs: tuple[float, int]) -> Near:
+    """Neighbours on the x axis at flight height: (x, cluster each serves)."""
+    return Near(np.array([[x, 0.0, P.height] for x, _ in xs]).reshape(-1, 3), [Told(M2, k, None) for _, k in xs])
+
+
+def test_a_chain_is_taut_when_its_links_outgrow_what_holds_or_it_no_longer_reaches_across() -> None:
+    """A relay of edge (1, 2) midway, at x = 150: cluster 1's servers reach to x = 125, cluster 2's from 175."""
+    relay = relay_of_edge_12(seen=heard({r: 400 for r in ALL}))
+    here = np.array([150.0, 0.0, P.height])
+    assert taut(relay, here, chain_heard((124.0, 1), (176.0, 2)), ROW, P), 'links of 26 m: past (d + r) / 2'
+    assert not taut(relay, here, chain_heard((130.0, 1), (170.0, 2)), ROW, P), 'links of 20 m hold'
+    assert taut(relay, here, chain_heard((130.0, 1)), ROW, P), 'cluster 2, heard since it settled, out of reach'
+    forming = relay._replace(seen=heard({r: 400 for r in ALL} | {2: 90}))  # not heard since it settled (100)
+    assert not taut(forming, here, chain_heard((130.0, 1)), ROW, P), 'cluster 2\'s servers may not be there yet'
+    assert not taut(relay, here, NOBODY, ROW, P), 'cut off alone: nothing to say of the chain'
+
+
+def test_a_chain_found_taut_is_found_short_and_its_share_grown() -> None:
+    """Each TAUT_STEPS of tautness find edge (1, 2) one MAP short, up to its demand; every MAP that hears of it
+    grows the edge's share by that many MAPs' worth, and only MAPs that join the chain change role."""
+    edge = ROLES.edges.index((1, 2)) + ROW.count
+    cap = math.ceil(ROLES.demand[edge])
+    mem = relay_of_edge_12()
+    found = []
+    for _ in range(TAUT_STEPS * (cap + 2)):
+        mem = tally(mem, True, ROLES)
+        found.append(dict(mem.short).get(code((1, 2)), 0))
+    assert found[TAUT_STEPS - 2] == 0 and found[TAUT_STEPS - 1] == 1 and found[2 * TAUT_STEPS - 1] == 2
+    assert found[-1] == cap, 'never more than the edge\'s demand'
+    assert tally(mem, False, ROLES) == mem, 'a step with the chain slack counts nothing'
+    grown = view(ROLES, (), mem.short)
+    demand = sum(ROLES.demand)
+    assert math.isclose(grown.share[edge], (ROLES.demand[edge] + cap) / (demand + cap), rel_tol=1e-9)
+    assert math.isclose(keys.totals(grown.pieces)[(1, 2)], grown.share[edge], abs_tol=1e-9)
+    n = 90
+    before = [ROLES.of(key_of(i)) for i in range(n)]
+    after = [grown.of(key_of(i)) for i in range(n)]
+    joined = [i for i in range(n) if after[i] == edge and before[i] != edge]
+    assert len(joined) >= cap, 'the chain gains at least the MAPs it was found short of'
+    assert all(after[i] == edge for i in range(n) if before[i] != after[i]), 'only MAPs joining the chain change role'
+
+
+def test_only_a_settled_relay_in_place_counts_its_chain_taut() -> None:
+    """A relay still flying to its edge (from another role, or first out) has no chain yet to judge."""
+    here = np.array([150.0, 0.0, P.height])
+    loose = chain_heard((124.0, 1), (176.0, 2))
+    settled = relay_of_edge_12(seen=heard({r: 400 for r in ALL}))
+    i = next(i for i in range(100) if ROLES.of(key_of(i)) == ROW.count + ROLES.edges.index((1, 2)))  # a relay's id
+    assert demand_switch(settled, i, 0.0, here, ROW, P, 401, loose).taut == 1
+    away = np.array([150.0, 2 * P.d, P.height])  # farther than d from the edge: not yet in place
+    for moving in (settled._replace(transit=True), settled._replace(settled=False)):
+        assert demand_switch(moving, i, 0.0, away, ROW, P, 401, loose).taut == 0

@@ -238,7 +238,8 @@ class AgentNode(Node):
     def publish_state(self, s: convert.SensingData) -> None:
         mem = self.memory
         msg = convert.AgentStateData(self.map_id, s.step, s.q, s.p, s.n_users, mem.mode, mem.goal, mem.bridge,
-                                     tuple(ids_of(mem.achieved)), mem.seen, mem.lost).to_msg(self.pending_header)
+                                     tuple(ids_of(mem.achieved)), mem.seen, mem.lost,
+                                     mem.short).to_msg(self.pending_header)
         self.state_pub.publish(msg)
         self.last_state = msg
 
@@ -260,7 +261,7 @@ class AgentNode(Node):
             n_users=np.array([float(m.n_users) for m in heard]),
             achieved=[mask_of(m.achieved) for m in heard],
             told=[Told(m.mode, m.goal, m.bridge) for m in heard],
-            seen=[m.seen for m in heard], lost=[m.lost for m in heard])
+            seen=[m.seen for m in heard], lost=[m.lost for m in heard], short=[m.short for m in heard])
         coverage = np.zeros(self.clusters.count)
         if self.memory.goal != NO_GOAL:
             coverage[self.memory.goal] = s.goal_coverage  # r_g of the goal the world knows we hold

@@ -58,6 +58,7 @@ class AgentStateData(NamedTuple):
     achieved: tuple[int, ...]       # cluster indices known as achieved, ascending
     seen: tuple[tuple[int, int], ...] = ()      # (role code, last step a member was heard of)
     lost: tuple[tuple[float, float], ...] = ()  # key spans [lo, hi) known lost
+    short: tuple[tuple[int, int], ...] = ()     # (role code, MAPs it was found short of)
 
     def to_msg(self, header: Header) -> AgentState:
         return AgentState(header=header, id=int(self.id), step=int(self.step), position=point(self.q),
@@ -65,7 +66,8 @@ class AgentStateData(NamedTuple):
                           goal=int(self.goal), bridge=list(self.bridge) if self.bridge else [],
                           achieved_goals=[int(k) for k in self.achieved],
                           roles_heard=[int(c) for c, _ in self.seen], roles_heard_step=[int(k) for _, k in self.seen],
-                          lost_keys=[float(x) for span in self.lost for x in span])
+                          lost_keys=[float(x) for span in self.lost for x in span],
+                          roles_short=[int(c) for c, _ in self.short], roles_short_by=[int(n) for _, n in self.short])
 
     @classmethod
     def from_msg(cls, msg: Any) -> 'AgentStateData':
@@ -75,7 +77,8 @@ class AgentStateData(NamedTuple):
                    int(msg.mode), int(msg.goal), (bridge[0], bridge[1]) if len(bridge) == 2 else None,
                    tuple(int(k) for k in msg.achieved_goals),
                    tuple((int(c), int(k)) for c, k in zip(msg.roles_heard, msg.roles_heard_step)),
-                   tuple(zip(lost[::2], lost[1::2])))
+                   tuple(zip(lost[::2], lost[1::2])),
+                   tuple((int(c), int(n)) for c, n in zip(msg.roles_short, msg.roles_short_by)))
 
 
 class CommandData(NamedTuple):

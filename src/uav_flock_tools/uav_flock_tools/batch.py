@@ -12,7 +12,7 @@ import numpy as np
 
 from uav_agent.core.control import control_input
 from uav_agent.core.policies import apart_links, decide, reference
-from uav_agent.core.state import Memory, Told
+from uav_agent.core.state import Memory, Near, Told
 
 from world_sim.core.model import RunResult, Sensed, World
 from world_sim.core.scenario import Scenario
@@ -50,11 +50,12 @@ class BatchSimulator:
         for n, i in enumerate(rows.tolist()):
             near = nbr[bounds[n]:bounds[n + 1]]
             heard = [achieved_stated[j] for j in near]
-            roles_heard = ([stated[j].seen for j in near], [stated[j].lost for j in near])
-            mem = decide(self.memory[i], i, counts[n], sensed.cluster_coverage, sensed.q[n], heard, w.clusters, fp,
-                         sensed.k, roles_heard)
-            self.memory[i] = mem
+            roles_heard = ([stated[j].seen for j in near], [stated[j].lost for j in near],
+                           [stated[j].short for j in near])
             heard_roles = [roles_stated[j] for j in near]
+            mem = decide(self.memory[i], i, counts[n], sensed.cluster_coverage, sensed.q[n], heard, w.clusters, fp,
+                         sensed.k, roles_heard, Near(sensed.q[near], heard_roles))
+            self.memory[i] = mem
             refs.append(reference(mem, i, sensed.q[n], sensed.q[near], heard_roles, w.clusters, fp))
             apart += apart_links(mem, heard_roles, fp)
         target, qa, qb = (np.array([ref[c] for ref in refs]).reshape(-1, 3) for c in range(3))

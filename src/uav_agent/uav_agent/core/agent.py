@@ -9,7 +9,7 @@ from .control import control_input
 from .clusters import ClusterMap
 from .params import FlockParams
 from .policies import apart_links, decide, reference
-from .state import Memory, Told
+from .state import Memory, Near, Told
 
 
 @dataclass
@@ -23,6 +23,7 @@ class Neighbourhood:
     told: list[Told]       # mode, goal and bridge each one stated
     seen: list[tuple[tuple[int, int], ...]] = field(default_factory=list)    # roles each one heard of (vacancy.py)
     lost: list[tuple[tuple[float, float], ...]] = field(default_factory=list)  # keys each one knows lost
+    short: list[tuple[tuple[int, int], ...]] = field(default_factory=list)     # roles each one found short
 
     @classmethod
     def empty(cls) -> 'Neighbourhood':
@@ -33,7 +34,7 @@ def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_u
                nbrs: Neighbourhood, clusters: ClusterMap, params: FlockParams, step: int = 0) -> tuple[np.ndarray, Memory]:
     """Algorithm 1 lines 3-6 for one MAP at step k: gossip, mode switch (Alg. 2), control input (eq. 9)."""
     mem = decide(mem, agent_id, n_users, cluster_coverage, q, nbrs.achieved, clusters, params, step,
-                 (nbrs.seen, nbrs.lost))
+                 (nbrs.seen, nbrs.lost, nbrs.short), Near(nbrs.q, nbrs.told))
     ref = reference(mem, agent_id, q, nbrs.q, nbrs.told, clusters, params)
     owner = np.zeros(len(nbrs.q), dtype=np.intp)
     u = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([ref.mode]),

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from .clusters import NO_GOAL, ClusterMap
-from .state import M0, M1, M2, Memory, Reference, Told, aim, hold
+from .state import M0, M1, M2, NOBODY, Memory, Near, Reference, Told, aim, hold
 
 if TYPE_CHECKING:
     from .params import FlockParams
@@ -70,7 +70,7 @@ class Algorithm2:
     """Algorithm 2 as an allocation (policies.Allocation)."""
 
     def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
-               fp: FlockParams, step: int = 0) -> Memory:
+               fp: FlockParams, step: int = 0, near: Near = NOBODY) -> Memory:
         mem = mode_switch(mem, n_users, r_g, q, clusters, fp)
         return choose_bridge(mem, agent_id, q, clusters, fp)
 

@@ -10,15 +10,16 @@ from typing import TYPE_CHECKING, Optional, Sequence
 import numpy as np
 
 from . import keys
-from .clusters import NO_GOAL, ClusterMap, Edge
-from .state import M0, M1, M2, Memory, Reference, Told, aim, hold
-from .vacancy import role_of, vacate
+from .clusters import NO_GOAL, ClusterMap, Edge, Roles
+from .state import M0, M1, M2, NOBODY, Memory, Near, Reference, Told, aim, hold
+from .vacancy import code, role_of, vacate
 
 if TYPE_CHECKING:
     from .params import FlockParams
 
 STALL_STEPS = 50             # steps without a 1 % gain after which a goal's coverage counts as stalled
 STALL_GAIN = 0.01
+TAUT_STEPS = 100             # 10 s of a relay's chain found taut (demand.taut) find it one MAP short
 
 
 def served(mem: Memory, r_g: float, arrived: bool, fp: FlockParams) -> Memory:
@@ -39,12 +40,12 @@ def served(mem: Memory, r_g: float, arrived: bool, fp: FlockParams) -> Memory:
 
 def _anew(mem: Memory, **role: object) -> Memory:
     """A MAP's memory for a new role: what it knows of the clusters and the roles stays."""
-    return Memory(achieved=mem.achieved, settled=mem.settled, seen=mem.seen, lost=mem.lost, since=mem.since,
-                  **role)  # type: ignore[arg-type]
+    return Memory(achieved=mem.achieved, settled=mem.settled, seen=mem.seen, lost=mem.lost, short=mem.short,
+                  since=mem.since, **role)  # type: ignore[arg-type]
 
 
 def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, clusters: ClusterMap, fp: FlockParams,
-                  step: int = 0) -> Memory:
+                  step: int = 0, near: Near = NOBODY) -> Memory:
     """The demand allocation for one MAP at one step: its role from its key, then its mode.
 
     A server flies to its cluster in M0 and holds it in M2 once the cluster is served; a relay bridges
@@ -54,7 +55,7 @@ def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, cluster
     if not clusters.live:  # no cluster to serve or bridge: hold where it is until one appears
         return mem if mem.goal == NO_GOAL and mem.mode == M2 else _anew(mem, mode=M2)
     mem = vacate(mem, step, q, clusters, fp)
-    roles, key = role_of(agent_id, mem.lost, clusters, fp)
+    roles, key = role_of(agent_id, mem.lost, clusters, fp, mem.short)
     role = roles.of(key)
     if role < clusters.count:
         if mem.goal != role or mem.mode == M1:
@@ -76,6 +77,8 @@ def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, cluster
         a, u, _ = clusters.axis(edge)
         if float(np.linalg.norm(a + u * swing_place(mem.swing, edge, clusters, fp) - np.asarray(q)[:2])) <= fp.d:
             mem = mem._replace(swing=None)
+    if mem.settled and not mem.transit and mem.swing is None:
+        mem = tally(mem, taut(mem, q, near, clusters, fp), roles)
     return mem
 
 
@@ -119,7 +122,8 @@ def swing_place(swing: tuple[int, float], edge: Edge, clusters: ClusterMap, fp: 
 
 
 def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, told: Sequence[Told],
-                clusters: ClusterMap, fp: FlockParams, lost: tuple[keys.Span, ...] = ()) -> float:
+                clusters: ClusterMap, fp: FlockParams, lost: tuple[keys.Span, ...] = (),
+                short: tuple[tuple[int, int], ...] = ()) -> float:
     """Where along its edge a relay aims (m from the first cluster's centre): midway along its chain.
 
     The chain of an edge (a, b) is its relays and the servers of a and b. Servers of a lie on the a side
@@ -129,6 +133,28 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
     silent it reaches d beyond the other towards the silent side; hearing none, it takes its own place in
     the gap by its key.
     """
+    here, below, above, reach_a, reach_b = _chain(q, edge, nbr_q, told, clusters, fp)
+    length = clusters.axis(edge)[2]
+    if math.isfinite(below) and math.isfinite(above):
+        mid = (below + above) / 2.0
+        if reach_b <= reach_a:  # both ends within reach: stay where both hold
+            return min(max(mid, reach_b), reach_a)
+        return mid
+    if math.isfinite(below):
+        return min(below + fp.r - 1.0, length)
+    if math.isfinite(above):
+        return max(above - fp.r + 1.0, 0.0)
+    roles, key = role_of(agent_id, lost, clusters, fp, short)
+    start, stop = clusters.gap(edge, fp.d / 2)
+    at = roles.place(key, clusters.count + roles.edges.index(edge))
+    return start + at * (stop - start)
+
+
+def _chain(q: np.ndarray, edge: Edge, nbr_q: np.ndarray, told: Sequence[Told], clusters: ClusterMap,
+           fp: FlockParams) -> tuple[float, float, float, float, float]:
+    """A relay's chain as it hears it, in m along the edge from its first centre: (where the relay is, the
+    nearest member heard below it, above it (±inf: that side silent), how far towards b a server of a still
+    reaches, how far towards a a server of b still reaches)."""
     a, u, length = clusters.axis(edge)
     here = float(np.dot(np.asarray(q, dtype=float)[:2] - a, u))
     below, above = -math.inf, math.inf
@@ -150,19 +176,37 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
             below = max(below, at)
         elif tj.mode != M1 and tj.goal == edge[1] or tj.mode == M1 and tj.bridge == edge and at > here:
             above = min(above, at)
+    return here, below, above, reach_a, reach_b
+
+
+def taut(mem: Memory, q: np.ndarray, near: Near, clusters: ClusterMap, fp: FlockParams) -> bool:
+    """Whether a settled relay's chain is stretched past what holds: the members it hears on either side are
+    more than d + r apart (links longer than (d + r) / 2 break as the MAPs sway), or one side is silent
+    though its cluster was heard of since the relay settled (the chain was whole and no longer reaches)."""
+    assert mem.bridge is not None
+    _, below, above, _, _ = _chain(q, mem.bridge, near.q, near.told, clusters, fp)
     if math.isfinite(below) and math.isfinite(above):
-        mid = (below + above) / 2.0
-        if reach_b <= reach_a:  # both ends within reach: stay where both hold
-            return min(max(mid, reach_b), reach_a)
-        return mid
-    if math.isfinite(below):
-        return min(below + fp.d, length)
-    if math.isfinite(above):
-        return max(above - fp.d, 0.0)
-    roles, key = role_of(agent_id, lost, clusters, fp)
-    start, stop = clusters.gap(edge, fp.d / 2)
-    at = roles.place(key, clusters.count + roles.edges.index(edge))
-    return start + at * (stop - start)
+        return above - below > fp.d + fp.r
+    if math.isfinite(below) == math.isfinite(above):
+        return False  # hears no member: cut off alone, nothing to say of the chain
+    silent = mem.bridge[1] if math.isfinite(below) else mem.bridge[0]
+    return dict(mem.seen).get(silent, -1) > mem.since
+
+
+def tally(mem: Memory, taut_now: bool, roles: Roles) -> Memory:
+    """Count the steps a relay has found its chain taut since it took its role; each TAUT_STEPS of them find
+    the chain one MAP short (up to its demand, rounded up), told to all by gossip (Memory.short, merged by
+    the larger count), so every MAP grows the edge's share alike (vacancy.view)."""
+    if not taut_now:
+        return mem
+    assert mem.bridge is not None
+    steps = mem.taut + 1
+    found = min(steps // TAUT_STEPS, math.ceil(roles.demand[roles.index(mem.bridge)]))
+    short = dict(mem.short)
+    if found > short.get(code(mem.bridge), 0):
+        short[code(mem.bridge)] = found
+        return mem._replace(taut=steps, short=tuple(sorted(short.items())))
+    return mem._replace(taut=steps)
 
 
 def _in_place(qj: np.ndarray, tj: 'Told', edge: Edge, clusters: ClusterMap, fp: FlockParams) -> bool:
@@ -230,8 +274,8 @@ class Demand:
     vacates = True  # roles emptied by failures are re-staffed (vacancy.py)
 
     def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
-               fp: FlockParams, step: int = 0) -> Memory:
-        return demand_switch(mem, agent_id, r_g, q, clusters, fp, step)
+               fp: FlockParams, step: int = 0, near: Near = NOBODY) -> Memory:
+        return demand_switch(mem, agent_id, r_g, q, clusters, fp, step, near)
 
     def reference(self, mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],
                   clusters: ClusterMap, fp: FlockParams) -> Reference:
@@ -245,7 +289,7 @@ class Demand:
         if mem.mode == M1 and mem.bridge is not None:
             va, vb = clusters.velocities[mem.bridge[0]], clusters.velocities[mem.bridge[1]]
             place = swing_place(mem.swing, mem.bridge, clusters, fp) if mem.swing is not None else \
-                relay_place(agent_id, q, mem.bridge, nbr_q, told, clusters, fp, mem.lost)
+                relay_place(agent_id, q, mem.bridge, nbr_q, told, clusters, fp, mem.lost, mem.short)
             q1, q2 = relay_slot(place, mem.bridge, clusters, fp)
             # The slot moves as its point of the edge does: at the velocity interpolated between the ends.
             length = clusters.axis(mem.bridge)[2]

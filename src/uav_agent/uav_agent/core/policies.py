@@ -16,7 +16,7 @@ from .clusters import NO_GOAL, ClusterMap, merge_achieved
 from .demand import Demand
 from .params import OPEN_CHOICES, FlockParams
 from .params import check as check_values
-from .state import Memory, Reference, Told
+from .state import NOBODY, Memory, Near, Reference, Told
 from .vacancy import Heard, gossip
 
 
@@ -24,8 +24,9 @@ class Allocation(Protocol):
     """One MAP's discrete update and goal under an allocation, from its own sensing and its neighbours' words."""
 
     def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
-               fp: FlockParams, step: int = 0) -> Memory:
-        """Mode, goal and bridge after this step's gossip (Algorithm 2's place in Algorithm 1), at step k."""
+               fp: FlockParams, step: int = 0, near: Near = NOBODY) -> Memory:
+        """Mode, goal and bridge after this step's gossip (Algorithm 2's place in Algorithm 1), at step k, with
+        the neighbours where they are now (near)."""
 
     def reference(self, mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],
                   clusters: ClusterMap, fp: FlockParams) -> Reference:
@@ -55,7 +56,7 @@ def check(p: FlockParams, where: Callable[[str], str] = str) -> None:
 
 def decide(mem: Memory, agent_id: int, n_users: int, cluster_coverage: np.ndarray, q: np.ndarray,
            neighbour_achieved: Iterable[int], clusters: ClusterMap, fp: FlockParams, step: int = 0,
-           heard: Optional[Heard] = None) -> Memory:
+           heard: Optional[Heard] = None, near: Near = NOBODY) -> Memory:
     """One MAP's discrete update at step k: gossip (achieved goals; roles heard of and keys lost), then its
     allocation."""
     achieved = merge_achieved(mem.achieved, neighbour_achieved)
@@ -63,9 +64,9 @@ def decide(mem: Memory, agent_id: int, n_users: int, cluster_coverage: np.ndarra
         mem = mem._replace(achieved=achieved)
     allocation = ALLOCATIONS[fp.allocation]
     if getattr(allocation, 'vacates', False):  # re-staffs roles emptied by failures (vacancy.py)
-        mem = gossip(mem, step, *(heard or ((), ())))
+        mem = gossip(mem, step, *(heard or ((), (), ())))
     r_g = float(cluster_coverage[mem.goal]) if mem.goal != NO_GOAL else 0.0
-    return allocation.decide(mem, agent_id, n_users, r_g, q, clusters, fp, step)
+    return allocation.decide(mem, agent_id, n_users, r_g, q, clusters, fp, step, near)
 
 
 def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],

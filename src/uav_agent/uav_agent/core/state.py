@@ -2,7 +2,7 @@
 aims at (Algorithm 2's M_i, g_c^i and bridge; eqs. 12-13's references)."""
 from __future__ import annotations
 
-from typing import NamedTuple, Optional
+from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -18,7 +18,8 @@ class Memory(NamedTuple):
     (transit: a role change after settling, flown along the tree); a relay whose edge left the tree for
     one with a cluster in common swings about that cluster (swing: the pivot and its place along the gap).
     What it gossips of the roles (vacancy.py): the last step a member of each role was heard of, as sorted
-    (role code, step) pairs; the spans of keys known lost; and the step it last reached its role's place."""
+    (role code, step) pairs; the spans of keys known lost; the roles found short, as (role code, MAPs); and
+    the step it last reached its role's place. A relay counts the steps it has found its chain taut (taut)."""
 
     mode: int = M0
     goal: int = NO_GOAL
@@ -31,7 +32,9 @@ class Memory(NamedTuple):
     swing: Optional[tuple[int, float]] = None
     seen: tuple[tuple[int, int], ...] = ()
     lost: tuple[tuple[float, float], ...] = ()
+    short: tuple[tuple[int, int], ...] = ()
     since: int = -1
+    taut: int = 0
 
 
 class Told(NamedTuple):
@@ -40,6 +43,17 @@ class Told(NamedTuple):
     mode: int
     goal: int
     bridge: Optional[Edge]
+
+
+class Near(NamedTuple):
+    """The radio neighbours as a MAP's discrete update sees them: positions (n, 3) in m, and the roles they
+    stated, rows alike."""
+
+    q: np.ndarray
+    told: Sequence[Told]
+
+
+NOBODY = Near(np.zeros((0, 3)), ())
 
 
 class Reference(NamedTuple):

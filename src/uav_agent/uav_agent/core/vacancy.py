@@ -9,6 +9,10 @@ A MAP at a role's place (its cluster's disc, or along its edge) that has heard o
 VACANT_STEPS, while its component hears of most roles, declares that role's keys lost. Every MAP then
 squeezes the lost spans out of the key line (keys.squeeze): the survivors' keys cover [0, 1) again, and the
 emptied role takes its share back from its neighbours on the line and the others' surplus (keys.carry).
+A role can also be left short rather than empty: a chain with too few relays left to span its gap. Its
+relays find it so (demand.taut, demand.tally) and gossip how many MAPs it lacks (merge: the larger count);
+every MAP grows that role's share by as many MAPs' worth before laying the roles over the keys (view), so
+the chain takes them from its neighbours on the line.
 A message carries O(roles) numbers, never O(MAPs).
 """
 from __future__ import annotations
@@ -41,39 +45,58 @@ def stated_role(t: Told) -> Optional[int]:
 
 
 Seen = Sequence[tuple[int, int]]  # (role code, last step a member was heard of), as a state message carries it
-# What the neighbours' state messages said: each one's roles heard of, and each one's lost spans.
-Heard = tuple[Sequence[Seen], Sequence[Sequence[keys.Span]]]
+Short = Sequence[tuple[int, int]]  # (role code, MAPs it was found short of)
+# What the neighbours' state messages said: each one's roles heard of, lost spans, and roles found short.
+Heard = tuple[Sequence[Seen], Sequence[Sequence[keys.Span]], Sequence[Short]]
 
 
-def gossip(mem: Memory, step: int, heard_seen: Iterable[Seen], heard_lost: Iterable[Sequence[keys.Span]]) -> Memory:
-    """Merge what the neighbours told of roles and lost keys, and state this MAP's own role as heard now."""
-    seen = dict(mem.seen)
-    for told in heard_seen:
+def _latest(mine: Iterable[tuple[int, int]], heard: Iterable[Iterable[tuple[int, int]]]) -> dict[int, int]:
+    out = dict(mine)
+    for told in heard:
         for c, k in told:
-            if k > seen.get(c, -1):
-                seen[c] = k
+            if k > out.get(c, -1):
+                out[c] = k
+    return out
+
+
+def gossip(mem: Memory, step: int, heard_seen: Iterable[Seen], heard_lost: Iterable[Sequence[keys.Span]],
+           heard_short: Iterable[Short] = ()) -> Memory:
+    """Merge what the neighbours told of roles, lost keys and short roles, and state this MAP's own role as
+    heard now."""
+    seen = _latest(mem.seen, heard_seen)
     own = stated_role(Told(mem.mode, mem.goal, mem.bridge))
     if own is not None:
         seen[own] = step
     lost = keys.united(mem.lost, *heard_lost)
-    return mem._replace(seen=tuple(sorted(seen.items())), lost=lost)
+    short = tuple(sorted(_latest(mem.short, heard_short).items()))
+    return mem._replace(seen=tuple(sorted(seen.items())), lost=lost, short=short)
 
 
-def view(roles: Roles, lost: tuple[keys.Span, ...]) -> Roles:
-    """The roles with the lost keys squeezed out: each role's share laid over the survivors' keys."""
-    return _squeezed_view(roles, lost) if lost and sum(roles.share) > 0 else roles  # no hashing on the usual path
+def view(roles: Roles, lost: tuple[keys.Span, ...], short: tuple[tuple[int, int], ...] = ()) -> Roles:
+    """The roles with the lost keys squeezed out and the short roles' shares grown: each role's share laid
+    over the survivors' keys."""
+    if not (lost or short) or sum(roles.share) <= 0:
+        return roles  # no hashing on the usual path
+    return _squeezed_view(roles, lost, short)
 
 
-def role_of(agent_id: int, lost: tuple[keys.Span, ...], clusters: ClusterMap, fp: FlockParams) -> tuple[Roles, float]:
+def role_of(agent_id: int, lost: tuple[keys.Span, ...], clusters: ClusterMap, fp: FlockParams,
+            short: tuple[tuple[int, int], ...] = ()) -> tuple[Roles, float]:
     """The roles as this MAP lays them out, and where its key lies among the survivors' keys."""
-    return view(clusters.roles(fp.d), lost), keys.squeeze(key_of(agent_id), lost)
+    return view(clusters.roles(fp.d), lost, short), keys.squeeze(key_of(agent_id), lost)
 
 
 @lru_cache(maxsize=256)
-def _squeezed_view(roles: Roles, lost: tuple[keys.Span, ...]) -> Roles:
+def _squeezed_view(roles: Roles, lost: tuple[keys.Span, ...], short: tuple[tuple[int, int], ...]) -> Roles:
     count = len(roles.demand) - len(roles.edges)
     ids: list[keys.RoleId] = [*range(count), *roles.edges]
-    return roles._replace(pieces=keys.carry(keys.squeezed(roles.pieces, lost), dict(zip(ids, roles.share))))
+    share = roles.share
+    if short:  # a role found short of n MAPs (demand.tally) asks for n more than its demand
+        extra = dict(short)
+        total = sum(roles.demand)
+        weights = [s * total + (extra.get(code(r), 0) if s > 0 else 0) for r, s in zip(ids, share)]
+        share = tuple(w / sum(weights) for w in weights)
+    return roles._replace(share=share, pieces=keys.carry(keys.squeezed(roles.pieces, lost), dict(zip(ids, share))))
 
 
 def vacate(mem: Memory, step: int, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) -> Memory:
@@ -86,10 +109,11 @@ def vacate(mem: Memory, step: int, q: np.ndarray, clusters: ClusterMap, fp: Floc
     declared role counts as heard VACANT_STEPS from now, so its new members, who may fly in from a part of the
     formation not yet joined to this one, have twice that to arrive before it can be declared again.
     """
-    roles = view(clusters.roles(fp.d), mem.lost)
+    roles = view(clusters.roles(fp.d), mem.lost, mem.short)
     current = [r for r in (*range(clusters.count), *roles.edges) if roles.share[roles.index(r)] > 0]
     codes = {code(r) for r in current}
     seen = {c: k for c, k in mem.seen if c in codes}  # roles that left the layout are forgotten
+    short = tuple((c, n) for c, n in mem.short if c in codes)
     stale = [r for r in current if code(r) not in seen or step - seen[code(r)] > VACANT_STEPS]
     lost = mem.lost
     fresh = len(current) - len(stale)
@@ -100,7 +124,9 @@ def vacate(mem: Memory, step: int, q: np.ndarray, clusters: ClusterMap, fp: Floc
                 lost = keys.united(lost, mine)
                 seen[code(r)] = step + VACANT_STEPS
     new = tuple(sorted(seen.items()))
-    return mem if new == mem.seen and lost == mem.lost else mem._replace(seen=new, lost=lost)
+    if new == mem.seen and lost == mem.lost and short == mem.short:
+        return mem
+    return mem._replace(seen=new, lost=lost, short=short)
 
 
 def _at(q: np.ndarray, role: keys.RoleId, clusters: ClusterMap, fp: FlockParams) -> bool:
