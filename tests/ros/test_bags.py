@@ -171,7 +171,7 @@ def test_ctrl_c_leaves_a_finalised_readable_bag(tmp_path: Path, ros_env: dict[st
 def test_report_plots_and_summarises_a_bag(tmp_path: Path) -> None:
     done = cli('report', str(GOLDEN / 'bag'), '--out', str(tmp_path / 'report'))
     assert done.returncode == 0, done.stderr
-    for name in ('coverage.png', 'fiedler.png', 'modes.png', 'formation.png', 'summary.md'):
+    for name in ('coverage.png', 'fiedler.png', 'modes.png', 'formation.png', 'formation.gif', 'summary.md'):
         assert (tmp_path / 'report' / name).stat().st_size > 1000 or name == 'summary.md', name
     [(_, ids, _)] = bag.load(GOLDEN / 'bag').failures
     assert 'final coverage R_c' in done.stdout and f'MAP {ids[0]} at t = 6.0 s (scheduled)' in done.stdout

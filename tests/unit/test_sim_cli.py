@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from world_sim.core.records import METRICS_COLUMNS, TRAJECTORY_COLUMNS, read_csv
 
@@ -32,6 +33,26 @@ def test_single_run_writes_csvs_and_plots(tmp_path: Path) -> None:
     assert np.all(m['mode0'] + m['mode1'] + m['mode2'] == m['alive'])
     for png in ('coverage.png', 'fiedler.png', 'modes.png', 'formation.png'):
         assert (tmp_path / png).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    with Image.open(tmp_path / 'formation.gif') as gif:
+        assert gif.n_frames == 4, 'one frame a second of simulated time, t = 0 to 3 s'
+
+
+def test_the_animation_marks_the_maps_lost_where_they_were(tmp_path: Path) -> None:
+    """A run losing half its MAPs at 1 s: the first frame shows no lost MAP (only the legend's marker is red),
+    the last shows them in red."""
+    proc = sim('--maps', '12', '--seed', '4', '--duration', '3', '--fail-at', '1', '--fail-fraction', '0.5',
+               '--out', str(tmp_path))
+    assert proc.returncode == 0, proc.stderr
+    lost_red = np.array([214, 39, 40])  # matplotlib's tab:red, the lost MAPs' marker
+
+    def red_pixels(frame: int) -> int:
+        with Image.open(tmp_path / 'formation.gif') as gif:
+            gif.seek(frame)
+            rgb = np.asarray(gif.convert('RGB'), dtype=int)
+        return int(np.sum(np.abs(rgb - lost_red).sum(axis=-1) < 30))
+
+    legend = red_pixels(0)  # the legend's marker: no MAP is lost yet
+    assert red_pixels(3) > legend + 6 * 10, 'six MAPs lost, each a red X of some tens of pixels'
 
 
 def test_several_runs_get_a_folder_each_and_failures_drop_maps(tmp_path: Path) -> None:

@@ -1,4 +1,4 @@
-"""Figures of a run: coverage and Fiedler over time, mode counts, formation snapshots."""
+"""Figures of a run: coverage and Fiedler over time, mode counts, formation snapshots and animation."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -145,10 +145,96 @@ def formation_snapshots(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
     return path
 
 
+def formation_animation(traj: dict[str, np.ndarray], users_xy: np.ndarray, users_cluster: np.ndarray, r: float,
+                        title: str, path: Path, users_at: UsersAt | None = None, every: float = 1.0,
+                        fps: int = 5) -> Path:
+    """The formation as an animated GIF, one frame per `every` s of simulated time: MSDs, MAPs by mode,
+    links within r, cluster centroids and the tracks of moving clusters so far, MAPs lost marked where they
+    were last. A picture to watch where snapshots leave gaps; kept small (about 1 MB for 90 s).
+
+    The axes are drawn once; each frame redraws only what moves over them (blitting), and Pillow writes
+    the GIF."""
+    from matplotlib.collections import LineCollection
+    from PIL import Image
+
+    all_t = np.unique(traj['t'])
+    shown = sorted({all_t[np.argmin(np.abs(all_t - want))] for want in np.arange(0.0, all_t[-1] + 1e-9, every)}
+                   | {all_t[-1]})
+    users = {t: (users_xy, users_cluster) if users_at is None else users_at(float(t)) for t in shown}
+    centroids = []
+    for t in shown:
+        xy, cl = users[t]
+        centroids.append({int(k): xy[cl == k].mean(axis=0) for k in np.unique(cl[cl >= 0])})
+    frames = [np.flatnonzero(traj['t'] == t) for t in shown]
+    pts = np.vstack([*(u[0] for u in users.values()), np.column_stack([traj['x'], traj['y']])[np.concatenate(frames)]])
+    lo, hi = pts.min(axis=0) - 15.0, pts.max(axis=0) + 15.0
+    aspect = (hi[1] - lo[1]) / max(hi[0] - lo[0], 1e-9)
+    height = min(max(5.4 * aspect, 3.0), 6.4) + 1.1  # the axes, and 1.1 in for the title, labels and legend
+    fig, ax = plt.subplots(figsize=(6.0, height))
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_aspect('equal')
+    ax.set_xlabel('x (m)')
+    ax.set_ylabel('y (m)')
+    msd = ax.scatter(*users[shown[0]][0].T, s=2, c='0.75', zorder=1)
+    links = LineCollection([], colors='0.35', linewidths=0.5, zorder=2)
+    ax.add_collection(links)
+    tracks = {k: ax.plot([], [], color='tab:purple', lw=1.0, zorder=2)[0] for c in centroids for k in c}
+    maps = [ax.scatter([], [], s=14, c=colour, zorder=3) for colour in MODE_COLOURS]
+    marks = ax.scatter([], [], marker='x', s=50, c='k', zorder=4)
+    lost = ax.scatter([], [], marker='X', s=40, c='tab:red', zorder=5)
+    heading = ax.set_title('', fontsize=9)
+    none = np.zeros((0, 2))
+    last_seen: dict[int, np.ndarray] = {}
+
+    def draw(n: int) -> None:
+        t, sel = shown[n], frames[n]
+        q = np.column_stack([traj['x'][sel], traj['y'][sel]])
+        ids, mode = traj['id'][sel].astype(int).tolist(), traj['mode'][sel].astype(int)
+        msd.set_offsets(users[t][0])
+        d = np.linalg.norm(q[:, None] - q[None], axis=-1)
+        i, j = np.nonzero(np.triu(d <= r, 1))
+        links.set_segments(np.stack([q[i], q[j]], axis=1))
+        for m, artist in enumerate(maps):
+            artist.set_offsets(q[mode == m] if np.any(mode == m) else none)
+        marks.set_offsets(np.array(list(centroids[n].values())).reshape(-1, 2))
+        for k, line in tracks.items():
+            path_k = np.array([c[k] for c in centroids[:n + 1] if k in c]).reshape(-1, 2)
+            moved = len(path_k) > 1 and np.ptp(path_k, axis=0).max() > 1.0
+            line.set_data(*(path_k.T if moved else ([], [])))
+        gone = [last_seen[i] for i in last_seen if i not in set(ids)]
+        lost.set_offsets(np.array(gone).reshape(-1, 2))
+        last_seen.update(zip(ids, q))
+        heading.set_text(f'{title}, t = {t:.0f} s')
+
+    handles = [plt.Line2D([], [], ls='', marker='o', ms=5, color=c, label=m) for c, m in zip(MODE_COLOURS, MODE_NAMES)]
+    handles += [plt.Line2D([], [], ls='', marker='X', ms=6, color='tab:red', label='MAP lost'),
+                plt.Line2D([], [], color='tab:purple', lw=1.0, label='cluster track')]
+    fig.legend(handles=handles, loc='lower center', ncol=3, fontsize=7, frameon=False)
+    fig.subplots_adjust(bottom=0.8 / height, top=1.0 - 0.3 / height)
+    fig.set_dpi(80)
+    moving = [msd, links, *tracks.values(), *maps, marks, lost, heading]
+    for artist in moving:
+        artist.set_animated(True)
+    canvas = fig.canvas
+    canvas.draw()
+    background = canvas.copy_from_bbox(fig.bbox)
+    images = []
+    for n in range(len(shown)):
+        draw(n)
+        canvas.restore_region(background)
+        for artist in moving:
+            fig.draw_artist(artist)
+        images.append(Image.fromarray(np.asarray(canvas.buffer_rgba())[..., :3].copy()))
+    images[0].save(path, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0)
+    plt.close(fig)
+    return path
+
+
 def run_figures(metrics: np.ndarray, traj: dict[str, np.ndarray], users_xy: np.ndarray | None,
                 users_cluster: np.ndarray | None, centroids: np.ndarray | None, r: float, label: str,
                 folder: Path, events: Sequence[Event] = (), users_at: UsersAt | None = None) -> list[Path]:
-    """The four figures of one run: coverage, Fiedler value, mode counts and formation snapshots.
+    """The figures of one run: coverage, Fiedler value, mode counts, formation snapshots and animation.
 
     metrics rows follow the METRICS_COLUMNS order; without MSDs the formation snapshots are left out.
     """
@@ -164,4 +250,5 @@ def run_figures(metrics: np.ndarray, traj: dict[str, np.ndarray], users_xy: np.n
         times = sorted({0.0, round(end / 4, 1), round(end / 2, 1), end})
         out.append(formation_snapshots(traj, users_xy, users_cluster, centroids, r, times,
                                        f'Formation, {label}', folder / 'formation.png', users_at))
+        out.append(formation_animation(traj, users_xy, users_cluster, r, label, folder / 'formation.gif', users_at))
     return out
