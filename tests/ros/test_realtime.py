@@ -153,3 +153,4 @@ def test_a_pace_the_machine_cannot_keep_is_reported_once(tmp_path: Path, ros_env
     assert done.returncode == 0, done.stdout + done.stderr
     said = [line for line in done.stdout.splitlines() if 'the run goes slower than asked' in line]
     assert len(said) == 1 and 'asks for 2000 steps/s' in said[0], done.stdout
+    assert '--agents-per-process' in said[0] and '--rate' in said[0], 'it says what helps'

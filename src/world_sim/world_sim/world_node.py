@@ -54,7 +54,7 @@ START_REPORT_S = 5.0
 FINISHED_ACK_S = 2.0  # at most this long for every agent to acknowledge /events/finished before exit
 # realtime: after this much simulated time, a pace below this fraction of the one asked for is reported once.
 SLOW_AFTER_S = 2.0
-SLOW_FRACTION = 0.9
+SLOW_FRACTION = 0.95
 
 
 def sim_time(t: float) -> Time:
@@ -346,8 +346,9 @@ class WorldNode(Node):
             asked = self.rate / self.scenario.dt  # realtime's steps per wall second
             if self.realtime and not self.slow_said and t >= SLOW_AFTER_S and pace < SLOW_FRACTION * asked:
                 self.slow_said = True
-                print(f'realtime x{self.rate:g} asks for {asked:g} steps/s and this machine keeps {pace:.0f}: '
-                      f'the run goes slower than asked (a lower --rate keeps the pace)', flush=True)
+                print(f'realtime x{self.rate:g} asks for {asked:g} steps/s and this machine keeps {pace:.0f} '
+                      f'({pace / asked:.2f} of it): the run goes slower than asked; fewer processes '
+                      f'(--agents-per-process 10) or a lower --rate keep the pace', flush=True)
 
     # ------------------------------------------------------------------ failures
     def drop(self, ids: np.ndarray, cause: str) -> None:
