@@ -24,7 +24,8 @@ def trajectory_columns(result: RunResult) -> dict[str, np.ndarray]:
 
 
 def write_run(result: RunResult, folder: Path, label: str) -> list[Path]:
-    """metrics.csv, trajectory.csv, the MSDs and failures, and the run's PNGs into folder."""
+    """metrics.csv, trajectory.csv, the MSDs and failures, and the run's figures into folder; their titles
+    name the scenario and the label."""
     folder.mkdir(parents=True, exist_ok=True)
     records.write_metrics(folder / 'metrics.csv', result.metrics)
     records.write_trajectory(folder / 'trajectory.csv', result.trajectory)
@@ -34,7 +35,7 @@ def write_run(result: RunResult, folder: Path, label: str) -> list[Path]:
     u, dt = result.users, result.scenario.dt
     moving = None if result.motion is None else (lambda t: result.motion.at(int(round(t / dt))))
     return plots.run_figures(result.metrics, trajectory_columns(result), u.xyz[:, :2], u.cluster, u.centroids,
-                             result.scenario.flock.r, label, folder, [*events, *events_of(result.scenario)],
+                             result.scenario.flock.r, f'{result.scenario.name}, {label}', folder, [*events, *events_of(result.scenario)],
                              moving)
 
 
