@@ -130,7 +130,8 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
     of every relay and servers of b on the b side, so the outermost server heard is each side's anchor.
     A relay that hears a chain member on each side aims midway between the nearest two, so the chain
     relaxes to even spacing between the clusters' outermost servers wherever they are; with one side
-    silent it reaches d beyond the other towards the silent side; hearing none, it takes its own place in
+    silent it reaches r - 1 m beyond the other towards the silent side (a chain short of relays still spans
+    its gap if r per link does); hearing none, it takes its own place in
     the gap by its key.
     """
     here, below, above, reach_a, reach_b = _chain(q, edge, nbr_q, told, clusters, fp)

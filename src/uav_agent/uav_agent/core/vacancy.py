@@ -51,6 +51,7 @@ Heard = tuple[Sequence[Seen], Sequence[Sequence[keys.Span]], Sequence[Short]]
 
 
 def _latest(mine: Iterable[tuple[int, int]], heard: Iterable[Iterable[tuple[int, int]]]) -> dict[int, int]:
+    """(role code, value) pairs merged by the larger value: the one merge of the step heard and the count."""
     out = dict(mine)
     for told in heard:
         for c, k in told:
@@ -95,7 +96,8 @@ def _squeezed_view(roles: Roles, lost: tuple[keys.Span, ...], short: tuple[tuple
         extra = dict(short)
         total = sum(roles.demand)
         weights = [s * total + (extra.get(code(r), 0) if s > 0 else 0) for r, s in zip(ids, share)]
-        share = tuple(w / sum(weights) for w in weights)
+        whole = sum(weights)
+        share = tuple(w / whole for w in weights)
     return roles._replace(share=share, pieces=keys.carry(keys.squeezed(roles.pieces, lost), dict(zip(ids, share))))
 
 
