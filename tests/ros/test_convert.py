@@ -50,7 +50,8 @@ VALUES = {
         st.lists(st.integers(0, 99), unique=True).map(lambda v: tuple(sorted(v))),
         st.dictionaries(st.integers(0, 4095), st.integers(0, 2**63), max_size=12).map(lambda d: tuple(sorted(d.items()))),
         st.lists(st.tuples(st.floats(0, 1), st.floats(0, 1)), max_size=6).map(tuple),
-        st.dictionaries(st.integers(0, 4095), st.integers(0, 2**32 - 1), max_size=12).map(lambda d: tuple(sorted(d.items())))),
+        st.dictionaries(st.integers(0, 4095), st.integers(0, 2**32 - 1), max_size=12).map(lambda d: tuple(sorted(d.items()))),
+        st.booleans()),
     convert.CommandData: st.builds(convert.CommandData, U32, st.integers(0, 2**63), VEC, st.integers(0, 2),
                                    st.integers(-1, 99)),
     convert.SensingData: ids().flatmap(lambda n: st.builds(

@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from uav_agent.core.agent import Neighbourhood, agent_step
 from uav_agent.core.clusters import ClusterMap, key_of, mst_edges
 from uav_agent.core.demand import STALL_STEPS, relay_place
 from uav_agent.core import policies, state
@@ -102,6 +103,25 @@ def test_a_relay_aims_midway_between_the_chain_members_it_hears() -> None:
     # so is a relay of this edge still flying in, farther than d from the edge
     assert relay_place(5, q, edge, np.array([[40.0, 0.0, 20.0], [100.0, 2 * P.d, 20.0]]), [servers_of_0, relay],
                        clusters, P) == 40.0 + reach
+
+
+def test_a_map_in_transit_neither_attracts_a_relay_nor_drags_it_along() -> None:
+    """A relay that matched the velocity of a MAP flying past at 40 m/s would leave its chain (the chain of a
+    drifting cluster came apart so): a neighbour in transit only repels, and beyond d not even that."""
+    clusters = line([100.0])
+    edge = (0, 1)
+    relay = Memory(mode=M1, goal=0, bridge=edge, settled=True, since=0)
+    q = np.array([clusters.axis(edge)[2] / 2, 0.0, P.height])
+    past = np.array([[q[0], P.d + 2.0, P.height]])  # between d and r: in range, not too close
+    fast = np.array([[40.0, 0.0, 0.0]])
+
+    def u(told: list[Told]) -> np.ndarray:
+        hood = Neighbourhood(past[:len(told)], fast[:len(told)], np.zeros(len(told)), [0] * len(told), told)
+        return agent_step(relay, 3, q, np.zeros(3), 0, np.zeros(2), hood, clusters, P, 1)[0]
+
+    alone = u([])
+    assert np.array_equal(u([Told(M0, 1, None, transit=True)]), alone), 'a server of the edge in transit is no pull'
+    assert u([Told(M0, 1, None)])[0] > alone[0] + 1.0, 'a settled server of the edge at that speed would drag it'
 
 
 @settings(max_examples=60, deadline=None)

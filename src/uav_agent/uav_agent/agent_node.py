@@ -239,7 +239,7 @@ class AgentNode(Node):
         mem = self.memory
         msg = convert.AgentStateData(self.map_id, s.step, s.q, s.p, s.n_users, mem.mode, mem.goal, mem.bridge,
                                      tuple(ids_of(mem.achieved)), mem.seen, mem.lost,
-                                     mem.short).to_msg(self.pending_header)
+                                     mem.short, mem.transit).to_msg(self.pending_header)
         self.state_pub.publish(msg)
         self.last_state = msg
 
@@ -260,7 +260,7 @@ class AgentNode(Node):
             p=np.array([m.p for m in heard]).reshape(-1, 3),
             n_users=np.array([float(m.n_users) for m in heard]),
             achieved=[mask_of(m.achieved) for m in heard],
-            told=[Told(m.mode, m.goal, m.bridge) for m in heard],
+            told=[Told(m.mode, m.goal, m.bridge, m.transit) for m in heard],
             seen=[m.seen for m in heard], lost=[m.lost for m in heard], short=[m.short for m in heard])
         coverage = np.zeros(self.clusters.count)
         if self.memory.goal != NO_GOAL:

@@ -59,6 +59,7 @@ class AgentStateData(NamedTuple):
     seen: tuple[tuple[int, int], ...] = ()      # (role code, last step a member was heard of)
     lost: tuple[tuple[float, float], ...] = ()  # key spans [lo, hi) known lost
     short: tuple[tuple[int, int], ...] = ()     # (role code, MAPs it was found short of)
+    transit: bool = False                       # on its way to a new role
 
     def to_msg(self, header: Header) -> AgentState:
         return AgentState(header=header, id=int(self.id), step=int(self.step), position=point(self.q),
@@ -67,7 +68,8 @@ class AgentStateData(NamedTuple):
                           achieved_goals=[int(k) for k in self.achieved],
                           roles_heard=[int(c) for c, _ in self.seen], roles_heard_step=[int(k) for _, k in self.seen],
                           lost_keys=[float(x) for span in self.lost for x in span],
-                          roles_short=[int(c) for c, _ in self.short], roles_short_by=[int(n) for _, n in self.short])
+                          roles_short=[int(c) for c, _ in self.short], roles_short_by=[int(n) for _, n in self.short],
+                          in_transit=bool(self.transit))
 
     @classmethod
     def from_msg(cls, msg: Any) -> 'AgentStateData':
@@ -78,7 +80,7 @@ class AgentStateData(NamedTuple):
                    tuple(int(k) for k in msg.achieved_goals),
                    tuple((int(c), int(k)) for c, k in zip(msg.roles_heard, msg.roles_heard_step)),
                    tuple(zip(lost[::2], lost[1::2])),
-                   tuple((int(c), int(n)) for c, n in zip(msg.roles_short, msg.roles_short_by)))
+                   tuple((int(c), int(n)) for c, n in zip(msg.roles_short, msg.roles_short_by)), bool(msg.in_transit))
 
 
 class CommandData(NamedTuple):

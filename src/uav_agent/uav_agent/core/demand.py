@@ -234,7 +234,11 @@ def relay_slot(place: float, edge: Edge, clusters: ClusterMap, fp: FlockParams) 
 
 def related(a: Told, b: Told) -> bool:
     """Whether two MAPs' roles belong together: one cluster's servers, or a relay and its edge's servers
-    or fellow relays. Under the demand allocation only related MAPs attract (control.flocking_terms)."""
+    or fellow relays, neither on its way to a new role. Under the demand allocation only related MAPs
+    attract and match velocities (control.flocking_terms): a MAP in transit flies at tens of m/s, and a relay
+    that matched its velocity as it passed would be dragged off its chain."""
+    if a.transit or b.transit:
+        return False
     if a.mode == M1 and b.mode == M1:
         return a.bridge == b.bridge
     if a.mode == M1:

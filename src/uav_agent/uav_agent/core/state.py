@@ -38,11 +38,13 @@ class Memory(NamedTuple):
 
 
 class Told(NamedTuple):
-    """What a neighbour's state message says of its role: mode, goal and bridge (as of its last step)."""
+    """What a neighbour's state message says of its role: mode, goal and bridge (as of its last step), and
+    whether it is on its way to a new role (Memory.transit)."""
 
     mode: int
     goal: int
     bridge: Optional[Edge]
+    transit: bool = False
 
 
 class Near(NamedTuple):
