@@ -181,6 +181,43 @@ def test_report_plots_and_summarises_a_bag(tmp_path: Path) -> None:
     assert cli('report', str(GOLDEN / 'bag'), '--out', str(tmp_path / 'report'), '--replace').returncode == 0
 
 
+def test_report_writes_scene_mcap_in_foxglove_schemas_with_the_recorded_positions(tmp_path: Path) -> None:
+    """scene.mcap opens in Foxglove or Lichtblick: a 3-D scene, metrics to plot and a log, in Foxglove's own
+    schemas; read back with the mcap reader alone, its MAP spheres stand where the bag says the MAPs were."""
+    from mcap_protobuf.decoder import DecoderFactory
+
+    assert cli('report', str(GOLDEN / 'bag'), '--out', str(tmp_path / 'report')).returncode == 0
+    run = bag.load(GOLDEN / 'bag')
+    with open(tmp_path / 'report' / 'scene.mcap', 'rb') as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        assert summary is not None
+        found = {c.topic: (c.message_encoding, summary.schemas[c.schema_id].name) for c in summary.channels.values()}
+        assert found == {'/scene': ('protobuf', 'foxglove.SceneUpdate'), '/metrics': ('json', 'uav_flock.Metrics'),
+                         '/log': ('protobuf', 'foxglove.Log')}, found
+        scenes = {m.log_time: d for _, c, m, d in reader.iter_decoded_messages(topics=['/scene'])}
+        f.seek(0)
+        figures = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages(topics=['/metrics'])]
+        f.seek(0)
+        logs = [d.message for _, c, m, d in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+            topics=['/log'])]
+    steps = np.unique(run.trajectory[:, 0]).astype(int)
+    assert len(scenes) == len(steps) and len(figures) == len(run.metrics)
+    [(fail_step, ids, _)] = run.failures
+    assert logs == [f'MAP {ids[0]} lost']
+    after = scenes[int(round(run.trajectory[run.trajectory[:, 0] == fail_step][0, 1] * 1e9))]
+    assert [d.id for d in after.deletions] == [f'map_{ids[0]}'], 'the lost MAP leaves the scene'
+    for k in (int(steps[0]), fail_step, int(steps[-1])):
+        rows = run.trajectory[run.trajectory[:, 0] == k]
+        spheres = {e.id: e.spheres[0].pose.position for e in scenes[int(round(rows[0, 1] * 1e9))].entities
+                   if e.id.startswith('map_')}
+        assert set(spheres) == {f'map_{int(i)}' for i in rows[:, 2]}, 'one sphere per MAP flying at that step'
+        for row in rows:
+            at = spheres[f'map_{int(row[2])}']
+            assert (at.x, at.y, at.z) == (row[3], row[4], row[5])
+    assert [f['coverage_ratio'] for f in figures] == run.metrics[:, 2].tolist()
+
+
 def test_bag_tools_take_the_run_folder_or_a_file_of_the_bag(tmp_path: Path) -> None:
     """Users name whatever they have at hand: the run folder `up` printed, or the bag's storage file."""
     shutil.copytree(GOLDEN / 'bag', tmp_path / 'run' / 'bag')

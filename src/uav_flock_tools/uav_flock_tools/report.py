@@ -64,4 +64,39 @@ def report(path: Path, out: Path) -> tuple[dict[str, Any], list[Path]]:
                               None if u is None else u.centroids, run.r, label, out,
                               sorted({f['t_s'] for f in s['failures']}), moving)
     (out / 'summary.md').write_text(f'# Run recorded in {path}\n\n{summary_table(s)}\n')
-    return s, files + [out / 'summary.md']
+    return s, files + [out / 'summary.md', write_scene(run, traj, out / 'scene.mcap')]
+
+
+def write_scene(run: bag.Run, traj: dict[str, np.ndarray], path: Path) -> Path:
+    """scene.mcap: the recorded run in Foxglove's schemas (scene.py), one frame per recorded step, so that it
+    opens in Foxglove or Lichtblick with the 3-D scene and the plots and nothing else to set up."""
+    from world_sim.core.physics import survey_radii
+
+    from . import scene
+
+    figures = {int(row[0]): row for row in run.metrics}
+    lost = {step: ids for step, ids, _ in run.failures}
+    steps = np.unique(traj['step']).astype(int)
+
+    def frames():
+        flying: set[int] = set()
+        for k in steps.tolist():
+            rows = traj['step'] == k
+            ids = traj['id'][rows].astype(int).tolist()
+            gone, flying = flying - set(ids), set(ids)
+            t = float(traj['t'][rows][0])
+            users = run.users_of(k)
+            centroids = radii = None
+            if users is not None:
+                labels = np.unique(users.cluster[users.cluster >= 0])
+                centroids = np.zeros((len(users.centroids), 2))
+                for c in labels:
+                    centroids[c] = users.xyz[users.cluster == c, :2].mean(axis=0)
+                radii = survey_radii(users.xyz[:, :2], users.cluster, centroids)
+            q = np.column_stack([traj['x'][rows], traj['y'][rows], traj['z'][rows]])
+            m = figures.get(k)
+            logs = [scene.event(t, f'MAP {i} lost') for i in lost.get(k, [])]
+            yield (t, scene.formation(t, ids, q, traj['mode'][rows].astype(int).tolist(), run.r, centroids, radii,
+                                      sorted(gone)),
+                   None if m is None else scene.metrics(int(m[0]), m[1], m[2], m[3], int(m[4]), int(m[5])), logs)
+    return scene.write_mcap(path, frames())

@@ -1,0 +1,129 @@
+"""The formation in Foxglove's schemas: what the live view serves and what `scene.mcap` holds.
+
+One implementation of the picture, so that a recorded run opened in Foxglove (or Lichtblick) looks as it
+did live. Channels, all in frame `world` with positions in m:
+- `/scene` (foxglove.SceneUpdate): one entity per MAP (`map_<id>`, a sphere coloured by mode), the radio
+  links within r (`links`), and a disc per cluster over the area holding 95 % of its users (`clusters`);
+- `/metrics` (JSON): R_c, λ2, MAPs alive and connected components, for Foxglove's plot panel;
+- `/log` (foxglove.Log): MAPs lost and clusters that appear, as they happen.
+Nothing here imports ROS: the viewer node and `report` hand it numbers.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterable, Optional, Sequence
+
+import numpy as np
+
+import foxglove
+from foxglove.channels import LogChannel, SceneUpdateChannel
+from foxglove.messages import (Color, CylinderPrimitive, LinePrimitive, LinePrimitiveLineType, Log, LogLevel, Point3,
+                               Pose, Quaternion, SceneEntity, SceneEntityDeletion, SceneEntityDeletionType, SceneUpdate,
+                               SpherePrimitive, Timestamp, Vector3)
+
+FRAME = 'world'
+SCENE, METRICS, LOG = '/scene', '/metrics', '/log'
+MAP_SIZE = 3.0  # m, the sphere drawn for a MAP
+# M0, M1, M2 as in the PNGs (matplotlib's tab:blue, tab:orange, tab:green)
+MODE_RGBA = ((0.122, 0.467, 0.706, 1.0), (1.0, 0.498, 0.055, 1.0), (0.173, 0.627, 0.173, 1.0))
+LINK_RGBA = (0.35, 0.35, 0.35, 0.8)
+CLUSTER_RGBA = (0.5, 0.5, 0.5, 0.25)
+METRICS_SCHEMA = {
+    'type': 'object',
+    'title': 'uav_flock.Metrics',
+    'properties': {
+        'step': {'type': 'integer', 'description': 'simulation step k'},
+        't': {'type': 'number', 'description': 'simulation time (s)'},
+        'coverage_ratio': {'type': 'number', 'description': 'R_c of eq. 5, 0..1'},
+        'fiedler': {'type': 'number', 'description': 'lambda2 of the MAP graph Laplacian'},
+        'alive': {'type': 'integer', 'description': 'MAPs still flying'},
+        'components': {'type': 'integer', 'description': 'connected components of the MAP graph'},
+    },
+}
+
+
+def stamp(t: float) -> Timestamp:
+    sec = int(np.floor(t))
+    return Timestamp(sec, int(round((t - sec) * 1e9)))
+
+
+def nanoseconds(t: float) -> int:
+    """Log time of simulated time t (s): the scene's clock is the simulation's, from 0."""
+    return int(round(t * 1e9))
+
+
+def _colour(rgba: Sequence[float]) -> Color:
+    return Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
+
+
+def _pose(x: float, y: float, z: float) -> Pose:
+    return Pose(position=Vector3(x=float(x), y=float(y), z=float(z)), orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
+
+
+def links(q: np.ndarray, r: float) -> np.ndarray:
+    """(L, 2) index pairs i < j of the MAPs within radio range r of each other."""
+    if len(q) < 2:
+        return np.zeros((0, 2), dtype=np.intp)
+    d = np.linalg.norm(q[:, None, :] - q[None, :, :], axis=-1)
+    i, j = np.nonzero(np.triu(d <= r, k=1))
+    return np.column_stack([i, j])
+
+
+def formation(t: float, ids: Sequence[int], q: np.ndarray, modes: Sequence[int], r: float,
+              centroids: Optional[np.ndarray] = None, radii: Optional[np.ndarray] = None,
+              lost: Iterable[int] = ()) -> SceneUpdate:
+    """The scene at simulated time t: the MAPs that fly (ids, positions q (n, 3), modes), their links,
+    and the clusters' discs (centroids (K, 2), radii (K,); a radius of 0 is a cluster that ended). An entity
+    stays in Foxglove's scene until deleted: the spheres of MAPs lost since the last scene (lost) are."""
+    q = np.asarray(q, dtype=float).reshape(-1, 3)
+    when = stamp(t)
+    entities = [SceneEntity(timestamp=when, frame_id=FRAME, id=f'map_{int(i)}', metadata=None,
+                            spheres=[SpherePrimitive(pose=_pose(*q[n]), size=Vector3(x=MAP_SIZE, y=MAP_SIZE, z=MAP_SIZE),
+                                                     color=_colour(MODE_RGBA[int(modes[n]) % 3]))])
+                for n, i in enumerate(ids)]
+    pairs = links(q, r)
+    entities.append(SceneEntity(timestamp=when, frame_id=FRAME, id='links', lines=[LinePrimitive(
+        type=LinePrimitiveLineType.LineList, thickness=0.3, color=_colour(LINK_RGBA),
+        points=[Point3(x=float(a), y=float(b), z=float(c)) for a, b, c in q[pairs.reshape(-1)]])]))
+    if centroids is not None and radii is not None:
+        discs = [CylinderPrimitive(pose=_pose(x, y, 0.0), size=Vector3(x=2 * float(rk), y=2 * float(rk), z=0.2),
+                                   bottom_scale=1.0, top_scale=1.0, color=_colour(CLUSTER_RGBA))
+                 for (x, y), rk in zip(np.asarray(centroids, dtype=float).reshape(-1, 2), radii) if rk > 0]
+        entities.append(SceneEntity(timestamp=when, frame_id=FRAME, id='clusters', cylinders=discs))
+    deletions = [SceneEntityDeletion(timestamp=when, type=SceneEntityDeletionType.MatchingId, id=f'map_{int(i)}')
+                 for i in lost]
+    return SceneUpdate(deletions=deletions, entities=entities)
+
+
+def metrics(step: int, t: float, coverage_ratio: float, fiedler: float, alive: int, components: int) -> dict:
+    return {'step': int(step), 't': float(t), 'coverage_ratio': float(coverage_ratio), 'fiedler': float(fiedler),
+            'alive': int(alive), 'components': int(components)}
+
+
+def event(t: float, message: str, warning: bool = True) -> Log:
+    return Log(timestamp=stamp(t), level=LogLevel.Warning if warning else LogLevel.Info, message=message,
+               name='uav_flock')
+
+
+class Channels:
+    """The three channels, in one Foxglove context (a live server's, or an MCAP file's)."""
+
+    def __init__(self, context: Optional[foxglove.Context] = None) -> None:
+        self.scene = SceneUpdateChannel(SCENE, context=context)
+        self.metrics = foxglove.Channel(METRICS, schema=METRICS_SCHEMA, message_encoding='json', context=context)
+        self.log = LogChannel(LOG, context=context)
+
+
+def write_mcap(path: Path, frames: Iterable[tuple[float, SceneUpdate, Optional[dict], Sequence[Log]]]) -> Path:
+    """scene.mcap: each frame (t, scene, metrics or None, log entries) logged at simulated time t."""
+    context = foxglove.Context()
+    with foxglove.open_mcap(str(path), allow_overwrite=True, context=context):
+        ch = Channels(context)
+        for t, scene, figures, logs in frames:
+            ns = nanoseconds(t)
+            ch.scene.log(scene, log_time=ns)
+            if figures is not None:
+                ch.metrics.log(figures, log_time=ns)
+            for entry in logs:
+                ch.log.log(entry, log_time=ns)
+    return path
