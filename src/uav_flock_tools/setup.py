@@ -23,6 +23,7 @@ setup(
         'console_scripts': [
             'uav-flock-cli = uav_flock_tools.cli:main',
             'uav_flock_recorder = uav_flock_tools.recorder:main',
+            'uav_flock_viewer = uav_flock_tools.viewer:main',
         ],
     },
 )

@@ -238,6 +238,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+VIEW_PORT = 8765  # the live view's WebSocket port when --view names none (Foxglove's usual)
 RUN_AGENTS_PER_PROCESS = 10  # the main job packs agents: see docs/benchmarks.md for one process per MAP
 
 
@@ -246,9 +247,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     ns = argparse.Namespace(scenario='paper', maps=[90], seed=None, duration=None, fail_at=None,
                             fail_fraction=None, out=args.out or str(default_out('run')), replace=args.replace)
     if args.batch:
+        if args.view is not None:
+            raise UsageError('run: --view watches the distributed run; --batch has no topics to watch')
         return cmd_sim(ns)
     ns.__dict__.update(maps=90, agents_per_process=RUN_AGENTS_PER_PROCESS, domain_id=None, discovery='auto',
-                       record=True, sync='lockstep', rate=1.0, listen=None, agents_here=None)
+                       record=True, sync='lockstep', rate=1.0, listen=None, agents_here=None, view=args.view)
     code = cmd_up(ns)
     bag_path = Path(ns.out) / 'bag'
     if (bag_path / 'metadata.yaml').exists():
@@ -274,11 +277,16 @@ def cmd_up(args: argparse.Namespace) -> int:
         raise UsageError('up: --agents-here leaves MAPs to agents of other hosts: give --listen ADDRESS for them')
     if args.agents_here is not None and args.agents_here > s.maps:
         raise UsageError(f'up: --agents-here {args.agents_here}: the run has {s.maps} MAPs')
+    if args.view is not None:
+        try:
+            launcher.port_free(args.view)
+        except ValueError as exc:
+            raise UsageError(f'up: {exc}') from None
     out = run_folder(Path(args.out) if args.out else default_out('up'), 'up: --out', args.replace)
     try:
         code, result = launcher.up(path.resolve(), s, out.resolve(), args.agents_per_process, args.domain_id,
                                    args.discovery, args.record, args.sync, args.rate, args.listen, args.agents_here,
-                                   floor_note(s, s.maps))
+                                   floor_note(s, s.maps), args.view)
     except (FileExistsError, ValueError, domains.DomainInUse) as exc:
         raise UsageError(f'up: {exc}') from None
     if result is None:
@@ -489,6 +497,7 @@ def add_run_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
     p = command(sub, 'run', cmd_run, 'the main job: the paper scenario with 90 MAPs, distributed and recorded, '
                                    'with plots and a report of its bag')
     p.add_argument('--batch', action='store_true', help='in one process with the batch simulator instead (seconds)')
+    add_view_option(p)
     p.add_argument('--out', help='output folder (default: runs/run-<time>)')
     p.add_argument('--replace', action='store_true', help='replace the earlier run in --out (refused otherwise)')
     p = command(sub, 'up', cmd_up, 'run a scenario distributed: world_sim and one process per MAP')
@@ -509,6 +518,7 @@ def add_run_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
     p.add_argument('--replace', action='store_true', help='replace the earlier run in --out (refused otherwise)')
     p.add_argument('--listen', metavar='ADDRESS', help='an IPv4 address of this host where agents of other hosts '
                    'join (the discovery server listens there; see `agents --join`)')
+    add_view_option(p)
     p.add_argument('--agents-here', type=non_negative_int, metavar='N',
                    help='with --listen: run MAPs 0..N-1 here and wait for the others to join (default: all here)')
     p = command(sub, 'agents', cmd_agents, 'agent processes on this host that join a run of `up --listen` on another')
@@ -519,6 +529,11 @@ def add_run_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
                    help=f'wait this long for the run to answer (s, default: {RUN_INFO_TIMEOUT_S:g})')
     p.add_argument('--out', help='folder for this host\'s logs and pids (default: runs/agents-<time>)')
     p.add_argument('--replace', action='store_true', help='replace an earlier folder in --out (refused otherwise)')
+
+
+def add_view_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument('--view', nargs='?', const=VIEW_PORT, type=positive_int, metavar='PORT',
+                   help=f'serve the run live to Foxglove or Lichtblick on ws://localhost:PORT (default {VIEW_PORT})')
 
 
 def add_inspect_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:

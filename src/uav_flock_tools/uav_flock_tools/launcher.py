@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -63,6 +64,7 @@ class Plan:
     start_timeout: float
     groups: list[list[int]]   # MAP ids per agent process on this host
     remote: list[int]         # MAP ids whose agents join from other hosts (`agents --join`)
+    view: Optional[int] = None  # the live view's port (viewer.py), None: no live view
 
     @property
     def bag_path(self) -> Path:
@@ -75,7 +77,7 @@ class Plan:
 
 def plan(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: int, domain_id: Optional[int],
          discovery: str, record: bool, sync: str, rate: float, listen: Optional[str] = None,
-         agents_here: Optional[int] = None) -> Plan:
+         agents_here: Optional[int] = None, view: Optional[int] = None) -> Plan:
     """Stage 1: decide the run (and claim its ROS_DOMAIN_ID, held until every process of it has ended).
 
     With listen (an address of this host that the others reach), the discovery server listens there and
@@ -83,9 +85,11 @@ def plan(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process:
     """
     if record and (run / 'bag').exists():
         raise FileExistsError(f'{run / "bag"} exists already: give a new --out folder')
+    if view is not None:
+        port_free(view)
     here = scenario.maps if agents_here is None else min(agents_here, scenario.maps)
     groups = [list(range(first, min(first + agents_per_process, here))) for first in range(0, here, agents_per_process)]
-    processes = len(groups) + 1 + int(record)
+    processes = len(groups) + 1 + int(record) + int(view is not None)
     use_server = listen is not None or discovery == 'server' or (
         discovery == 'auto' and (processes > LOCALHOST_LIMIT or scenario.maps > LOCALHOST_MAPS_LIMIT))
     claim = claim_domain(domain_id)
@@ -96,7 +100,18 @@ def plan(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process:
         timeout = max(timeout, JOIN_TIMEOUT_S)
     return Plan(scenario_path, scenario, run, agents_per_process, record, sync, rate, claim, server_address,
                 discovery_range, ros_env(claim.domain, server_address, discovery_range), timeout, groups,
-                list(range(here, scenario.maps)))
+                list(range(here, scenario.maps)), view)
+
+
+def port_free(port: int) -> None:
+    """ValueError naming the port if the live view could not serve on it (taken, or not a port)."""
+    if not 0 < port < 65536:
+        raise ValueError(f'--view {port}: not a TCP port (1 to 65535)')
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        try:
+            probe.bind(('127.0.0.1', port))
+        except OSError:
+            raise ValueError(f'--view {port}: the port is in use; give another (--view PORT)') from None
 
 
 class Run:
@@ -113,6 +128,7 @@ class Run:
         self.world: Optional[subprocess.Popen] = None
         self.world_log: Optional[threading.Thread] = None
         self.recorder: Optional[subprocess.Popen] = None
+        self.viewer: Optional[subprocess.Popen] = None
         self.server: Optional[subprocess.Popen] = None
         self.recorder_gone: Optional[int] = None
         self.interrupted = self.starting = self.stopping = False
@@ -185,6 +201,18 @@ class Run:
                 stdout=open(p.logs / 'recorder.log', 'w'), stderr=subprocess.STDOUT, start_new_session=True,
                 preexec_fn=dies_with_parent(signal.SIGINT))
             self.raise_if_interrupted()
+        if p.view is not None:
+            # Like the recorder, it finds the run's topics through discovery: a super-client with a server.
+            self.viewer = subprocess.Popen(
+                [executable('uav_flock_tools', 'uav_flock_viewer'), '--ros-args', '-p', f'maps:={s.maps}',
+                 '-p', f'r:={float(s.flock.r)}', '-p', f'port:={p.view}'],
+                env={**p.env, 'ROS_SUPER_CLIENT': 'TRUE'} if p.server_address else p.env,
+                stdout=open(p.logs / 'viewer.log', 'w'), stderr=subprocess.STDOUT, start_new_session=True,
+                preexec_fn=dies_with_parent(signal.SIGINT))
+            print(f'uav-flock up: live view on ws://localhost:{p.view}: in Foxglove (or Lichtblick), Open connection, '
+                  f'Foxglove WebSocket, that URL; docs/foxglove_layout.json lays out the 3-D scene and the plots',
+                  flush=True)
+            self.raise_if_interrupted()
         world_args = [executable('world_sim', 'world_sim_node'), '--ros-args',
                       '-p', f'scenario:={p.scenario_path}', '-p', f'maps:={s.maps}',
                       '-p', f'seed:={s.seed}', '-p', f'duration:={float(s.duration)}', '-p', f'out:={p.run}',
@@ -225,6 +253,8 @@ class Run:
         stop([self.world] if self.world is not None else [], signal.SIGINT, {signal.SIGTERM: self.agents})
         if self.recorder is not None:
             stop([self.recorder], signal.SIGINT)
+        if self.viewer is not None:
+            stop([self.viewer], signal.SIGINT)
         if self.server is not None:
             stop([self.server])
         # A SIGKILLed agent cannot remove its files, nor can one stopped while its participant was still
@@ -255,11 +285,12 @@ class Run:
 def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: int = 1,
        domain_id: Optional[int] = None, discovery: str = 'auto', record: bool = False,
        sync: str = 'lockstep', rate: float = 1.0, listen: Optional[str] = None,
-       agents_here: Optional[int] = None, note: Optional[str] = None) -> tuple[int, Optional[RunResult]]:
+       agents_here: Optional[int] = None, note: Optional[str] = None,
+       view: Optional[int] = None) -> tuple[int, Optional[RunResult]]:
     """Run the scenario distributed, in stages; returns (exit code, result read back from the run folder).
     A note (e.g. too few MAPs for the layout) goes to stderr once the run is planned and its files written."""
     r = Run(plan(scenario_path, scenario, run, agents_per_process, domain_id, discovery, record, sync, rate,
-                 listen, agents_here))
+                 listen, agents_here, view))
     old_int, old_term = signal.signal(signal.SIGINT, r.on_signal), signal.signal(signal.SIGTERM, r.on_signal)
     try:
         try:

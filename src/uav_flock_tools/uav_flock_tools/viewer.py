@@ -1,0 +1,109 @@
+"""The live view: a ROS node of its own, like foxglove_bridge, that serves a running formation to Foxglove.
+
+It subscribes to what the world and the MAPs publish anyway (each MAP's sensing and state, `/metrics`,
+failures), so it costs world_sim nothing, and serves the scene of `scene.py` through the Foxglove SDK's
+WebSocket server (protocol `foxglove.sdk.v1`, which Foxglove and Lichtblick connect to). A scene goes out
+when the world's metrics of a step arrive: by then the world has told every MAP where it is at that step
+(its sensing), and the MAPs have stated their modes.
+"""
+from __future__ import annotations
+
+import sys
+from typing import Optional
+
+import numpy as np
+import rclpy
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+
+from uav_flock_msgs.msg import AgentState, FailureEvent, Metrics, Sensing
+from uav_flock_ros.executors import StopSignals, spun_node
+from uav_flock_ros.qos import STATE_QOS, STEP_QOS
+
+from . import scene
+
+DEFAULT_PORT = 8765
+
+
+class ViewerError(Exception):
+    """A viewer that cannot serve (its port is taken)."""
+
+
+class Viewer(Node):
+    def __init__(self) -> None:
+        super().__init__('uav_flock_viewer')
+        for name, default in (('maps', 0), ('r', 24.0), ('port', DEFAULT_PORT), ('host', '127.0.0.1')):
+            self.declare_parameter(name, default)
+        maps = int(self.get_parameter('maps').value)
+        self.r = float(self.get_parameter('r').value)
+        port, host = int(self.get_parameter('port').value), str(self.get_parameter('host').value)
+        import foxglove
+        try:
+            self.server = foxglove.start_server(name='uav-flock', host=host, port=port)
+        except RuntimeError as exc:
+            raise ViewerError(f'cannot serve on {host}:{port}: {exc}') from None
+        self.channels = scene.Channels()
+        self.sensed: dict[int, Sensing] = {}
+        self.modes: dict[int, int] = {}
+        self.lost: set[int] = set()
+        self.gone: list[int] = []
+        self.logs: list = []
+        self.subs = [self.create_subscription(AgentState, f'/map_{i}/state', self.on_state, STATE_QOS)
+                     for i in range(maps)]
+        self.subs += [self.create_subscription(Sensing, f'/map_{i}/sensing', self.on_sensing, STEP_QOS)
+                      for i in range(maps)]
+        self.subs += [self.create_subscription(Metrics, '/metrics', self.on_metrics, STEP_QOS),
+                      self.create_subscription(FailureEvent, '/events/failure', self.on_failure, STEP_QOS)]
+
+    def on_state(self, msg: AgentState) -> None:
+        self.modes[int(msg.id)] = int(msg.mode)
+
+    def on_sensing(self, msg: Sensing) -> None:
+        i = int(msg.id)
+        if i not in self.lost and (i not in self.sensed or msg.step >= self.sensed[i].step):
+            self.sensed[i] = msg
+
+    def on_failure(self, msg: FailureEvent) -> None:
+        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        for i in msg.ids:
+            self.lost.add(int(i))
+            self.sensed.pop(int(i), None)
+            self.gone.append(int(i))
+            self.logs.append(scene.event(t, f'MAP {int(i)} lost ({msg.cause})'))
+
+    def on_metrics(self, msg: Metrics) -> None:
+        """The scene of step k where the world put the MAPs, with the world's figures of that step."""
+        ids = sorted(i for i, s in self.sensed.items() if s.step <= msg.step)
+        q = np.array([[self.sensed[i].position.x, self.sensed[i].position.y, self.sensed[i].position.z] for i in ids])
+        ns = scene.nanoseconds(msg.t)
+        self.channels.scene.log(scene.formation(msg.t, ids, q.reshape(-1, 3), [self.modes.get(i, 0) for i in ids],
+                                                self.r, lost=self.gone), log_time=ns)
+        self.channels.metrics.log(scene.metrics(msg.step, msg.t, msg.coverage_ratio, msg.fiedler, msg.alive,
+                                                msg.components), log_time=ns)
+        for entry in self.logs:
+            self.channels.log.log(entry, log_time=ns)
+        self.gone, self.logs = [], []
+
+    def close(self) -> None:
+        self.server.stop()
+
+
+def main(argv: Optional[list[str]] = None) -> int:
+    rclpy.init(args=sys.argv if argv is None else argv, signal_handler_options=SignalHandlerOptions.NO)
+    stop = StopSignals()
+    node, executor = spun_node('uav_flock_viewer', Viewer, (ViewerError,))
+    if node is None or executor is None:
+        return 2
+    print(f'uav_flock_viewer: serving on ws://{node.get_parameter("host").value}:{node.server.port}', flush=True)
+    try:
+        while not stop.received:
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

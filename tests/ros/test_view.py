@@ -1,0 +1,114 @@
+"""The live view: `up --view` serves a running formation over the Foxglove WebSocket protocol.
+
+The client here is a plain WebSocket client speaking `foxglove.sdk.v1` (the protocol's spec: a JSON
+`advertise` names each channel with its schema; a JSON `subscribe` asks for one; each message then comes
+as a binary frame: opcode 1, subscription id (u32), log time (u64, ns), payload). It decodes the scene with
+the schema the server advertised, through the mcap library's protobuf decoder, nothing of our own.
+"""
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import socket
+import struct
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers.runs import cli, up
+from world_sim.core.records import read_csv
+
+SUBPROTOCOL = 'foxglove.sdk.v1'
+DT = 0.1  # s, the shipped scenarios' step
+MESSAGE_DATA = 1  # opcode of a binary server message carrying a channel's message
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return int(s.getsockname()[1])
+
+
+async def watch(port: int, frames: int) -> tuple[dict[str, dict], list[tuple[int, bytes]]]:
+    """Connect (retrying while the run starts), note the advertised channels, subscribe to /scene and take
+    `frames` of its messages: (log time in ns, payload)."""
+    import websockets
+
+    give_up = time.monotonic() + 90.0
+    while True:
+        try:
+            ws = await websockets.connect(f'ws://127.0.0.1:{port}', subprotocols=[SUBPROTOCOL])
+            break
+        except OSError:
+            if time.monotonic() > give_up:
+                raise AssertionError(f'nothing served on port {port} within 90 s of `up --view`') from None
+            await asyncio.sleep(0.3)
+    async with ws:
+        assert ws.subprotocol == SUBPROTOCOL
+        channels: dict[str, dict] = {}
+        while not {'/scene', '/metrics'} <= set(channels):
+            msg = await asyncio.wait_for(ws.recv(), 30)
+            if isinstance(msg, str) and json.loads(msg)['op'] == 'advertise':
+                channels.update({c['topic']: c for c in json.loads(msg)['channels']})
+        await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [{'id': 7, 'channelId': channels['/scene']['id']}]}))
+        got: list[tuple[int, bytes]] = []
+        while len(got) < frames:
+            msg = await asyncio.wait_for(ws.recv(), 30)
+            if isinstance(msg, bytes):
+                op, sub, ns = struct.unpack_from('<BIQ', msg)
+                assert (op, sub) == (MESSAGE_DATA, 7)
+                got.append((ns, msg[13:]))
+    return channels, got
+
+
+def test_up_view_serves_the_scene_and_metrics_with_the_worlds_positions(tmp_path: Path) -> None:
+    from mcap.records import Schema
+    from mcap_protobuf.decoder import DecoderFactory
+
+    port, run = free_port(), tmp_path / 'run'
+    proc = up('--maps', '6', '--duration', '12', '--sync', 'realtime', '--view', str(port), '--out', str(run))
+    try:
+        channels, got = asyncio.run(watch(port, 20))
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, out
+    assert f'live view on ws://localhost:{port}' in out
+    assert (channels['/scene']['schemaName'], channels['/scene']['encoding']) == ('foxglove.SceneUpdate', 'protobuf')
+    assert (channels['/metrics']['schemaName'], channels['/metrics']['encoding']) == ('uav_flock.Metrics', 'json')
+    assert 'coverage_ratio' in json.loads(channels['/metrics']['schema'])['properties']
+    c = channels['/scene']
+    decode = DecoderFactory().decoder_for('protobuf', Schema(id=1, name=c['schemaName'], encoding=c['schemaEncoding'],
+                                                            data=base64.b64decode(c['schema'])))
+    assert decode is not None
+    traj = read_csv(run / 'trajectory.csv')
+    checked = 0
+    for ns, payload in got:
+        update = decode(payload)
+        spheres = {e.id: e.spheres[0].pose.position for e in update.entities if e.id.startswith('map_')}
+        at_step = np.flatnonzero(traj['step'] == round(ns / 1e9 / DT))
+        assert set(spheres) == {f'map_{int(i)}' for i in traj['id'][at_step]}, f'the MAPs flying at t = {ns / 1e9} s'
+        for n in at_step:
+            at = spheres[f'map_{int(traj["id"][n])}']
+            assert (at.x, at.y, at.z) == (traj['x'][n], traj['y'][n], traj['z'][n]), \
+                f'MAP {int(traj["id"][n])} at t = {ns / 1e9} s'
+        checked += 1
+    assert checked == len(got) == 20
+
+
+def test_view_on_a_port_in_use_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    with socket.socket() as taken:
+        taken.bind(('127.0.0.1', 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        done = cli('up', '--maps', '3', '--duration', '1', '--view', str(port), '--out', str(tmp_path / 'run'))
+    assert done.returncode == 2 and done.stderr.count('\n') == 1 and 'in use' in done.stderr, done.stderr
+    assert not (tmp_path / 'run').exists(), 'nothing is left behind by a refused run'
+
+
+@pytest.mark.parametrize('args', [('--view', '0'), ('--view', 'x')])
+def test_view_takes_a_port_number(tmp_path: Path, args: tuple[str, str]) -> None:
+    done = cli('up', '--maps', '3', '--duration', '1', *args, '--out', str(tmp_path / 'run'))
+    assert done.returncode == 2 and done.stderr.strip().count('\n') <= 1 and '--view' in done.stderr, done.stderr
