@@ -12,6 +12,8 @@ import base64
 import json
 import socket
 import struct
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -22,6 +24,7 @@ from world_sim.core.records import read_csv
 
 SUBPROTOCOL = 'foxglove.sdk.v1'
 DT = 0.1  # s, the shipped scenarios' step
+GOLDEN = Path(__file__).resolve().parents[1] / 'golden' / 'bag'
 MESSAGE_DATA = 1  # opcode of a binary server message carrying a channel's message
 
 
@@ -56,9 +59,9 @@ async def watch(port: int, frames: int) -> tuple[dict[str, dict], list[tuple[int
         got: list[tuple[int, bytes]] = []
         while len(got) < frames:
             msg = await asyncio.wait_for(ws.recv(), 30)
-            if isinstance(msg, bytes):
-                op, sub, ns = struct.unpack_from('<BIQ', msg)
-                assert (op, sub) == (MESSAGE_DATA, 7)
+            if isinstance(msg, bytes) and msg[0] == MESSAGE_DATA:  # (a recording's server also sends its time)
+                _, sub, ns = struct.unpack_from('<BIQ', msg)
+                assert sub == 7
                 got.append((ns, msg[13:]))
     return channels, got
 
@@ -96,6 +99,37 @@ def test_up_view_serves_the_scene_and_metrics_with_the_worlds_positions(tmp_path
                 f'MAP {int(traj["id"][n])} at t = {ns / 1e9} s'
         checked += 1
     assert checked == len(got) == 20
+
+
+def test_view_plays_a_recorded_run_into_the_same_server(tmp_path: Path) -> None:
+    """`view BAG` serves the recording with the live view's channels, its spheres where the bag's MAPs were."""
+    from mcap.records import Schema
+    from mcap_protobuf.decoder import DecoderFactory
+    from uav_flock_tools import bag
+
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'view', str(GOLDEN), '--port', str(port),
+                             '--rate', '2'], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        channels, got = asyncio.run(watch(port, 10))
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0 and 'frames played' in out, out
+    c = channels['/scene']
+    decode = DecoderFactory().decoder_for('protobuf', Schema(id=1, name=c['schemaName'], encoding=c['schemaEncoding'],
+                                                            data=base64.b64decode(c['schema'])))
+    traj = bag.load(GOLDEN).trajectory
+    for ns, payload in got:
+        spheres = {e.id: e.spheres[0].pose.position for e in decode(payload).entities if e.id.startswith('map_')}
+        rows = traj[traj[:, 0] == round(ns / 1e9 / DT)]
+        assert {f'map_{int(i)}': (x, y, z) for i, x, y, z in rows[:, 2:6]} == \
+            {k: (p.x, p.y, p.z) for k, p in spheres.items()}
+
+
+def test_view_of_a_folder_that_is_no_bag_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    done = cli('view', str(tmp_path))
+    assert done.returncode == 2 and done.stderr.count('\n') == 1 and 'not a rosbag2 bag' in done.stderr, done.stderr
 
 
 def test_view_on_a_port_in_use_is_one_line_and_exit_2(tmp_path: Path) -> None:

@@ -413,6 +413,17 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_view(args: argparse.Namespace) -> int:
+    from . import bag, view
+    try:
+        path = bag.find_bag(Path(args.bag))
+        sent = view.play(path, args.port, args.rate, args.loop)
+    except (bag.BagError, ValueError) as exc:
+        raise UsageError(f'view: {exc}') from None
+    print(f'view: {sent} frames played')
+    return 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from . import bag, domains, replay
     try:
@@ -559,6 +570,11 @@ def add_inspect_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
     p.add_argument('bag', help=BAG_HELP)
     p.add_argument('--out', help='output folder (default: RUN/report next to the bag)')
     p.add_argument('--replace', action='store_true', help='write over an earlier report in that folder (refused otherwise)')
+    p = command(sub, 'view', cmd_view, 'play a recorded run into the live view (Foxglove WebSocket) at its pace')
+    p.add_argument('bag', help=BAG_HELP)
+    p.add_argument('--port', type=positive_int, default=VIEW_PORT, help=f'WebSocket port (default {VIEW_PORT})')
+    p.add_argument('--rate', type=positive_float, default=1.0, help='simulated seconds per wall second (default 1)')
+    p.add_argument('--loop', action='store_true', help='start again at the end, until Ctrl-C')
     p = command(sub, 'replay', cmd_replay, "feed one MAP's recorded inputs to a fresh agent node, compare commands")
     p.add_argument('bag', help=BAG_HELP)
     p.add_argument('--agent', type=non_negative_int, required=True, help='the MAP id to replay')

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Iterator, Optional
 
 import numpy as np
 
@@ -67,36 +67,38 @@ def report(path: Path, out: Path) -> tuple[dict[str, Any], list[Path]]:
     return s, files + [out / 'summary.md', write_scene(run, traj, out / 'scene.mcap')]
 
 
-def write_scene(run: bag.Run, traj: dict[str, np.ndarray], path: Path) -> Path:
+def write_scene(run: bag.BagRun, traj: dict[str, np.ndarray], path: Path) -> Path:
     """scene.mcap: the recorded run in Foxglove's schemas (scene.py), one frame per recorded step, so that it
     opens in Foxglove or Lichtblick with the 3-D scene and the plots and nothing else to set up."""
+    from . import scene
+    return scene.write_mcap(path, scene_frames(run, traj))
+
+
+def scene_frames(run: bag.BagRun, traj: dict[str, np.ndarray]) -> Iterator[tuple[float, Any, Optional[dict], list]]:
+    """The recorded run as scene frames (t, SceneUpdate, metrics, log entries), one per recorded step: what
+    scene.mcap holds and `view` plays."""
     from world_sim.core.physics import survey_radii
 
     from . import scene
 
     figures = {int(row[0]): row for row in run.metrics}
     lost = {step: ids for step, ids, _ in run.failures}
-    steps = np.unique(traj['step']).astype(int)
-
-    def frames():
-        flying: set[int] = set()
-        for k in steps.tolist():
-            rows = traj['step'] == k
-            ids = traj['id'][rows].astype(int).tolist()
-            gone, flying = flying - set(ids), set(ids)
-            t = float(traj['t'][rows][0])
-            users = run.users_of(k)
-            centroids = radii = None
-            if users is not None:
-                labels = np.unique(users.cluster[users.cluster >= 0])
-                centroids = np.zeros((len(users.centroids), 2))
-                for c in labels:
-                    centroids[c] = users.xyz[users.cluster == c, :2].mean(axis=0)
-                radii = survey_radii(users.xyz[:, :2], users.cluster, centroids)
-            q = np.column_stack([traj['x'][rows], traj['y'][rows], traj['z'][rows]])
-            m = figures.get(k)
-            logs = [scene.event(t, f'MAP {i} lost') for i in lost.get(k, [])]
-            yield (t, scene.formation(t, ids, q, traj['mode'][rows].astype(int).tolist(), run.r, centroids, radii,
-                                      sorted(gone)),
-                   None if m is None else scene.metrics(int(m[0]), m[1], m[2], m[3], int(m[4]), int(m[5])), logs)
-    return scene.write_mcap(path, frames())
+    flying: set[int] = set()
+    for k in np.unique(traj['step']).astype(int).tolist():
+        rows = traj['step'] == k
+        ids = traj['id'][rows].astype(int).tolist()
+        gone, flying = flying - set(ids), set(ids)
+        t = float(traj['t'][rows][0])
+        users = run.users_of(k)
+        centroids = radii = None
+        if users is not None:
+            centroids = np.zeros((len(users.centroids), 2))
+            for c in np.unique(users.cluster[users.cluster >= 0]):
+                centroids[c] = users.xyz[users.cluster == c, :2].mean(axis=0)
+            radii = survey_radii(users.xyz[:, :2], users.cluster, centroids)
+        q = np.column_stack([traj['x'][rows], traj['y'][rows], traj['z'][rows]])
+        m = figures.get(k)
+        logs = [scene.event(t, f'MAP {i} lost') for i in lost.get(k, [])]
+        yield (t, scene.formation(t, ids, q, traj['mode'][rows].astype(int).tolist(), run.r, centroids, radii,
+                                  sorted(gone)),
+               None if m is None else scene.metrics(int(m[0]), m[1], m[2], m[3], int(m[4]), int(m[5])), logs)
