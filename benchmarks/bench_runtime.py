@@ -221,7 +221,7 @@ def main() -> None:
               'λ2 > 0 where sim\'s  scenes received')
         for c in configs:
             maps, per, record, realtime, duration = c.maps, c.per, c.record, c.realtime, c.duration
-            folder = Path(tmp) / f'up_{maps}_{per}_{record}_{realtime}_{c.rate}_{duration}'
+            folder = Path(tmp) / f'up_{maps}_{per}_{record}_{realtime}_{c.rate}_{duration}_{c.view}'
             r = run(c, folder)
             if not realtime and duration is None:
                 walls[maps, per, record] = r['wall'] - r['first']

@@ -165,7 +165,7 @@ class AgentNode(Node):
         if self.failed:
             return
         s = convert.SensingData.from_msg(msg)
-        if s.id != self.map_id or not np.all(np.isfinite(np.r_[s.q, s.p, s.goal_coverage])):
+        if s.id != self.map_id or not convert.finite(msg.position, msg.velocity, msg.goal_coverage):
             self.reject('sensing', f'id {s.id} or non-finite values')
             return
         if s.step == self.step and self.step >= 0 and not self.realtime:
@@ -190,7 +190,7 @@ class AgentNode(Node):
         if msg.id != sender:
             self.reject(source, f'sender id {msg.id} on the topic of MAP {sender}')
             return
-        if not np.all(np.isfinite(np.r_[msg.q, msg.p])):
+        if not convert.finite(raw.position, raw.velocity):  # (np.r_ here cost a fifth of an agent's time)
             self.reject(source, 'non-finite position or velocity')
             return
         known = self.latest.get(sender)
