@@ -36,7 +36,7 @@ def test_agent_step_reproduces_the_batch_step_bit_for_bit(paper_scenario_path: s
             for n, i in enumerate(rows):
                 nbr = pairs[pairs[:, 0] == n, 1]
                 hood = Neighbourhood(q[nbr], p[nbr], n_u[nbr].astype(float), [memory[j].achieved for j in nbr],
-                                     [Told(memory[j].mode, memory[j].goal, memory[j].bridge, memory[j].transit) for j in nbr],
+                                     [Told.of(memory[j]) for j in nbr],
                                      [memory[j].seen for j in nbr], [memory[j].lost for j in nbr],
                                      [memory[j].short for j in nbr])
                 u, mem = agent_step(memory[i], int(i), q[n], p[n], int(n_u[n]), cover, hood, sim.clusters, s.flock, k)

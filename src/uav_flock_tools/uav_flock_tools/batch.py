@@ -44,7 +44,7 @@ class BatchSimulator:
         rows = sensed.ids
         stated = [self.memory[i] for i in rows]  # what each MAP's state message of step k carries
         achieved_stated = [m.achieved for m in stated]
-        roles_stated = [Told(m.mode, m.goal, m.bridge, m.transit) for m in stated]
+        roles_stated = [Told.of(m) for m in stated]
         nbr, counts, bounds = sensed.pairs[:, 1].tolist(), sensed.n_users.tolist(), sensed.bounds
         refs, apart = [], []
         for n, i in enumerate(rows.tolist()):

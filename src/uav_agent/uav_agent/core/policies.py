@@ -76,6 +76,6 @@ def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told
 
 def apart_links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[bool]:
     """For each neighbour heard, whether its link to this MAP (as decided this step) joins unrelated roles."""
-    own = Told(mem.mode, mem.goal, mem.bridge, mem.transit)
+    own = Told.of(mem)
     allocation = ALLOCATIONS[fp.allocation]
     return [not allocation.related(own, t) for t in heard]

@@ -46,6 +46,11 @@ class Told(NamedTuple):
     bridge: Optional[Edge]
     transit: bool = False
 
+    @classmethod
+    def of(cls, mem: Memory) -> 'Told':
+        """What a MAP's own state message says of its role, as its neighbours read it."""
+        return cls(mem.mode, mem.goal, mem.bridge, mem.transit)
+
 
 class Near(NamedTuple):
     """The radio neighbours as a MAP's discrete update sees them: positions (n, 3) in m, and the roles they

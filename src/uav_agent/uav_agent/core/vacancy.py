@@ -65,7 +65,7 @@ def gossip(mem: Memory, step: int, heard_seen: Iterable[Seen], heard_lost: Itera
     """Merge what the neighbours told of roles, lost keys and short roles, and state this MAP's own role as
     heard now."""
     seen = _latest(mem.seen, heard_seen)
-    own = stated_role(Told(mem.mode, mem.goal, mem.bridge))
+    own = stated_role(Told.of(mem))
     if own is not None:
         seen[own] = step
     lost = keys.united(mem.lost, *heard_lost)
