@@ -92,8 +92,10 @@ def scene_frames(run: bag.BagRun, traj: dict[str, np.ndarray]) -> Iterator[tuple
         users = run.users_of(k)
         centroids = radii = None
         if users is not None:
-            centroids = np.zeros((len(users.centroids), 2))
-            for c in np.unique(users.cluster[users.cluster >= 0]):
+            labels = np.unique(users.cluster[users.cluster >= 0])
+            # A cluster that arrived during the run has a label beyond the clusters drawn at the start.
+            centroids = np.zeros((max(len(users.centroids), int(labels.max(initial=-1)) + 1), 2))
+            for c in labels:
                 centroids[c] = users.xyz[users.cluster == c, :2].mean(axis=0)
             radii = survey_radii(users.xyz[:, :2], users.cluster, centroids)
         q = np.column_stack([traj['x'][rows], traj['y'][rows], traj['z'][rows]])
