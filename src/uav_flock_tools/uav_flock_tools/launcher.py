@@ -85,8 +85,6 @@ def plan(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process:
     """
     if record and (run / 'bag').exists():
         raise FileExistsError(f'{run / "bag"} exists already: give a new --out folder')
-    if view is not None:
-        port_free(view)
     here = scenario.maps if agents_here is None else min(agents_here, scenario.maps)
     groups = [list(range(first, min(first + agents_per_process, here))) for first in range(0, here, agents_per_process)]
     processes = len(groups) + 1 + int(record) + int(view is not None)

@@ -5,7 +5,7 @@ did live. Channels, all in frame `world` with positions in m:
 - `/scene` (foxglove.SceneUpdate): one entity per MAP (`map_<id>`, a sphere coloured by mode), the radio
   links within r (`links`), and a disc per cluster over the area holding 95 % of its users (`clusters`);
 - `/metrics` (JSON): R_c, λ2, MAPs alive and connected components, for Foxglove's plot panel;
-- `/log` (foxglove.Log): MAPs lost and clusters that appear, as they happen.
+- `/log` (foxglove.Log): MAPs lost, as they are.
 Nothing here imports ROS: the viewer node and `report` hand it numbers.
 """
 from __future__ import annotations
@@ -16,6 +16,7 @@ from typing import Iterable, Optional, Sequence
 import numpy as np
 
 import foxglove
+from world_sim.core.physics import neighbour_pairs
 from foxglove.channels import LogChannel, SceneUpdateChannel
 from foxglove.messages import (Color, CylinderPrimitive, LinePrimitive, LinePrimitiveLineType, Log, LogLevel, Point3,
                                Pose, Quaternion, SceneEntity, SceneEntityDeletion, SceneEntityDeletionType, SceneUpdate,
@@ -60,15 +61,6 @@ def _pose(x: float, y: float, z: float) -> Pose:
     return Pose(position=Vector3(x=float(x), y=float(y), z=float(z)), orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
 
 
-def links(q: np.ndarray, r: float) -> np.ndarray:
-    """(L, 2) index pairs i < j of the MAPs within radio range r of each other."""
-    if len(q) < 2:
-        return np.zeros((0, 2), dtype=np.intp)
-    d = np.linalg.norm(q[:, None, :] - q[None, :, :], axis=-1)
-    i, j = np.nonzero(np.triu(d <= r, k=1))
-    return np.column_stack([i, j])
-
-
 def formation(t: float, ids: Sequence[int], q: np.ndarray, modes: Sequence[int], r: float,
               centroids: Optional[np.ndarray] = None, radii: Optional[np.ndarray] = None,
               lost: Iterable[int] = ()) -> SceneUpdate:
@@ -81,7 +73,8 @@ def formation(t: float, ids: Sequence[int], q: np.ndarray, modes: Sequence[int],
                             spheres=[SpherePrimitive(pose=_pose(*q[n]), size=Vector3(x=MAP_SIZE, y=MAP_SIZE, z=MAP_SIZE),
                                                      color=_colour(MODE_RGBA[int(modes[n]) % 3]))])
                 for n, i in enumerate(ids)]
-    pairs = links(q, r)
+    pairs = neighbour_pairs(q, r)
+    pairs = pairs[pairs[:, 0] < pairs[:, 1]]  # each link once
     entities.append(SceneEntity(timestamp=when, frame_id=FRAME, id='links', lines=[LinePrimitive(
         type=LinePrimitiveLineType.LineList, thickness=0.3, color=_colour(LINK_RGBA),
         points=[Point3(x=float(a), y=float(b), z=float(c)) for a, b, c in q[pairs.reshape(-1)]])]))
@@ -113,17 +106,21 @@ class Channels:
         self.metrics = foxglove.Channel(METRICS, schema=METRICS_SCHEMA, message_encoding='json', context=context)
         self.log = LogChannel(LOG, context=context)
 
+    def frame(self, t: float, update: SceneUpdate, figures: Optional[dict], logs: Sequence[Log]) -> None:
+        """One frame at simulated time t: the scene, the metrics (None: none this step) and log entries."""
+        ns = nanoseconds(t)
+        self.scene.log(update, log_time=ns)
+        if figures is not None:
+            self.metrics.log(figures, log_time=ns)
+        for entry in logs:
+            self.log.log(entry, log_time=ns)
+
 
 def write_mcap(path: Path, frames: Iterable[tuple[float, SceneUpdate, Optional[dict], Sequence[Log]]]) -> Path:
     """scene.mcap: each frame (t, scene, metrics or None, log entries) logged at simulated time t."""
     context = foxglove.Context()
     with foxglove.open_mcap(str(path), allow_overwrite=True, context=context):
-        ch = Channels(context)
-        for t, scene, figures, logs in frames:
-            ns = nanoseconds(t)
-            ch.scene.log(scene, log_time=ns)
-            if figures is not None:
-                ch.metrics.log(figures, log_time=ns)
-            for entry in logs:
-                ch.log.log(entry, log_time=ns)
+        channels = Channels(context)
+        for frame in frames:
+            channels.frame(*frame)
     return path

@@ -35,13 +35,8 @@ def play(path: Path, port: int, rate: float = 1.0, loop: bool = False,
             for t, update, figures, logs in report.scene_frames(run, traj):
                 began = time.monotonic() - t / rate if began is None else began
                 time.sleep(max(began + t / rate - time.monotonic(), 0.0))
-                ns = scene.nanoseconds(t)
-                server.broadcast_time(ns)
-                channels.scene.log(update, log_time=ns)
-                if figures is not None:
-                    channels.metrics.log(figures, log_time=ns)
-                for entry in logs:
-                    channels.log.log(entry, log_time=ns)
+                server.broadcast_time(scene.nanoseconds(t))
+                channels.frame(t, update, figures, logs)
                 sent += 1
             if not loop:
                 return sent

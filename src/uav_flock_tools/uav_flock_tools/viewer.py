@@ -17,6 +17,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from uav_flock_msgs.msg import AgentState, FailureEvent, Metrics, Sensing
+from uav_flock_ros import convert
 from uav_flock_ros.executors import StopSignals, spun_node
 from uav_flock_ros.qos import STATE_QOS, STEP_QOS
 
@@ -74,14 +75,11 @@ class Viewer(Node):
     def on_metrics(self, msg: Metrics) -> None:
         """The scene of step k where the world put the MAPs, with the world's figures of that step."""
         ids = sorted(i for i, s in self.sensed.items() if s.step <= msg.step)
-        q = np.array([[self.sensed[i].position.x, self.sensed[i].position.y, self.sensed[i].position.z] for i in ids])
-        ns = scene.nanoseconds(msg.t)
-        self.channels.scene.log(scene.formation(msg.t, ids, q.reshape(-1, 3), [self.modes.get(i, 0) for i in ids],
-                                                self.r, lost=self.gone), log_time=ns)
-        self.channels.metrics.log(scene.metrics(msg.step, msg.t, msg.coverage_ratio, msg.fiedler, msg.alive,
-                                                msg.components), log_time=ns)
-        for entry in self.logs:
-            self.channels.log.log(entry, log_time=ns)
+        q = np.array([convert.xyz(self.sensed[i].position) for i in ids])
+        self.channels.frame(msg.t, scene.formation(msg.t, ids, q.reshape(-1, 3), [self.modes.get(i, 0) for i in ids],
+                                                   self.r, lost=self.gone),
+                            scene.metrics(msg.step, msg.t, msg.coverage_ratio, msg.fiedler, msg.alive, msg.components),
+                            self.logs)
         self.gone, self.logs = [], []
 
     def close(self) -> None:
