@@ -36,6 +36,18 @@ def test_fresh_claims_never_share_a_domain_until_none_is_left() -> None:
             c.release()
 
 
+def test_a_fresh_claim_takes_the_least_recently_used_domain() -> None:
+    """A SIGKILLed run's participants stay in discovery for their lease: the domain it just left is the last
+    to be handed out again, not one in a hundred."""
+    used = []
+    for _ in range(len(FRESH_DOMAINS)):
+        with claim_domain() as domain:
+            used.append(domain)
+    assert sorted(used) == list(FRESH_DOMAINS), 'every domain is used once before any is used twice'
+    with claim_domain() as domain:
+        assert domain == used[0]
+
+
 def test_a_domain_held_by_another_process_is_refused_and_freed_when_it_dies(tmp_path: Path) -> None:
     holder = subprocess.Popen([sys.executable, '-c', HOLDER], stdout=subprocess.PIPE, text=True)
     try:

@@ -70,7 +70,7 @@ class DomainClaim:
 
     Two runs in one domain would hear each other's MAPs: their topics have the same names. The claim is
     an flock on one file per domain, which the kernel drops with the process, so a SIGKILLed run frees
-    its domain at once and nothing stale is left to clean.
+    its domain at once and nothing stale is left to clean. The file's mtime is the domain's last use.
     """
 
     def __init__(self, domain: int, fd: int) -> None:
@@ -78,6 +78,7 @@ class DomainClaim:
 
     def release(self) -> None:
         if self._fd >= 0:
+            _mark_used(self._fd)
             os.close(self._fd)
             self._fd = -1
 
@@ -88,13 +89,37 @@ class DomainClaim:
         self.release()
 
 
+def _mark_used(fd: int) -> None:
+    try:
+        os.utime(fd)
+    except PermissionError:
+        pass  # another user's claim file: the claim holds, its date stays theirs
+
+
+def last_used(domain: int) -> float:
+    """When a run last claimed or released the domain (0 if never on this host)."""
+    try:
+        return (DOMAIN_CLAIMS / str(domain)).stat().st_mtime
+    except FileNotFoundError:
+        return 0.0
+
+
 def claim_domain(requested: Optional[int] = None) -> DomainClaim:
-    """The requested domain, or a random free one of FRESH_DOMAINS; DomainInUse if another run holds it."""
+    """The requested domain, or the free one of FRESH_DOMAINS least recently used; DomainInUse if another run
+    holds it.
+
+    Least recently used, not merely free: the participants of a run that was SIGKILLed stay in the
+    domain's discovery until their lease runs out (20 s in Fast DDS), and a new run there would see
+    their endpoints, e.g. subscriptions of MAPs that no longer exist.
+    """
     if not DOMAIN_CLAIMS.is_dir():
         DOMAIN_CLAIMS.mkdir(exist_ok=True)
         os.chmod(DOMAIN_CLAIMS, 0o1777)  # shared by every user of the host, as DDS domains are
-    candidates = [requested] if requested is not None else random.SystemRandom().sample(FRESH_DOMAINS,
-                                                                                        len(FRESH_DOMAINS))
+    if requested is not None:
+        candidates = [requested]
+    else:
+        shuffled = random.SystemRandom().sample(FRESH_DOMAINS, len(FRESH_DOMAINS))  # ties: never used
+        candidates = sorted(shuffled, key=last_used)
     for domain in candidates:
         fd = os.open(DOMAIN_CLAIMS / str(domain), os.O_RDONLY | os.O_CREAT, 0o644)
         try:
@@ -102,6 +127,7 @@ def claim_domain(requested: Optional[int] = None) -> DomainClaim:
         except BlockingIOError:
             os.close(fd)
             continue
+        _mark_used(fd)
         return DomainClaim(domain, fd)
     if requested is not None:
         raise DomainInUse(f'ROS_DOMAIN_ID {requested} is in use by another run on this host')
