@@ -55,6 +55,7 @@ def reap_orphans() -> None:
 
 
 FRESH = re.compile(r'fresh commands (\d+) %')
+PROGRESS = re.compile(r't = +([0-9.]+) s ')
 
 
 class Config(NamedTuple):
@@ -156,6 +157,7 @@ def run(c: Config, folder: Path) -> dict[str, float]:
     if c.view:
         viewer.start()
     first_step = None
+    last_step = (0.0, 0.0)  # (simulated s, wall s) of the last progress line: the run's pace, not its shutdown
     fresh: list[int] = []
     peaks: dict[int, float] = {}
     pss: dict[int, float] = {}
@@ -178,6 +180,8 @@ def run(c: Config, folder: Path) -> dict[str, float]:
         print(f'  [{c.maps}:{c.per}] {line.rstrip()}', file=sys.stderr, flush=True)  # progress of a long run
         if first_step is None and line.startswith('t =   0.0 s'):
             first_step = time.monotonic() - t0
+        if (m := PROGRESS.match(line)) and first_step is not None:
+            last_step = (float(m[1]), time.monotonic() - t0)
         if (m := FRESH.search(line)) and not line.startswith('t =   0.0 s'):
             fresh.append(int(m[1]))
     proc.wait()
@@ -187,7 +191,7 @@ def run(c: Config, folder: Path) -> dict[str, float]:
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = records.read_csv(folder / 'metrics.csv')['t']
     sim_s = float(t[-1])
-    return {'wall': wall, 'first': first_step or float('nan'), 'rtf': sim_s / (wall - (first_step or 0)),
+    return {'wall': wall, 'first': first_step or float('nan'), 'rtf': last_step[0] / (last_step[1] - first_step) if first_step is not None and last_step[0] > 0 else float('nan'),
             'rss': max(peaks.values()) if peaks else float('nan'),
             'pss': max(pss.values()) if pss else float('nan'), 'processes': len(peaks),
             'cpu': (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime), 'ok': proc.returncode == 0,

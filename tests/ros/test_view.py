@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers.runs import cli, up
+from helpers.runs import cli, up, wait_for_line
 from world_sim.core.records import read_csv
 
 SUBPROTOCOL = 'foxglove.sdk.v1'
@@ -140,6 +140,26 @@ def test_view_on_a_port_in_use_is_one_line_and_exit_2(tmp_path: Path) -> None:
         done = cli('up', '--maps', '3', '--duration', '1', '--view', str(port), '--out', str(tmp_path / 'run'))
     assert done.returncode == 2 and done.stderr.count('\n') == 1 and 'in use' in done.stderr, done.stderr
     assert not (tmp_path / 'run').exists(), 'nothing is left behind by a refused run'
+
+
+def test_a_port_taken_once_the_run_started_is_said_on_the_terminal_and_the_run_goes_on(tmp_path: Path) -> None:
+    """`up` finds the port free, then another program binds it before the viewer does: one line says the view
+    is not served and why, and the run ends as it would have."""
+    port, run = free_port(), tmp_path / 'run'
+    proc = up('--maps', '3', '--duration', '3', '--sync', 'realtime', '--view', str(port), '--out', str(run))
+    try:
+        seen = wait_for_line(proc, 'MAPs in', 120)  # the port was checked; the viewer is still starting
+        with socket.socket() as taken:
+            taken.bind(('127.0.0.1', port))
+            taken.listen()
+            out, _ = proc.communicate(timeout=180)
+    finally:
+        proc.kill()
+    out = ''.join(seen) + out
+    assert proc.returncode == 0, out
+    said = [line for line in out.splitlines() if 'live view' in line]
+    assert len(said) == 1 and 'the live view is not served' in said[0] and str(port) in said[0], out
+    assert 'Traceback' not in out and (run / 'metrics.csv').exists(), out
 
 
 @pytest.mark.parametrize('args', [('--view', '0'), ('--view', 'x')])

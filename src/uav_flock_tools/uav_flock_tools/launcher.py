@@ -46,6 +46,33 @@ def scenario_summary(path: Path, s: Scenario) -> dict[str, object]:
             'fail_at': s.fail_at, 'fail_fraction': s.fail_fraction, 'association': s.association}
 
 
+VIEW_START_S = 60.0  # the viewer imports rclpy and the SDK and starts its server well within this
+
+
+def announce_view(viewer: subprocess.Popen, port: int, log: Path) -> None:
+    """Say on the terminal, once, whether the live view serves: its URL and how to connect, or why not.
+
+    The port was found free before the run, but another program may take it before the viewer binds it;
+    the run then goes on without a view, and the user hears so here rather than only in viewer.log.
+    """
+    deadline = time.monotonic() + VIEW_START_S
+    while time.monotonic() < deadline:
+        said = log.read_text(errors='replace') if log.exists() else ''
+        if 'serving on' in said:
+            print(f'uav-flock up: live view on ws://localhost:{port}: in Foxglove (or Lichtblick), Open connection, '
+                  f'Foxglove WebSocket, that URL; docs/foxglove_layout.json lays out the 3-D scene and the plots',
+                  flush=True)
+            return
+        if viewer.poll() is not None:
+            why = next((line for line in reversed(said.splitlines()) if line.strip()), f'exit code {viewer.returncode}')
+            print(f'uav-flock up: the live view is not served ({why.strip()}); the run goes on without it '
+                  f'(logs/viewer.log)', flush=True)
+            return
+        time.sleep(0.2)
+    print(f'uav-flock up: the live view did not start serving within {VIEW_START_S:.0f} s; the run goes on '
+          f'(logs/viewer.log)', flush=True)
+
+
 @dataclass
 class Plan:
     """Everything a run needs decided before anything starts: its domain, discovery, processes and files."""
@@ -207,9 +234,8 @@ class Run:
                 env={**p.env, 'ROS_SUPER_CLIENT': 'TRUE'} if p.server_address else p.env,
                 stdout=open(p.logs / 'viewer.log', 'w'), stderr=subprocess.STDOUT, start_new_session=True,
                 preexec_fn=dies_with_parent(signal.SIGINT))
-            print(f'uav-flock up: live view on ws://localhost:{p.view}: in Foxglove (or Lichtblick), Open connection, '
-                  f'Foxglove WebSocket, that URL; docs/foxglove_layout.json lays out the 3-D scene and the plots',
-                  flush=True)
+            threading.Thread(target=announce_view, args=(self.viewer, p.view, p.logs / 'viewer.log'),
+                             daemon=True).start()
             self.raise_if_interrupted()
         world_args = [executable('world_sim', 'world_sim_node'), '--ros-args',
                       '-p', f'scenario:={p.scenario_path}', '-p', f'maps:={s.maps}',
