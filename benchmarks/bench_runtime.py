@@ -191,7 +191,9 @@ def run(c: Config, folder: Path) -> dict[str, float]:
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = records.read_csv(folder / 'metrics.csv')['t']
     sim_s = float(t[-1])
-    return {'wall': wall, 'first': first_step or float('nan'), 'rtf': last_step[0] / (last_step[1] - first_step) if first_step is not None and last_step[0] > 0 else float('nan'),
+    paced = first_step is not None and last_step[0] > 0
+    return {'wall': wall, 'first': first_step or float('nan'),
+            'rtf': last_step[0] / (last_step[1] - first_step) if paced else float('nan'),
             'rss': max(peaks.values()) if peaks else float('nan'),
             'pss': max(pss.values()) if pss else float('nan'), 'processes': len(peaks),
             'cpu': (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime), 'ok': proc.returncode == 0,

@@ -12,6 +12,7 @@ import random
 import signal
 import subprocess
 import tempfile
+import time
 from pathlib import Path
 from typing import Optional
 
@@ -90,18 +91,21 @@ class DomainClaim:
 
 
 def _mark_used(fd: int) -> None:
+    """Date the claim file now, to the nanosecond given: a file's own "now" follows the kernel's coarse
+    clock (milliseconds), and claims made within one tick would tie."""
+    now = time.time_ns()
     try:
-        os.utime(fd)
+        os.utime(fd, ns=(now, now))
     except PermissionError:
         pass  # another user's claim file: the claim holds, its date stays theirs
 
 
-def last_used(domain: int) -> float:
-    """When a run last claimed or released the domain (0 if never on this host)."""
+def last_used(domain: int) -> int:
+    """When a run last claimed or released the domain, in ns (0 if never on this host)."""
     try:
-        return (DOMAIN_CLAIMS / str(domain)).stat().st_mtime
+        return (DOMAIN_CLAIMS / str(domain)).stat().st_mtime_ns
     except FileNotFoundError:
-        return 0.0
+        return 0
 
 
 def claim_domain(requested: Optional[int] = None) -> DomainClaim:

@@ -15,7 +15,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional
 
 from uav_flock_ros.processes import write_params
 from world_sim.core.model import RunResult
@@ -49,14 +49,15 @@ def scenario_summary(path: Path, s: Scenario) -> dict[str, object]:
 VIEW_START_S = 60.0  # the viewer imports rclpy and the SDK and starts its server well within this
 
 
-def announce_view(viewer: subprocess.Popen, port: int, log: Path) -> None:
+def announce_view(viewer: subprocess.Popen, port: int, log: Path, stopping: Callable[[], bool]) -> None:
     """Say on the terminal, once, whether the live view serves: its URL and how to connect, or why not.
 
     The port was found free before the run, but another program may take it before the viewer binds it;
-    the run then goes on without a view, and the user hears so here rather than only in viewer.log.
+    the run then goes on without a view, and the user hears so here rather than only in viewer.log. A run
+    that ends before the viewer serves (a short lockstep run) says nothing of it.
     """
     deadline = time.monotonic() + VIEW_START_S
-    while time.monotonic() < deadline:
+    while time.monotonic() < deadline and not stopping():
         said = log.read_text(errors='replace') if log.exists() else ''
         if 'serving on' in said:
             print(f'uav-flock up: live view on ws://localhost:{port}: in Foxglove (or Lichtblick), Open connection, '
@@ -69,8 +70,9 @@ def announce_view(viewer: subprocess.Popen, port: int, log: Path) -> None:
                   f'(logs/viewer.log)', flush=True)
             return
         time.sleep(0.2)
-    print(f'uav-flock up: the live view did not start serving within {VIEW_START_S:.0f} s; the run goes on '
-          f'(logs/viewer.log)', flush=True)
+    if not stopping():
+        print(f'uav-flock up: the live view did not start serving within {VIEW_START_S:.0f} s; the run goes on '
+              f'(logs/viewer.log)', flush=True)
 
 
 @dataclass
@@ -234,8 +236,8 @@ class Run:
                 env={**p.env, 'ROS_SUPER_CLIENT': 'TRUE'} if p.server_address else p.env,
                 stdout=open(p.logs / 'viewer.log', 'w'), stderr=subprocess.STDOUT, start_new_session=True,
                 preexec_fn=dies_with_parent(signal.SIGINT))
-            threading.Thread(target=announce_view, args=(self.viewer, p.view, p.logs / 'viewer.log'),
-                             daemon=True).start()
+            threading.Thread(target=announce_view, daemon=True,
+                             args=(self.viewer, p.view, p.logs / 'viewer.log', lambda: self.stopping)).start()
             self.raise_if_interrupted()
         world_args = [executable('world_sim', 'world_sim_node'), '--ros-args',
                       '-p', f'scenario:={p.scenario_path}', '-p', f'maps:={s.maps}',
