@@ -145,7 +145,8 @@ def full_topic_name(topic: str) -> str:
 
 
 RUN_EXTRA_TOPICS = ('/rosout', '/parameter_events', '/recorder/progress', '/run_info')
-FAILURES_WAIT_S = 2.0  # how long the failure events kept by world_sim may take to come in
+FAILURES_WAIT_S = 2.0  # how long the failure events kept by world_sim may take to come in, once it is found
+WORLD_FOUND_S = 15.0  # how long discovery may take to find world_sim's writer of them on a loaded machine
 
 
 def run_map(run: str, topic: str) -> tuple[Optional[int], bool]:
@@ -170,8 +171,17 @@ def dropped_at(node: Any, map_id: int) -> Optional[tuple[int, float, str]]:
             seen.append((e.step, msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, e.cause))
 
     sub = node.create_subscription(FailureEvent, '/events/failure', on_event, STEP_QOS)
-    end = time.monotonic() + FAILURES_WAIT_S
-    while not seen and time.monotonic() < end:
+    # The events' wait counts from when discovery found world_sim's writer: on two busy cores, finding it
+    # took longer than the wait itself, and echo then said nothing of when the MAP was dropped.
+    found_by, end = time.monotonic() + WORLD_FOUND_S, time.monotonic() + FAILURES_WAIT_S
+    while not seen:
+        now = time.monotonic()
+        if sub.get_publisher_count() == 0:
+            if now > found_by:
+                break  # world_sim is gone too: nobody keeps the events
+            end = now + FAILURES_WAIT_S
+        elif now > end:
+            break
         rclpy.spin_once(node, timeout_sec=0.1)
     node.destroy_subscription(sub)
     return seen[0] if seen else None
