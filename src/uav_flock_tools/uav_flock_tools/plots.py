@@ -9,6 +9,7 @@ import matplotlib
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from world_sim.core.physics import label_centroids  # noqa: E402
 
 # The MSDs (xy, cluster id) at a time, for runs whose users move.
 # An event to mark on a time axis: a time (a failure) or (time, what happened).
@@ -117,8 +118,7 @@ def formation_snapshots(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
     if users_at is not None:
         for t in shown:
             xy, cl = users_at(float(t))
-            ids = np.unique(cl[cl >= 0])
-            panels[t] = (xy, cl, np.array([xy[cl == k].mean(axis=0) for k in ids]).reshape(-1, 2))
+            panels[t] = (xy, cl, np.array(list(label_centroids(xy, cl).values())).reshape(-1, 2))
     # One frame for every panel, fitted to what they show, so the panels fill the figure.
     pts = np.vstack([*(v[0] for v in panels.values()), np.column_stack([traj['x'][np.isin(traj['t'], shown)],
                                                 traj['y'][np.isin(traj['t'], shown)]])])
@@ -164,7 +164,7 @@ def formation_animation(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
     centroids = []
     for t in shown:
         xy, cl = users[t]
-        centroids.append({int(k): xy[cl == k].mean(axis=0) for k in np.unique(cl[cl >= 0])})
+        centroids.append(label_centroids(xy, cl))
     frames = [np.flatnonzero(traj['t'] == t) for t in shown]
     pts = np.vstack([*(u[0] for u in users.values()), np.column_stack([traj['x'], traj['y']])[np.concatenate(frames)]])
     lo, hi = pts.min(axis=0) - 15.0, pts.max(axis=0) + 15.0

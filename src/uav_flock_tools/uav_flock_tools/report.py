@@ -77,26 +77,26 @@ def write_scene(run: bag.BagRun, traj: dict[str, np.ndarray], path: Path) -> Pat
 def scene_frames(run: bag.BagRun, traj: dict[str, np.ndarray]) -> Iterator[tuple[float, Any, Optional[dict], list]]:
     """The recorded run as scene frames (t, SceneUpdate, metrics, log entries), one per recorded step: what
     scene.mcap holds and `view` plays."""
-    from world_sim.core.physics import survey_radii
+    from world_sim.core.physics import label_centroids, survey_radii
 
     from . import scene
 
     figures = {int(row[0]): row for row in run.metrics}
     lost = {step: ids for step, ids, _ in run.failures}
     flying: set[int] = set()
+    snapshot, centroids, radii = None, None, None  # the users' snapshot the discs were drawn from, and the discs
     for k in np.unique(traj['step']).astype(int).tolist():
         rows = traj['step'] == k
         ids = traj['id'][rows].astype(int).tolist()
         gone, flying = flying - set(ids), set(ids)
         t = float(traj['t'][rows][0])
         users = run.users_of(k)
-        centroids = radii = None
-        if users is not None:
-            labels = np.unique(users.cluster[users.cluster >= 0])
+        if users is not None and users.xyz is not snapshot:  # users are published a survey apart, not each step
+            snapshot, found = users.xyz, label_centroids(users.xyz[:, :2], users.cluster)
             # A cluster that arrived during the run has a label beyond the clusters drawn at the start.
-            centroids = np.zeros((max(len(users.centroids), int(labels.max(initial=-1)) + 1), 2))
-            for c in labels:
-                centroids[c] = users.xyz[users.cluster == c, :2].mean(axis=0)
+            centroids = np.zeros((max(len(users.centroids), max(found, default=-1) + 1), 2))
+            for c, at in found.items():
+                centroids[c] = at
             radii = survey_radii(users.xyz[:, :2], users.cluster, centroids)
         q = np.column_stack([traj['x'][rows], traj['y'][rows], traj['z'][rows]])
         m = figures.get(k)

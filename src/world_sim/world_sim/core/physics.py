@@ -50,6 +50,11 @@ def make_users(s: Scenario, rng: np.random.Generator) -> Users:
                  survey_radii(xy_all, labels, centroids))
 
 
+def label_centroids(xy: F64, cluster: NDArray[np.intp]) -> dict[int, F64]:
+    """C_k of each cluster that has MSDs (label >= 0): the mean of their positions, by ascending label."""
+    return {int(k): xy[cluster == k].mean(axis=0) for k in np.unique(cluster[cluster >= 0])}
+
+
 def survey_radii(xy: F64, cluster: NDArray[np.intp], centroids: F64) -> F64:
     """R_k: the 95th percentile of cluster k's MSDs' distances from C_k (what the aerial survey reports)."""
     return np.array([np.percentile(np.linalg.norm(xy[cluster == k] - centroids[k], axis=1), 95.0)
