@@ -18,6 +18,7 @@ from . import keys
 
 NO_GOAL = -1
 Edge = tuple[int, int]
+LINEAGE_MARGIN = 10.0  # m beyond two clusters' radii within which one continues the other (clusters.lineage)
 GOLDEN = 0.6180339887498949  # frac(id * GOLDEN) spreads any set of ids evenly over [0, 1)
 
 
@@ -180,18 +181,60 @@ class ClusterMap:
         if not np.any(self.radii > 0):  # nothing known of the clusters' extent: an equal share each, no relays
             weights = np.r_[[float(self.live >> k & 1) for k in range(self.count)], np.zeros(len(edges))]
         ids: list[keys.RoleId] = [*range(self.count), *edges]
-        before = self._previous.roles(d).pieces if self._previous is not None else ()
-        self._previous = None
+        previous, self._previous = self._previous, None
+        before = previous.roles(d).pieces if previous is not None else ()
         if not weights.sum() > 0:  # no cluster exists (none has arrived yet, or all have left): keep the keys
             return Roles(edges, tuple(demand), (0.0,) * len(weights), before)
         bounds = np.cumsum(weights) / weights.sum()
         starts = np.r_[0.0, bounds[:-1]]
         share = tuple(float(b - a) for a, b in zip(starts, bounds))
         if before:
-            pieces = keys.carry(before, dict(zip(ids, share)))
+            heirs, parents = lineage(previous, self, edges) if previous is not None else ({}, {})
+            pieces = keys.carry(before, dict(zip(ids, share)), heirs, parents)
         else:
             pieces = keys.fresh(zip(ids, starts.tolist(), bounds.tolist()))
         return Roles(edges, tuple(demand), share, pieces)
+
+
+def lineage(before: ClusterMap, now: ClusterMap, edges: tuple[Edge, ...]
+            ) -> tuple[dict[keys.RoleId, keys.RoleId], dict[keys.RoleId, keys.RoleId]]:
+    """Which roles of survey `now` continue which of survey `before` (heirs: ended -> continuing role;
+    parents: new -> the role it splits from), read from where the clusters are: keys.carry step 0.
+
+    The survey tracks each cluster by its centroid, so when two clusters merge one id goes on and the other
+    ends, and when one splits the part that moves off takes a new id. Without lineage the ended cluster's
+    servers, already over the merged users, were sent to whatever role their keys fell in, while the grown
+    cluster drew new servers from its neighbours on the key line, wherever they were; a split did the same
+    the other way round (docs/dynamics.md, "Merges and splits").
+    - An ended cluster's heir is the live cluster nearest its last centroid within the two radii plus
+      LINEAGE_MARGIN; an ended edge's heir is the tree edge between its ends' heirs (or ends), if any.
+    - A new cluster's parent is the cluster live in both surveys nearest it, within the same reach.
+    """
+    heirs: dict[keys.RoleId, keys.RoleId] = {}
+    parents: dict[keys.RoleId, keys.RoleId] = {}
+    was = [k for k in range(before.count) if before.live >> k & 1]
+    stays = [k for k in was if k < now.count and now.live >> k & 1]
+    for k in was:
+        if k in stays:
+            continue
+        reach = [(float(np.linalg.norm(now.xy[j] - before.xy[k])), j) for j in range(now.count) if now.live >> j & 1]
+        near = [(dist, j) for dist, j in reach if dist <= before.radii[k] + now.radii[j] + LINEAGE_MARGIN]
+        if near:
+            heirs[k] = min(near)[1]
+    for k in range(now.count):
+        if now.live >> k & 1 and not (k < before.count and before.live >> k & 1):
+            near = [(float(np.linalg.norm(before.xy[j] - now.xy[k])), j) for j in stays]
+            near = [(dist, j) for dist, j in near if dist <= before.radii[j] + now.radii[k] + LINEAGE_MARGIN]
+            if near:
+                parents[k] = min(near)[1]
+    if heirs:
+        tree = set(edges)
+        for a, b in before.mst(before.live):
+            ha, hb = heirs.get(a, a), heirs.get(b, b)
+            edge = (min(ha, hb), max(ha, hb))
+            if (a, b) not in tree and (a in heirs or b in heirs) and ha != hb and edge in tree:
+                heirs[(a, b)] = edge
+    return heirs, parents
 
 
 class Roles(NamedTuple):
