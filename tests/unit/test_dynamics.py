@@ -166,6 +166,24 @@ def test_a_map_in_transit_to_a_new_role_flies_along_the_tree() -> None:
     assert np.allclose(near_2.target[:2], xy[2]), 'once its goal is the nearest cluster it flies to it'
 
 
+def test_a_map_in_transit_leaves_its_cluster_by_the_start_of_the_relay_chain() -> None:
+    """From the far side of its disc, a MAP in transit first joins the chain's line where the chain starts,
+    then flies along it to the next cluster; past that point it never turns back."""
+    fp = FlockParams()
+    xy = np.array([[0.0, 0.0], [100.0, 0.0], [200.0, 0.0], [100.0, 120.0]])  # tree: 0-1, 1-2, 1-3
+    clusters = ClusterMap(xy, fp.height, np.full(4, 25.0))
+    moving = Memory(mode=M0, goal=2, settled=True, transit=True)
+
+    def aim(x: float, y: float) -> np.ndarray:
+        return reference(moving, 7, np.array([x, y, 20.0]), np.zeros((0, 3)), [], clusters, fp).target[:2]
+
+    assert np.allclose(aim(-15.0, -18.0), [25.0, 0.0]), 'far side of the disc: to where chain (0, 1) starts'
+    assert np.allclose(aim(10.0, 20.0), [25.0, 0.0]), 'beside the line, short of the chain: to its start'
+    assert np.allclose(aim(20.0, 4.0), xy[1]), 'on the line: along it to cluster 1'
+    assert np.allclose(aim(40.0, 20.0), xy[1]), 'past the start of the chain: on, not back'
+    assert np.allclose(aim(110.0, 30.0), [125.0, 0.0]), 'at cluster 1, beside chain (1, 2): to its start'
+
+
 def test_relays_whose_edge_leaves_the_tree_swing_about_the_cluster_it_shares_with_the_new_one() -> None:
     """Cluster 2 drifts until the tree swaps edge (1, 2) for (0, 2): each relay of (1, 2) that is given
     (0, 2) keeps its place from cluster 2, so the chain swings about 2 and its far end slides along (0, 1)."""

@@ -273,6 +273,31 @@ def en_route(mem: Memory, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) 
     return clusters.tree_hop(at, dest)
 
 
+def leg_aim(q: np.ndarray, hop: int, clusters: ClusterMap, fp: FlockParams) -> np.ndarray:
+    """Where a MAP in transit aims on its way to cluster hop: first the start of the relay chain from the
+    cluster it is at, while it is short of it and more than d/2 off the chain's line; then hop's centre.
+
+    Flown straight from its place in the disc, a MAP left the disc at its side and crossed 25-40 m off the
+    chain, out of everyone's range (docs/dynamics.md, "Leaving by the chain")."""
+    aim_at = clusters.targets[hop]
+    at = clusters.nearest(q, 0)
+    if at == NO_GOAL or at == hop:
+        return aim_at
+    a, b = clusters.xy[at], clusters.xy[hop]
+    length = float(np.linalg.norm(b - a))
+    if length <= 0:
+        return aim_at
+    u = (b - a) / length
+    xy = np.asarray(q, dtype=float)[:2]
+    along = float(np.dot(xy - a, u))
+    start = min(float(clusters.radii[at]), length / 2)
+    off = abs(float(u[0] * (xy[1] - a[1]) - u[1] * (xy[0] - a[0])))
+    if along < start and off > fp.d / 2:
+        g = a + u * start
+        return np.array([g[0], g[1], aim_at[2]])
+    return aim_at
+
+
 class Demand:
     """The demand allocation as an allocation (policies.Allocation)."""
 
@@ -289,7 +314,7 @@ class Demand:
         here, v = aim(mem, q, clusters)
         hop = en_route(mem, q, clusters, fp)
         if hop != NO_GOAL:
-            at, v = clusters.targets[hop], clusters.velocities[hop]
+            at, v = leg_aim(q, hop, clusters, fp), clusters.velocities[hop]
             return Reference(at, at, at, M0, np.array([v, v, v]))
         if mem.mode == M1 and mem.bridge is not None:
             va, vb = clusters.velocities[mem.bridge[0]], clusters.velocities[mem.bridge[1]]
