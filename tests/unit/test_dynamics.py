@@ -168,14 +168,17 @@ def test_a_map_in_transit_to_a_new_role_flies_along_the_tree() -> None:
 
 def test_a_map_in_transit_leaves_its_cluster_by_the_start_of_the_relay_chain() -> None:
     """From the far side of its disc, a MAP in transit first joins the chain's line where the chain starts,
-    then flies along it to the next cluster; past that point it never turns back."""
+    then flies along it to the next cluster; past that point it never turns back. Towards a cluster not yet
+    served there is no chain to join: it flies straight."""
     fp = FlockParams()
     xy = np.array([[0.0, 0.0], [100.0, 0.0], [200.0, 0.0], [100.0, 120.0]])  # tree: 0-1, 1-2, 1-3
     clusters = ClusterMap(xy, fp.height, np.full(4, 25.0))
-    moving = Memory(mode=M0, goal=2, settled=True, transit=True)
+    moving = Memory(mode=M0, goal=2, settled=True, transit=True, achieved=0b1111)
 
-    def aim(x: float, y: float) -> np.ndarray:
-        return reference(moving, 7, np.array([x, y, 20.0]), np.zeros((0, 3)), [], clusters, fp).target[:2]
+    def aim(x: float, y: float, mem: Memory = moving) -> np.ndarray:
+        return reference(mem, 7, np.array([x, y, 20.0]), np.zeros((0, 3)), [], clusters, fp).target[:2]
+
+    assert np.allclose(aim(-15.0, -18.0, moving._replace(achieved=0b1101)), xy[1]), 'cluster 1 not served yet'
 
     assert np.allclose(aim(-15.0, -18.0), [25.0, 0.0]), 'far side of the disc: to where chain (0, 1) starts'
     assert np.allclose(aim(10.0, 20.0), [25.0, 0.0]), 'beside the line, short of the chain: to its start'

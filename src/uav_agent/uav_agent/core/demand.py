@@ -273,15 +273,17 @@ def en_route(mem: Memory, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) 
     return clusters.tree_hop(at, dest)
 
 
-def leg_aim(q: np.ndarray, hop: int, clusters: ClusterMap, fp: FlockParams) -> np.ndarray:
+def leg_aim(q: np.ndarray, hop: int, clusters: ClusterMap, fp: FlockParams, achieved: int) -> np.ndarray:
     """Where a MAP in transit aims on its way to cluster hop: first the start of the relay chain from the
     cluster it is at, while it is short of it and more than d/2 off the chain's line; then hop's centre.
 
     Flown straight from its place in the disc, a MAP left the disc at its side and crossed 25-40 m off the
-    chain, out of everyone's range (docs/dynamics.md, "Leaving by the chain")."""
+    chain, out of everyone's range (docs/dynamics.md, "Leaving by the chain"). Towards a cluster not yet
+    served (an arrival) there is no chain to join yet, and the detour only delayed the bridge: it flies
+    straight."""
     aim_at = clusters.targets[hop]
     at = clusters.nearest(q, 0)
-    if at == NO_GOAL or at == hop:
+    if at == NO_GOAL or at == hop or not (achieved >> at & 1 and achieved >> hop & 1):
         return aim_at
     a, b = clusters.xy[at], clusters.xy[hop]
     length = float(np.linalg.norm(b - a))
@@ -314,7 +316,7 @@ class Demand:
         here, v = aim(mem, q, clusters)
         hop = en_route(mem, q, clusters, fp)
         if hop != NO_GOAL:
-            at, v = leg_aim(q, hop, clusters, fp), clusters.velocities[hop]
+            at, v = leg_aim(q, hop, clusters, fp, mem.achieved), clusters.velocities[hop]
             return Reference(at, at, at, M0, np.array([v, v, v]))
         if mem.mode == M1 and mem.bridge is not None:
             va, vb = clusters.velocities[mem.bridge[0]], clusters.velocities[mem.bridge[1]]
