@@ -188,9 +188,8 @@ class ClusterMap:
         bounds = np.cumsum(weights) / weights.sum()
         starts = np.r_[0.0, bounds[:-1]]
         share = tuple(float(b - a) for a, b in zip(starts, bounds))
-        if before:
-            heirs, parents = lineage(previous, self, edges) if previous is not None else ({}, {})
-            pieces = keys.carry(before, dict(zip(ids, share)), heirs, parents)
+        if previous is not None and before:
+            pieces = keys.carry(before, dict(zip(ids, share)), *lineage(previous, self, edges))
         else:
             pieces = keys.fresh(zip(ids, starts.tolist(), bounds.tolist()))
         return Roles(edges, tuple(demand), share, pieces)
@@ -215,18 +214,15 @@ def lineage(before: ClusterMap, now: ClusterMap, edges: tuple[Edge, ...]
     was = [k for k in range(before.count) if before.live >> k & 1]
     stays = [k for k in was if k < now.count and now.live >> k & 1]
     for k in was:
-        if k in stays:
-            continue
-        reach = [(float(np.linalg.norm(now.xy[j] - before.xy[k])), j) for j in range(now.count) if now.live >> j & 1]
-        near = [(dist, j) for dist, j in reach if dist <= before.radii[k] + now.radii[j] + LINEAGE_MARGIN]
-        if near:
-            heirs[k] = min(near)[1]
-    for k in range(now.count):
-        if now.live >> k & 1 and not (k < before.count and before.live >> k & 1):
-            near = [(float(np.linalg.norm(before.xy[j] - now.xy[k])), j) for j in stays]
-            near = [(dist, j) for dist, j in near if dist <= before.radii[j] + now.radii[k] + LINEAGE_MARGIN]
-            if near:
-                parents[k] = min(near)[1]
+        if k not in stays:
+            heir = _within_reach(before.xy[k], before.radii[k], now, ids_of(now.live))
+            if heir is not None:
+                heirs[k] = heir
+    for k in ids_of(now.live):
+        if not (k < before.count and before.live >> k & 1):
+            parent = _within_reach(now.xy[k], now.radii[k], before, stays)
+            if parent is not None:
+                parents[k] = parent
     if heirs:
         tree = set(edges)
         for a, b in before.mst(before.live):
@@ -235,6 +231,13 @@ def lineage(before: ClusterMap, now: ClusterMap, edges: tuple[Edge, ...]
             if (a, b) not in tree and (a in heirs or b in heirs) and ha != hb and edge in tree:
                 heirs[(a, b)] = edge
     return heirs, parents
+
+
+def _within_reach(xy: np.ndarray, radius: float, other: ClusterMap, among: Iterable[int]) -> Optional[int]:
+    """The cluster of `among` in survey `other` nearest xy, if within the two radii plus LINEAGE_MARGIN."""
+    near = [(float(np.linalg.norm(other.xy[j] - xy)), j) for j in among]
+    near = [(dist, j) for dist, j in near if dist <= radius + other.radii[j] + LINEAGE_MARGIN]
+    return min(near)[1] if near else None
 
 
 class Roles(NamedTuple):

@@ -285,11 +285,12 @@ def leg_aim(q: np.ndarray, hop: int, clusters: ClusterMap, fp: FlockParams, achi
     at = clusters.nearest(q, 0)
     if at == NO_GOAL or at == hop or not (achieved >> at & 1 and achieved >> hop & 1):
         return aim_at
-    a, b = clusters.xy[at], clusters.xy[hop]
-    length = float(np.linalg.norm(b - a))
+    edge = (min(at, hop), max(at, hop))
+    a, u, length = clusters.axis(edge)
     if length <= 0:
         return aim_at
-    u = (b - a) / length
+    if edge[0] != at:  # measured from the cluster it is at
+        a, u = clusters.xy[at], -u
     xy = np.asarray(q, dtype=float)[:2]
     along = float(np.dot(xy - a, u))
     start = min(float(clusters.radii[at]), length / 2)

@@ -11,7 +11,7 @@ the same layout, with no message exchanged.
 """
 from __future__ import annotations
 
-from typing import Iterable, Mapping, Sequence, Union
+from typing import Iterable, Mapping, Optional, Sequence, Union
 
 RoleId = Union[int, tuple[int, int]]  # a cluster's id, or an MST edge (a, b): what stays the same across surveys
 Piece = tuple[float, float, RoleId]   # keys [lo, hi) belong to the role
@@ -33,8 +33,8 @@ def totals(pieces: Iterable[Piece]) -> dict[RoleId, float]:
     return held
 
 
-def carry(old: Sequence[Piece], shares: dict[RoleId, float], heirs: Mapping[RoleId, RoleId] = {},
-          parents: Mapping[RoleId, RoleId] = {}) -> tuple[Piece, ...]:
+def carry(old: Sequence[Piece], shares: dict[RoleId, float], heirs: Optional[Mapping[RoleId, RoleId]] = None,
+          parents: Optional[Mapping[RoleId, RoleId]] = None) -> tuple[Piece, ...]:
     """The layout after a survey: old, with each role's holding brought to its new share (shares, in role
     order, summing to 1), moving as few keys as it can.
 
@@ -51,7 +51,7 @@ def carry(old: Sequence[Piece], shares: dict[RoleId, float], heirs: Mapping[Role
     if not old:
         return fresh(end_to_end(shares))
     if heirs or parents:
-        old = _inherited(old, shares, heirs, parents)
+        old = _inherited(old, shares, heirs or {}, parents or {})
     held = totals(old)
     spare = {role: held[role] - shares.get(role, 0.0) for role in held}
     need = {role: share - held.get(role, 0.0) for role, share in shares.items()}
