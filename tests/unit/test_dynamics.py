@@ -11,7 +11,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from uav_agent.core import keys
+from uav_agent.core import clusters, keys
 from uav_agent.core.algorithm2 import mode_switch
 from uav_agent.core.clusters import NO_GOAL, ClusterMap, key_of
 from uav_agent.core.demand import demand_switch, en_route, pivot, swing_place
@@ -339,3 +339,32 @@ def test_keys_carried_across_a_survey_move_few_maps_and_keep_every_share(k: int,
         sum(v for r, v in old_share.items() if r not in ids)
     moved = sum(a != b for a, b in zip(role_ids(before, n, fp), role_ids(after, n, fp)))
     assert moved <= n * forced + 2 * len(ids), (moved, n * forced)
+
+
+def test_a_cluster_that_shrinks_keeps_its_servers_and_calls_nobody_back_when_it_grows_again(monkeypatch: Any) -> None:
+    """A drifting cluster's surveyed extent shrinks and grows back. Shares in proportion to demand sent its
+    servers across the field to the other clusters and called them back; kept shares let it hold them while
+    every other cluster holds its floor (clusters.kept): only the edges, which take their share at once, grow."""
+    fp, n = FlockParams(), 150
+    xy = np.array([[0.0, 0.0], [150.0, 0.0], [300.0, 0.0], [300.0, 150.0]])
+    radii = np.full(4, 40.0)
+    small = radii.copy()
+    small[0] = 32.0
+
+    def survey_by_survey() -> tuple[list[Any], list[Any], list[Any]]:
+        first = ClusterMap(xy, fp.height, radii)
+        out = [role_ids(first, n, fp)]
+        shrunk = ClusterMap(xy, fp.height, small, previous=first)
+        out.append(role_ids(shrunk, n, fp))  # laid out before the next survey drops the one it carries from
+        out.append(role_ids(ClusterMap(xy, fp.height, radii, previous=shrunk), n, fp))
+        return out[0], out[1], out[2]
+
+    a, b, c = survey_by_survey()
+    left = [(a[i], b[i]) for i in range(n) if a[i] != b[i]]
+    assert all(isinstance(new, tuple) for _, new in left), f'servers go to edges only, not to clusters: {left}'
+    assert b == c, 'growing back, the cluster calls nobody back'
+    monkeypatch.setattr(clusters, 'SLACK', 0.0)
+    a0, b0, c0 = survey_by_survey()
+    assert any(isinstance(new, int) for old, new in zip(a0, b0) if old != new), \
+        'in proportion to demand, servers would go to the other clusters'
+    assert sum(x != y for x, y in zip(b0, c0)) > 0, 'and be called back'

@@ -19,6 +19,7 @@ from . import keys
 NO_GOAL = -1
 Edge = tuple[int, int]
 LINEAGE_MARGIN = 10.0  # m beyond two clusters' radii within which one continues the other (clusters.lineage)
+SLACK = 0.3  # a cluster keeps servers down to its proportional share / (1 + SLACK) (clusters.kept)
 GOLDEN = 0.6180339887498949  # frac(id * GOLDEN) spreads any set of ids evenly over [0, 1)
 
 
@@ -188,11 +189,47 @@ class ClusterMap:
         bounds = np.cumsum(weights) / weights.sum()
         starts = np.r_[0.0, bounds[:-1]]
         share = tuple(float(b - a) for a, b in zip(starts, bounds))
+        if previous is not None and before and SLACK > 0:
+            share = kept(share, ids, keys.totals(before), SLACK)
         if previous is not None and before:
             pieces = keys.carry(before, dict(zip(ids, share)), *lineage(previous, self, edges))
         else:
             pieces = keys.fresh(zip(ids, starts.tolist(), bounds.tolist()))
         return Roles(edges, tuple(demand), share, pieces)
+
+
+def kept(share: tuple[float, ...], ids: list[keys.RoleId], held: dict[keys.RoleId, float],
+         slack: float) -> tuple[float, ...]:
+    """The shares to lay out, given the proportional ones (share) and what each role held before (held).
+
+    Proportional shares follow every change of surveyed demand: a drifting cluster whose 95 % disc shrank
+    and grew back sent its servers across the field to the other clusters and called them back, each a MAP
+    in transit alone (docs/dynamics.md, "Kept shares"). Here a role keeps what it holds down to a floor, its
+    proportional share / (1 + slack) for a cluster and the whole share for an edge (a chain short of relays
+    breaks); a role below its floor takes what it lacks from the roles most above their proportional share.
+    """
+    if all(abs(held.get(r, 0.0) - s) < 1e-9 for r, s in zip(ids, share)):
+        return share  # nothing changed: the layout as it was, to the bit
+    floor = [s / (1.0 + slack) if isinstance(r, int) else s for r, s in zip(ids, share)]
+    out = [max(held.get(r, 0.0), f) if s > 0 else 0.0 for r, s, f in zip(ids, share, floor)]
+    total = sum(out)
+    if total > 1.0:
+        over = sorted(range(len(out)), key=lambda i: share[i] - out[i])
+        for i in over:
+            give = min(total - 1.0, max(out[i] - share[i], 0.0))
+            out[i] -= give
+            total -= give
+            if total <= 1.0 + 1e-12:
+                break
+    elif total < 1.0:
+        short = [max(s - o, 0.0) for s, o in zip(share, out)]
+        if sum(short) > 0:
+            add = min(1.0 - total, sum(short))
+            out = [o + add * w / sum(short) for o, w in zip(out, short)]
+            total = sum(out)
+        if total < 1.0:
+            out = [o + (1.0 - total) * s for o, s in zip(out, share)]
+    return tuple(out)
 
 
 def lineage(before: ClusterMap, now: ClusterMap, edges: tuple[Edge, ...]
