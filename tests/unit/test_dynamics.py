@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 from typing import Any
 
@@ -368,3 +369,19 @@ def test_a_cluster_that_shrinks_keeps_its_servers_and_calls_nobody_back_when_it_
     assert any(isinstance(new, int) for old, new in zip(a0, b0) if old != new), \
         'in proportion to demand, servers would go to the other clusters'
     assert sum(x != y for x, y in zip(b0, c0)) > 0, 'and be called back'
+
+
+def test_an_arriving_cluster_takes_its_whole_share_from_the_roles_above_theirs() -> None:
+    """Kept shares let a cluster sit at its floor; a cluster with no servers yet is not one of them: it takes
+    its whole proportional share at once, or it would never be covered."""
+    fp, n = FlockParams(), 150
+    xy, radii = np.array([[0.0, 0.0], [150.0, 0.0], [300.0, 0.0]]), np.full(3, 40.0)
+    first = ClusterMap(xy, fp.height, radii)
+    before = role_ids(first, n, fp)
+    arrived = ClusterMap(np.r_[xy, [[300.0, 160.0]]], fp.height, np.r_[radii, 40.0], previous=first)
+    after = role_ids(arrived, n, fp)
+    share = arrived.roles(fp.d).share
+    assert abs(sum(r == 3 for r in after) - n * share[3]) <= 2.5, 'the whole proportional share'
+    proportional = np.array(arrived.roles(fp.d).demand) / sum(arrived.roles(fp.d).demand)
+    assert math.isclose(share[3], proportional[3], rel_tol=1e-9)
+    assert all(before[i] == after[i] or after[i] in (3, (2, 3)) for i in range(n)), 'only towards the arrival'

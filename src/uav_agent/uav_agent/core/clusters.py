@@ -205,12 +205,13 @@ def kept(share: tuple[float, ...], ids: list[keys.RoleId], held: dict[keys.RoleI
     Proportional shares follow every change of surveyed demand: a drifting cluster whose 95 % disc shrank
     and grew back sent its servers across the field to the other clusters and called them back, each a MAP
     in transit alone (docs/dynamics.md, "Kept shares"). Here a role keeps what it holds down to a floor, its
-    proportional share / (1 + slack) for a cluster and the whole share for an edge (a chain short of relays
-    breaks); a role below its floor takes what it lacks from the roles most above their proportional share.
+    proportional share / (1 + slack) for a cluster it served before, the whole share for an edge (a chain
+    short of relays breaks) and for a new cluster (an arrival must be covered); a role below its floor takes
+    what it lacks from the roles most above their proportional share.
     """
     if all(abs(held.get(r, 0.0) - s) < 1e-9 for r, s in zip(ids, share)):
         return share  # nothing changed: the layout as it was, to the bit
-    floor = [s / (1.0 + slack) if isinstance(r, int) else s for r, s in zip(ids, share)]
+    floor = [s / (1.0 + slack) if isinstance(r, int) and held.get(r, 0.0) > 0 else s for r, s in zip(ids, share)]
     out = [max(held.get(r, 0.0), f) if s > 0 else 0.0 for r, s, f in zip(ids, share, floor)]
     total = sum(out)
     if total > 1.0:
