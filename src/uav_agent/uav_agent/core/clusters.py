@@ -189,9 +189,8 @@ class ClusterMap:
         bounds = np.cumsum(weights) / weights.sum()
         starts = np.r_[0.0, bounds[:-1]]
         share = tuple(float(b - a) for a, b in zip(starts, bounds))
-        if previous is not None and before and SLACK > 0:
-            share = kept(share, ids, keys.totals(before), SLACK)
         if previous is not None and before:
+            share = kept(share, ids, keys.totals(before), SLACK)
             pieces = keys.carry(before, dict(zip(ids, share)), *lineage(previous, self, edges))
         else:
             pieces = keys.fresh(zip(ids, starts.tolist(), bounds.tolist()))
@@ -209,8 +208,8 @@ def kept(share: tuple[float, ...], ids: list[keys.RoleId], held: dict[keys.RoleI
     short of relays breaks) and for a new cluster (an arrival must be covered); a role below its floor takes
     what it lacks from the roles most above their proportional share.
     """
-    if all(abs(held.get(r, 0.0) - s) < 1e-9 for r, s in zip(ids, share)):
-        return share  # nothing changed: the layout as it was, to the bit
+    if slack <= 0 or all(abs(held.get(r, 0.0) - s) < 1e-9 for r, s in zip(ids, share)):
+        return share  # proportional; or nothing changed: the layout as it was, to the bit
     floor = [s / (1.0 + slack) if isinstance(r, int) and held.get(r, 0.0) > 0 else s for r, s in zip(ids, share)]
     out = [max(held.get(r, 0.0), f) if s > 0 else 0.0 for r, s, f in zip(ids, share, floor)]
     total = sum(out)
@@ -222,14 +221,10 @@ def kept(share: tuple[float, ...], ids: list[keys.RoleId], held: dict[keys.RoleI
             total -= give
             if total <= 1.0 + 1e-12:
                 break
-    elif total < 1.0:
+    elif total < 1.0:  # keys of roles that ended: to the roles below their share, as far as each lacks
         short = [max(s - o, 0.0) for s, o in zip(share, out)]
-        if sum(short) > 0:
-            add = min(1.0 - total, sum(short))
-            out = [o + add * w / sum(short) for o, w in zip(out, short)]
-            total = sum(out)
-        if total < 1.0:
-            out = [o + (1.0 - total) * s for o, s in zip(out, share)]
+        lack = sum(short)  # >= 1 - total, since the shares sum to 1
+        out = [o + (1.0 - total) * w / lack for o, w in zip(out, short)]
     return tuple(out)
 
 
