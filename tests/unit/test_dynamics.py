@@ -385,3 +385,52 @@ def test_an_arriving_cluster_takes_its_whole_share_from_the_roles_above_theirs()
     proportional = np.array(arrived.roles(fp.d).demand) / sum(arrived.roles(fp.d).demand)
     assert math.isclose(share[3], proportional[3], rel_tol=1e-9)
     assert all(before[i] == after[i] or after[i] in (3, (2, 3)) for i in range(n)), 'only towards the arrival'
+
+
+def test_an_edge_that_leaves_the_tree_keeps_its_chain_while_the_new_one_is_staffed_from_the_surplus() -> None:
+    """Cluster 1 drifts until the tree swaps edge (0, 1) for (2, 3), which shares no cluster with it: no
+    relay can swing. The old chain stands for STANDING surveys while servers with keys to spare staff the new
+    one, so the two halves stay joined; then its relays join clusters 0 and 1, each the nearer end, flying
+    straight along their chain."""
+    fp, n = FlockParams(), 160
+    radii = np.full(4, 30.0)
+    xy = np.array([[0.0, 0.0], [160.0, 0.0], [0.0, 150.0], [170.0, 150.0]])
+    first = ClusterMap(xy, fp.height, radii)
+    moved = xy.copy()
+    moved[1] = [175.0, 0.0]
+    maps = [first]
+    for _ in range(clusters.STANDING + 1):
+        maps.append(ClusterMap(moved, fp.height, radii, previous=maps[-1]))
+        maps[-1].roles(fp.d)  # laid out before the next survey drops the one it carries from
+    assert first.roles(fp.d).edges == ((0, 1), (0, 2), (1, 3))
+    assert maps[1].mst(maps[1].live) == ((0, 2), (1, 3), (2, 3)), 'the tree swapped (0, 1) for (2, 3)'
+    ids = [[i for i in range(n) if role_ids(m, n, fp)[i] == r] for m in maps for r in [(0, 1)]]
+    relays = ids[0]
+    assert len(relays) >= 4
+    before, during = role_ids(first, n, fp), role_ids(maps[1], n, fp)
+    assert maps[1].roles(fp.d).standing == (((0, 1), clusters.STANDING),)
+    joined = [i for i in range(n) if during[i] == (2, 3)]
+    assert len(joined) >= 4 and all(isinstance(before[i], int) for i in joined), \
+        'the new edge is staffed by servers the clusters lend, not by the relays of the old one'
+    assert abs(len(joined) - n * maps[1].roles(fp.d).share[maps[1].roles(fp.d).index((2, 3))]) <= 2.5, \
+        'at its whole share at once'
+    for m in maps[1:-1]:
+        assert ids[maps.index(m)] == relays, 'the old chain stands'
+    q = np.array([80.0, 0.0, fp.height])
+    mem = demand_switch(Memory(mode=M1, goal=0, bridge=(0, 1), settled=True), relays[0], 0.0, q, maps[-2], fp)
+    assert mem.mode == M1 and mem.bridge == (0, 1), 'its relay keeps bridging it'
+    last_before, last = role_ids(maps[-2], n, fp), role_ids(maps[-1], n, fp)
+    assert maps[-1].roles(fp.d).edges == ((0, 2), (1, 3), (2, 3)), 'then the old edge is released'
+    old = maps[-2].roles(fp.d)
+    for i in relays:
+        near = 0 if old.place(key_of(i), old.index((0, 1))) < 0.5 else 1
+        assert last[i] == near, f'relay {i} joins the nearer end of its chain'
+    assert [i for i in range(n) if last[i] != last_before[i]] == relays, 'and nobody else changes role'
+    a, b = maps[-1].xy[0], maps[-1].xy[1]
+    for i in relays:  # on its chain, beside the far cluster: straight along the chain, not round the tree
+        at = b + (a - b) * 0.25 if last[i] == 0 else a + (b - a) * 0.25
+        q = np.array([*at, fp.height])
+        mem = demand_switch(Memory(mode=M1, goal=0, bridge=(0, 1), settled=True), i, 0.0, q, maps[-1], fp)
+        assert mem.goal == last[i] and mem.transit and mem.straight
+        assert en_route(mem, q, maps[-1], fp) == NO_GOAL
+        assert en_route(mem._replace(straight=False), q, maps[-1], fp) != NO_GOAL, 'the tree would go round'

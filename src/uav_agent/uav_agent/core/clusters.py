@@ -9,7 +9,7 @@ from __future__ import annotations
 import bisect
 import math
 from functools import lru_cache
-from typing import Iterable, NamedTuple, Optional
+from typing import Iterable, NamedTuple, Optional, Sequence
 
 import numpy as np
 from scipy.sparse.csgraph import minimum_spanning_tree
@@ -20,6 +20,7 @@ NO_GOAL = -1
 Edge = tuple[int, int]
 LINEAGE_MARGIN = 10.0  # m beyond two clusters' radii within which one continues the other (clusters.lineage)
 SLACK = 0.3  # a cluster keeps servers down to its proportional share / (1 + SLACK) (clusters.kept)
+STANDING = 10  # surveys an edge that left the tree keeps its relays while its replacement forms (clusters.standing)
 GOLDEN = 0.6180339887498949  # frac(id * GOLDEN) spreads any set of ids evenly over [0, 1)
 
 
@@ -171,7 +172,11 @@ class ClusterMap:
         return self._roles(float(d))
 
     def _roles_uncached(self, d: float) -> 'Roles':
-        edges = self.mst(self.live)
+        tree = self.mst(self.live)
+        previous, self._previous = self._previous, None
+        was = previous.roles(d) if previous is not None else None
+        stand = standing(was, tree, self.live) if was is not None else ()
+        edges = tree + tuple(e for e, _ in stand)
         cell = math.sqrt(3.0) / 2.0 * d * d  # area per MAP of a hexagonal lattice of spacing d
         demand = [max(math.pi * r * r / cell, 1.0) if self.live >> k & 1 else 0.0  # every cluster at least one
                   for k, r in enumerate(self.radii)]
@@ -179,26 +184,65 @@ class ClusterMap:
             start, stop = self.gap(e, d / 2)
             demand.append((stop - start) / d)
         weights = np.array(demand)
+        weights[len(weights) - len(stand):] = 0.0  # a standing chain keeps what it holds (below)
         if not np.any(self.radii > 0):  # nothing known of the clusters' extent: an equal share each, no relays
             weights = np.r_[[float(self.live >> k & 1) for k in range(self.count)], np.zeros(len(edges))]
         ids: list[keys.RoleId] = [*range(self.count), *edges]
-        previous, self._previous = self._previous, None
-        before = previous.roles(d).pieces if previous is not None else ()
+        before = was.pieces if was is not None else ()
         if not weights.sum() > 0:  # no cluster exists (none has arrived yet, or all have left): keep the keys
-            return Roles(edges, tuple(demand), (0.0,) * len(weights), before)
+            return Roles(edges, tuple(demand), (0.0,) * len(weights), before, stand)
         bounds = np.cumsum(weights) / weights.sum()
         starts = np.r_[0.0, bounds[:-1]]
         share = tuple(float(b - a) for a, b in zip(starts, bounds))
-        if previous is not None and before:
-            share = kept(share, ids, keys.totals(before), SLACK)
-            pieces = keys.carry(before, dict(zip(ids, share)), *lineage(previous, self, edges))
+        if was is not None and before:
+            for e, n in was.standing:  # an edge whose replacement stands: its relays join its two clusters
+                if n == 1 and e not in edges and all(self.live >> k & 1 for k in e):
+                    before = keys.halved(before, e, e[0], e[1])
+            held = keys.totals(before)
+            lenders: list[int] = []
+            if stand:  # a standing chain keeps what it holds, lent by the clusters above their floor (kept)
+                fixed = dict(stand)
+                share = tuple(held.get(r, 0.0) if r in fixed else s for r, s in zip(ids, share))
+                lenders = by_hops(tree, [k for e in tree if e not in was.edges for k in e])
+            share = kept(share, ids, held, SLACK, lenders)
+            pieces = keys.carry(before, dict(zip(ids, share)), *lineage(previous, self, tree))
         else:
             pieces = keys.fresh(zip(ids, starts.tolist(), bounds.tolist()))
-        return Roles(edges, tuple(demand), share, pieces)
+        return Roles(edges, tuple(demand), share, pieces, stand)
+
+
+def standing(was: 'Roles', tree: tuple[Edge, ...], live: int) -> tuple[tuple[Edge, int], ...]:
+    """Edges that left the tree but keep their relays, each with the surveys it has left (make before break).
+
+    When a drifting cluster changes the tree and the edge that leaves shares no cluster with any edge that
+    joins, no relay can swing (demand.pivot): its relays flew along the tree to the new edge and the two
+    halves of the formation were apart until the new chain stood, 8-12 s for 150-200 m (docs/dynamics.md,
+    "Make before break"). Such an edge now keeps its relays for STANDING surveys, while the new edge takes
+    its share from the roles above theirs and the clusters lend it their slack (kept); then its relays join
+    its two clusters (keys.halved).
+    """
+    old = was.edges[:len(was.edges) - len(was.standing)]
+    joined = [e for e in tree if e not in old]
+    ends = {k for e in joined for k in e}
+    left = [(e, STANDING) for e in old if e not in tree and not ends & set(e)]
+    going = [(e, n - 1) for e, n in was.standing if n > 1 and e not in tree]
+    return tuple((e, n) for e, n in sorted(left + going) if all(live >> k & 1 for k in e))
+
+
+def by_hops(tree: tuple[Edge, ...], start: list[int]) -> list[int]:
+    """The clusters of the tree in order of hops from the nearest of start (breadth first, ties by id)."""
+    links: dict[int, list[int]] = {}
+    for a, b in tree:
+        links.setdefault(a, []).append(b)
+        links.setdefault(b, []).append(a)
+    order = sorted(set(start))
+    for c in order:
+        order += [n for n in sorted(links.get(c, [])) if n not in order]
+    return order
 
 
 def kept(share: tuple[float, ...], ids: list[keys.RoleId], held: dict[keys.RoleId, float],
-         slack: float) -> tuple[float, ...]:
+         slack: float, lenders: Sequence[int] = ()) -> tuple[float, ...]:
     """The shares to lay out, given the proportional ones (share) and what each role held before (held).
 
     Proportional shares follow every change of surveyed demand: a drifting cluster whose 95 % disc shrank
@@ -206,13 +250,21 @@ def kept(share: tuple[float, ...], ids: list[keys.RoleId], held: dict[keys.RoleI
     in transit alone (docs/dynamics.md, "Kept shares"). Here a role keeps what it holds down to a floor, its
     proportional share / (1 + slack) for a cluster it served before, the whole share for an edge (a chain
     short of relays breaks) and for a new cluster (an arrival must be covered); a role below its floor takes
-    what it lacks from the roles most above their proportional share.
+    what it lacks from the roles most above their proportional share. A standing chain (clusters.standing)
+    comes with its share on top: the clusters lend it their slack above their floors, those nearest the new
+    edge on the tree first (lenders), so that its servers step out into the new chain from its ends.
     """
     if slack <= 0 or all(abs(held.get(r, 0.0) - s) < 1e-9 for r, s in zip(ids, share)):
         return share  # proportional; or nothing changed: the layout as it was, to the bit
     floor = [s / (1.0 + slack) if isinstance(r, int) and held.get(r, 0.0) > 0 else s for r, s in zip(ids, share)]
     out = [max(held.get(r, 0.0), f) if s > 0 else 0.0 for r, s, f in zip(ids, share, floor)]
     total = sum(out)
+    for i in lenders:  # a standing chain's share comes first from the clusters nearest the new edge, to their floor
+        if total <= 1.0 + 1e-12:
+            break
+        give = min(total - 1.0, max(out[i] - floor[i], 0.0))
+        out[i] -= give
+        total -= give
     if total > 1.0:
         over = sorted(range(len(out)), key=lambda i: share[i] - out[i])
         for i in over:
@@ -221,6 +273,15 @@ def kept(share: tuple[float, ...], ids: list[keys.RoleId], held: dict[keys.RoleI
             total -= give
             if total <= 1.0 + 1e-12:
                 break
+        if total > 1.0 + 1e-12:  # shares summing to more than 1 (a standing chain's): clusters lend their slack
+            slack_of = [max(o - f, 0.0) if isinstance(r, int) else 0.0 for r, o, f in zip(ids, out, floor)]
+            spare = sum(slack_of)
+            lend = min(total - 1.0, spare)
+            if lend > 0:
+                out = [o - lend * w / spare for o, w in zip(out, slack_of)]
+                total -= lend
+            if total > 1.0 + 1e-12:  # not slack enough: every role gives alike
+                out = [o / total for o in out]
     elif total < 1.0:  # keys of roles that ended: to the roles below their share, as far as each lacks
         short = [max(s - o, 0.0) for s, o in zip(share, out)]
         lack = sum(short)  # >= 1 - total, since the shares sum to 1
@@ -281,6 +342,7 @@ class Roles(NamedTuple):
     demand: tuple[float, ...]   # MAPs each role needs (a lattice of spacing d over the disc, a chain over the gap)
     share: tuple[float, ...]
     pieces: tuple[keys.Piece, ...]
+    standing: tuple[tuple[Edge, int], ...] = ()  # edges out of the tree kept while their replacement forms (last in edges)
 
     def index(self, role: keys.RoleId) -> int:
         """Role number of a cluster id or an edge."""

@@ -59,7 +59,10 @@ def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, cluster
     role = roles.of(key)
     if role < clusters.count:
         if mem.goal != role or mem.mode == M1:
-            mem = _anew(mem, mode=M0, goal=role, transit=mem.settled)
+            old = mem.bridge if mem.mode == M1 else None
+            straight = old is not None and role in old and old not in roles.edges and \
+                all(clusters.live >> k & 1 for k in old)
+            mem = _anew(mem, mode=M0, goal=role, transit=mem.settled, straight=straight)
             r_g = 0.0
         arrived = float(np.hypot(*(np.asarray(q, dtype=float)[:2] - clusters.xy[role]))) <= clusters.radii[role]
         if arrived and (mem.transit or not mem.settled):
@@ -257,7 +260,7 @@ def en_route(mem: Memory, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) 
     tree it passes clusters and relay chains. Roles never change while the clusters stand still, so then
     nothing is ever in transit.
     """
-    if not mem.transit or mem.goal == NO_GOAL or mem.swing is not None:
+    if not mem.transit or mem.goal == NO_GOAL or mem.swing is not None or mem.straight:
         return NO_GOAL
     if mem.mode == M1 and mem.bridge is not None:
         if clusters.segment_distance(q, mem.bridge) <= fp.d:

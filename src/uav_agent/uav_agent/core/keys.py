@@ -133,6 +133,21 @@ def _inherited(old: Sequence[Piece], shares: dict[RoleId, float], heirs: Mapping
     return [(lo, hi, role) for lo, hi, role in _merged([p for p in pieces if p[1] - p[0] > _EPS])]
 
 
+def halved(pieces: Sequence[Piece], role: RoleId, low: RoleId, high: RoleId) -> tuple[Piece, ...]:
+    """The layout with role's lower half of keys given to low and its upper half to high: a relay's place
+    along its chain follows its key (clusters.Roles.place), so each relay goes to the nearer end."""
+    half = sum(hi - lo for lo, hi, r in pieces if r == role) / 2.0
+    out: list[list] = []
+    for lo, hi, r in pieces:
+        if r != role:
+            out.append([lo, hi, r])
+            continue
+        cut = min(max(lo + half, lo), hi)
+        half -= cut - lo
+        out += [p for p in ([lo, cut, low], [cut, hi, high]) if p[1] - p[0] > _EPS]
+    return tuple((lo, hi, r) for lo, hi, r in _merged(out))
+
+
 def end_to_end(shares: dict[RoleId, float]) -> list[tuple[RoleId, float, float]]:
     """(role, start, end) of shares laid end to end in role order, as `fresh` takes them."""
     at, out = 0.0, []

@@ -19,7 +19,9 @@ class Memory(NamedTuple):
     one with a cluster in common swings about that cluster (swing: the pivot and its place along the gap).
     What it gossips of the roles (vacancy.py): the last step a member of each role was heard of, as sorted
     (role code, step) pairs; the spans of keys known lost; the roles found short, as (role code, MAPs); and
-    the step it last reached its role's place. A relay counts the steps it has found its chain taut (taut)."""
+    the step it last reached its role's place. A relay counts the steps it has found its chain taut (taut).
+    A relay released from a chain that stood out of the tree to one of its clusters flies straight there, along
+    its own chain (straight; clusters.standing), not along the tree."""
 
     mode: int = M0
     goal: int = NO_GOAL
@@ -35,6 +37,7 @@ class Memory(NamedTuple):
     short: tuple[tuple[int, int], ...] = ()
     since: int = -1
     taut: int = 0
+    straight: bool = False
 
 
 class Told(NamedTuple):
