@@ -115,10 +115,7 @@ class ClusterMap:
         return self._hops(here, there)
 
     def _hops_uncached(self, here: int, there: int) -> int:
-        links: dict[int, list[int]] = {}
-        for a, b in self.mst(self.live):
-            links.setdefault(a, []).append(b)
-            links.setdefault(b, []).append(a)
+        links = tree_links(self.mst(self.live))
         came = {there: there}
         todo = [there]
         while todo:  # breadth first from `there`: each cluster learns its next step towards it
@@ -229,15 +226,21 @@ def standing(was: 'Roles', tree: tuple[Edge, ...], live: int) -> tuple[tuple[Edg
     return tuple((e, n) for e, n in sorted(left + going) if all(live >> k & 1 for k in e))
 
 
-def by_hops(tree: tuple[Edge, ...], start: list[int]) -> list[int]:
-    """The clusters of the tree in order of hops from the nearest of start (breadth first, ties by id)."""
+def tree_links(tree: Iterable[Edge]) -> dict[int, list[int]]:
+    """Each cluster's neighbours in the tree, in id order."""
     links: dict[int, list[int]] = {}
-    for a, b in tree:
+    for a, b in sorted(tree):
         links.setdefault(a, []).append(b)
         links.setdefault(b, []).append(a)
+    return {k: sorted(v) for k, v in links.items()}
+
+
+def by_hops(tree: tuple[Edge, ...], start: list[int]) -> list[int]:
+    """The clusters of the tree in order of hops from the nearest of start (breadth first, ties by id)."""
+    links = tree_links(tree)
     order = sorted(set(start))
     for c in order:
-        order += [n for n in sorted(links.get(c, [])) if n not in order]
+        order += [n for n in links.get(c, []) if n not in order]
     return order
 
 
