@@ -102,6 +102,10 @@ class ClusterMap:
         ids = ids_of(achieved)
         return tuple(sorted((min(ids[i], ids[j]), max(ids[i], ids[j])) for i, j in mst_edges(self.xy[ids])))
 
+    def ends_live(self, edge: Edge) -> bool:
+        """Whether both clusters of an edge still exist (an ended cluster's id stays, inactive)."""
+        return all(self.live >> k & 1 for k in edge)
+
     def nearest(self, q: np.ndarray, exclude: int) -> int:
         """Nearest existing cluster centre not in the mask exclude, or NO_GOAL if every cluster is in it."""
         free = [k for k in range(self.count) if not exclude >> k & 1 and self.live >> k & 1]
@@ -172,7 +176,7 @@ class ClusterMap:
         tree = self.mst(self.live)
         previous, self._previous = self._previous, None
         was = previous.roles(d) if previous is not None else None
-        stand = standing(was, tree, self.live) if was is not None else ()
+        stand = standing(was, tree, self) if was is not None else ()
         edges = tree + tuple(e for e, _ in stand)
         cell = math.sqrt(3.0) / 2.0 * d * d  # area per MAP of a hexagonal lattice of spacing d
         demand = [max(math.pi * r * r / cell, 1.0) if self.live >> k & 1 else 0.0  # every cluster at least one
@@ -193,12 +197,12 @@ class ClusterMap:
         share = tuple(float(b - a) for a, b in zip(starts, bounds))
         if was is not None and before:
             for e, n in was.standing:  # an edge whose replacement stands: its relays join its two clusters
-                if n == 1 and e not in edges and all(self.live >> k & 1 for k in e):
+                if n == 1 and e not in edges and self.ends_live(e):
                     before = keys.halved(before, e, e[0], e[1])
             held = keys.totals(before)
             lenders: list[int] = []
             if stand:  # a standing chain keeps what it holds, lent by the clusters above their floor (kept)
-                fixed = dict(stand)
+                fixed = {e for e, _ in stand}
                 share = tuple(held.get(r, 0.0) if r in fixed else s for r, s in zip(ids, share))
                 lenders = by_hops(tree, [k for e in tree if e not in was.edges for k in e])
             share = kept(share, ids, held, SLACK, lenders)
@@ -208,7 +212,7 @@ class ClusterMap:
         return Roles(edges, tuple(demand), share, pieces, stand)
 
 
-def standing(was: 'Roles', tree: tuple[Edge, ...], live: int) -> tuple[tuple[Edge, int], ...]:
+def standing(was: 'Roles', tree: tuple[Edge, ...], now: ClusterMap) -> tuple[tuple[Edge, int], ...]:
     """Edges that left the tree but keep their relays, each with the surveys it has left (make before break).
 
     When a drifting cluster changes the tree and the edge that leaves shares no cluster with any edge that
@@ -223,13 +227,13 @@ def standing(was: 'Roles', tree: tuple[Edge, ...], live: int) -> tuple[tuple[Edg
     ends = {k for e in joined for k in e}
     left = [(e, STANDING) for e in old if e not in tree and not ends & set(e)]
     going = [(e, n - 1) for e, n in was.standing if n > 1 and e not in tree]
-    return tuple((e, n) for e, n in sorted(left + going) if all(live >> k & 1 for k in e))
+    return tuple((e, n) for e, n in sorted(left + going) if now.ends_live(e))
 
 
 def tree_links(tree: Iterable[Edge]) -> dict[int, list[int]]:
     """Each cluster's neighbours in the tree, in id order."""
     links: dict[int, list[int]] = {}
-    for a, b in sorted(tree):
+    for a, b in tree:
         links.setdefault(a, []).append(b)
         links.setdefault(b, []).append(a)
     return {k: sorted(v) for k, v in links.items()}
@@ -345,7 +349,8 @@ class Roles(NamedTuple):
     demand: tuple[float, ...]   # MAPs each role needs (a lattice of spacing d over the disc, a chain over the gap)
     share: tuple[float, ...]
     pieces: tuple[keys.Piece, ...]
-    standing: tuple[tuple[Edge, int], ...] = ()  # edges out of the tree kept while their replacement forms (last in edges)
+    # Edges out of the tree kept while their replacement forms, with the surveys each has left (last in edges).
+    standing: tuple[tuple[Edge, int], ...] = ()
 
     def index(self, role: keys.RoleId) -> int:
         """Role number of a cluster id or an edge."""

@@ -60,8 +60,7 @@ def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, cluster
     if role < clusters.count:
         if mem.goal != role or mem.mode == M1:
             old = mem.bridge if mem.mode == M1 else None
-            straight = old is not None and role in old and old not in roles.edges and \
-                all(clusters.live >> k & 1 for k in old)
+            straight = old is not None and role in old and old not in roles.edges and clusters.ends_live(old)
             mem = _anew(mem, mode=M0, goal=role, transit=mem.settled, straight=straight)
             r_g = 0.0
         arrived = float(np.hypot(*(np.asarray(q, dtype=float)[:2] - clusters.xy[role]))) <= clusters.radii[role]
@@ -103,7 +102,7 @@ def pivot(mem: Memory, q: np.ndarray, edge: Edge, clusters: ClusterMap, fp: Floc
     at a time (docs/dynamics.md, "Swinging chains").
     """
     old = mem.bridge
-    if mem.mode != M1 or old is None or not mem.settled or not all(clusters.live >> k & 1 for k in old):
+    if mem.mode != M1 or old is None or not mem.settled or not clusters.ends_live(old):
         return None
     shared = set(old) & set(edge)
     if len(shared) != 1:
