@@ -17,7 +17,10 @@ batch runs. Per layout and seed, one case of each kind, drawn with the job's own
 Per kind: after the first step with R_c >= 95 % and lambda2 > 0 ("convergence"), the fraction of time
 connected (mean, 10th percentile, worst run), the longest outage (median and worst run), the mean R_c;
 for the kinds with an event (loss, wipeout, arrival) the time from the event to the first step covered
-and connected again, and how many runs end covered and connected over their last 10 s.
+and connected again, and how many runs end covered and connected over their last 10 s. Then where the
+split time after convergence goes, by what the split cuts off from the largest component: at most three
+MAPs (each counted as on its way to a new role, a relay or a server) or a larger piece (a cluster's servers,
+part of a chain).
 """
 from __future__ import annotations
 
@@ -35,13 +38,15 @@ from uav_agent.core.clusters import mst_edges
 from uav_agent.core.state import M1
 from uav_flock_tools.layouts import draw, policy_sets
 from uav_flock_tools.batch import BatchSimulator
-from world_sim.core import layouts
+from world_sim.core import layouts, physics
 from world_sim.core.scenario import Cluster, Scenario
 from world_sim.shipped import load_scenario
 
 KINDS = ('drift1', 'drift2', 'drift3', 'crossing', 'loss', 'wipeout', 'arrival')
 EVENT_S = {'loss': 45.0, 'wipeout': 45.0, 'arrival': 40.0}
 HELD_S = 10.0  # a run "ends covered and connected" when it is so over its last HELD_S
+FEW = 3        # up to this many MAPs cut off are told apart by what each was doing; more are a piece
+CUT = ('transit', 'relay', 'server', 'piece')
 
 
 def lb_along(s: Scenario, until: float) -> int:
@@ -111,21 +116,41 @@ def outage_s(down: np.ndarray, dt: float) -> float:
     return longest * dt
 
 
+def cut_off(sim: BatchSimulator) -> np.ndarray:
+    """What a split cuts off from the largest component now, as shares of CUT (all zero when connected)."""
+    share = np.zeros(len(CUT))
+    rows = np.flatnonzero(sim.alive)
+    labels = physics.component_labels(physics.neighbour_pairs(sim.q[rows], sim.scenario.flock.r), len(rows))
+    sizes = np.bincount(labels)
+    if len(sizes) < 2:
+        return share
+    cut = rows[labels != sizes.argmax()]
+    if len(cut) > FEW:
+        share[CUT.index('piece')] = 1.0
+        return share
+    for i in cut:
+        m = sim.memory[i]
+        share[CUT.index('transit' if m.transit else 'relay' if m.mode == M1 else 'server')] += 1.0 / len(cut)
+    return share
+
+
 def run(job: tuple[str, Scenario, int]) -> dict[str, Optional[float]]:
     kind, s, draw_seed = job
     rng = np.random.default_rng(draw_seed)
     sim = BatchSimulator(s)
     event = EVENT_S.get(kind)
+    cut = [cut_off(sim)]  # row k: the state metrics row k records
     for _ in range(s.steps):
         if kind == 'wipeout' and abs(sim.world.k * s.dt - event) < s.dt / 2:
             wipe_out(sim, rng)
         sim.step()
+        cut.append(cut_off(sim))
     sim.step(integrate=False)
     m = sim.result().metrics
     t, rc, connected = m[:, 1], m[:, 2], m[:, 3] > 0
     ok = (rc >= 0.95) & connected
     out: dict[str, Optional[float]] = {'converged': None, 'connected': None, 'outage': None, 'rc': None,
-                                       'recovery': None, 'ends_ok': None}
+                                       'recovery': None, 'ends_ok': None, **{f'split_{c}': None for c in CUT}}
     held = int(round(HELD_S / s.dt))
     out['ends_ok'] = float(ok[-held:].all())
     out['end_rc'], out['end_components'] = float(rc[-1]), float(m[-1, 5])
@@ -136,6 +161,7 @@ def run(job: tuple[str, Scenario, int]) -> dict[str, Optional[float]]:
         first = int(np.argmax(ok))
         out.update(converged=float(t[first]), connected=float(connected[first:].mean()),
                    outage=outage_s(~connected[first:], s.dt), rc=float(rc[first:].mean()))
+        out.update({f'split_{c}': float(x) for c, x in zip(CUT, np.sum(cut[first:], axis=0) * s.dt)})
     return out
 
 
@@ -155,6 +181,17 @@ def report(kind: str, results: list[dict[str, Optional[float]]]) -> str:
     return (f'| {kind} | {len(conv)}/{len(results)} | {pct(con.mean())} | {pct(np.percentile(con, 10))} | '
             f'{pct(con.min())} | {np.median(out):.1f} s, {out.max():.1f} s | '
             f'{pct(np.mean([r["rc"] for r in conv]))} | {recovery} | {int(sum(r["ends_ok"] for r in results))}/{len(results)} |')
+
+
+def where_split(kind: str, results: list[dict[str, Optional[float]]]) -> str:
+    """Seconds split after convergence per run (mean), by what the split cut off."""
+    conv = [r for r in results if r['connected'] is not None]
+    if not conv:
+        return f'| {kind} | — |' + ' — |' * len(CUT)
+    by = np.array([[r[f'split_{c}'] for c in CUT] for r in conv])
+    total = by.sum(axis=1).mean()
+    shares = ' | '.join(f'{x:.2f} s ({100 * x / total:.0f} %)' if total > 0 else f'{x:.2f} s' for x in by.mean(axis=0))
+    return f'| {kind} | {total:.2f} s | {shares} |'
 
 
 def main() -> int:
@@ -195,6 +232,11 @@ def main() -> int:
     print('|---|---|---|---|---|---|---|---|---|')
     for kind in kinds:
         print(report(kind, [r for (k, _, _), r in zip(jobs, results) if k == kind]))
+    print(f'\n| kind | split after convergence, per run | cut off: up to {FEW} MAPs on their way to a new role | '
+          f'up to {FEW} relays | up to {FEW} servers | a larger piece |')
+    print('|---|---|---|---|---|---|')
+    for kind in kinds:
+        print(where_split(kind, [r for (k, _, _), r in zip(jobs, results) if k == kind]))
     if args.per_run:
         fields = list(results[0])
         with open(args.per_run, 'w', newline='') as f:

@@ -127,11 +127,14 @@ def laplacian(pairs: NDArray[np.intp], n: int) -> F64:
     return np.diag(a.sum(axis=1)) - a
 
 
-def components(pairs: NDArray[np.intp], n: int) -> int:
-    if n == 0:
-        return 0
+def component_labels(pairs: NDArray[np.intp], n: int) -> NDArray[np.intp]:
+    """Each MAP's connected component of the MAP graph, numbered from 0; which MAPs a split cuts off."""
     a = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    return int(connected_components(a, directed=False)[0])
+    return connected_components(a, directed=False)[1].astype(np.intp)
+
+
+def components(pairs: NDArray[np.intp], n: int) -> int:
+    return 0 if n == 0 else int(component_labels(pairs, n).max()) + 1
 
 
 def fiedler(pairs: NDArray[np.intp], n: int, n_components: int | None = None) -> float:
