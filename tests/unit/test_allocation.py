@@ -124,6 +124,30 @@ def test_a_map_in_transit_neither_attracts_a_relay_nor_drags_it_along() -> None:
     assert u([Told(M0, 1, None)])[0] > alone[0] + 1.0, 'a settled server of the edge at that speed would drag it'
 
 
+def test_a_map_in_transit_passes_others_at_half_d_where_unrelated_settled_maps_keep_d() -> None:
+    """Kept d away by the servers on a cluster's rim, a MAP on its way to a new role slid round the disc and
+    left it off the relay chain: between d/2 and d of a MAP it passes it feels no push either way, while two
+    settled MAPs of unrelated roles at that distance still push apart; closer than d/2 both repel."""
+    clusters = line([100.0])
+    server_of_1 = Memory(mode=M2, goal=1, settled=True, since=0)
+    q = np.array([0.0, 0.0, P.height])
+    still = np.zeros((1, 3))
+
+    def u(mem: Memory, gap: float, told: Told) -> np.ndarray:
+        hood = Neighbourhood(np.array([[gap, 0.0, P.height]]), still, np.zeros(1), [0], [told])
+        return agent_step(mem, 1, q, np.zeros(3), 0, np.zeros(2), hood, clusters, P, 1)[0]
+
+    def alone(mem: Memory) -> np.ndarray:
+        return agent_step(mem, 1, q, np.zeros(3), 0, np.zeros(2), Neighbourhood.empty(), clusters, P, 1)[0]
+
+    passing = Told(M0, 0, None, transit=True)   # on its way through cluster 1 to cluster 0
+    settled = Told(M0, 0, None)                 # a server of cluster 0, unrelated to one of cluster 1
+    gap = 0.75 * P.d
+    assert np.array_equal(u(server_of_1, gap, passing), alone(server_of_1)), 'no push from one passing at 3d/4'
+    assert u(server_of_1, gap, settled)[0] < alone(server_of_1)[0] - 1.0, 'an unrelated settled MAP repels'
+    assert u(server_of_1, 0.3 * P.d, passing)[0] < alone(server_of_1)[0] - 1.0, 'closer than d/2 it repels'
+
+
 @settings(max_examples=60, deadline=None)
 @given(st.integers(2, 7), st.integers(0, 2**32 - 1), st.floats(0.3, 3.0))
 def test_every_role_gets_its_share_of_any_id_range(k: int, seed: int, scale: float) -> None:

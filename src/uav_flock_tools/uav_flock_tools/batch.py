@@ -64,7 +64,7 @@ class BatchSimulator:
         pairs = sensed.pairs
         u = control_input(sensed.q, sensed.p, sensed.n_users.astype(float), mode, target, qa, qb, pairs[:, 0],
                           sensed.q[pairs[:, 1]], sensed.p[pairs[:, 1]], sensed.n_users[pairs[:, 1]].astype(float), fp,
-                          np.array(apart, dtype=bool), ref_vel)
+                          np.array(apart, dtype=np.intp), ref_vel)
         modes = np.array([self.memory[i].mode for i in rows], dtype=np.intp)
         goals = np.array([self.memory[i].goal for i in rows], dtype=np.intp)
         w.advance(sensed, u, modes, goals, integrate)

@@ -40,5 +40,5 @@ def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_u
     u = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([ref.mode]),
                       ref.target[None, :], ref.q1[None, :], ref.q2[None, :], owner, nbrs.q, nbrs.p,
                       np.asarray(nbrs.n_users, dtype=float), params,
-                      np.array(apart_links(mem, nbrs.told, params), dtype=bool), ref.velocity[None])
+                      np.array(apart_links(mem, nbrs.told, params), dtype=np.intp), ref.velocity[None])
     return u[0], mem

@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 
 from .params import FlockParams
 from .potentials import F64, action, bump, sigma_abs, sigma_grad, sigma_norm
-from .state import M1
+from .state import M1, PASSING
 
 
 def sum_edges(values: F64, owner: NDArray[np.intp], m: int) -> F64:
@@ -40,12 +40,14 @@ def spare_weight(n_users: F64, fp: FlockParams) -> F64:
 
 def flocking_terms(own_q: F64, own_p: F64, own_nu: F64, owner: NDArray[np.intp],
                    nbr_q: F64, nbr_p: F64, nbr_nu: F64, fp: FlockParams,
-                   apart: NDArray[np.bool_] | None = None) -> F64:
+                   apart: NDArray[np.integer] | None = None) -> F64:
     """f_i + g_i (eq. 10 and the consensus term) for every own MAP from its neighbours' q, p, N_u.
 
-    apart marks links between MAPs of unrelated roles (demand allocation): they keep the repulsion of
-    Phi, so no two collide, but neither attract nor match velocities, so groups bound for different
-    places part instead of dragging one another.
+    apart says what each link is (state.RELATED, APART, PASSING; demand allocation). Unrelated MAPs keep
+    the repulsion of Phi, so no two collide, but neither attract nor match velocities, so groups bound for
+    different places part instead of dragging one another. A MAP on its way to a new role keeps only d/2
+    from the MAPs it passes: kept at d by the servers on the rim of a cluster, it slid round the disc and
+    left it off the relay chain, out of everyone's range (docs/dynamics.md, "Passing at d/2").
     """
     m = own_q.shape[0]
     if owner.size == 0:
@@ -55,8 +57,13 @@ def flocking_terms(own_q: F64, own_p: F64, own_nu: F64, owner: NDArray[np.intp],
     gain = action(z, fp.d, fp.r, fp.epsilon, fp.a, fp.b, fp.gamma) + fp.a * overload_weight(nbr_nu, fp)
     spare = spare_weight(own_nu[owner], fp)
     if apart is not None and apart.any():
-        gain = np.where(apart, np.minimum(gain, 0.0), gain)
-        spare = np.where(apart, 0.0, spare)
+        repel = np.minimum(gain, 0.0)
+        passing = apart == PASSING
+        if passing.any():
+            repel = np.where(passing, np.minimum(action(z, fp.d / 2, fp.r, fp.epsilon, fp.a, fp.b, fp.gamma), 0.0),
+                             repel)
+        gain = np.where(apart > 0, repel, gain)
+        spare = np.where(apart > 0, 0.0, spare)
     f_edges = gain[:, None] * sigma_grad(dq, fp.epsilon)
     g_edges = spare[:, None] * (nbr_p - own_p[owner])
     return sum_edges(f_edges + g_edges, owner, m)
@@ -85,7 +92,7 @@ def connectivity_potential(q: F64, q1: F64, q2: F64, fp: FlockParams) -> F64:
 
 def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer], target: F64,
                   bridge_a: F64, bridge_b: F64, owner: NDArray[np.intp], nbr_q: F64, nbr_p: F64,
-                  nbr_nu: F64, fp: FlockParams, apart: NDArray[np.bool_] | None = None,
+                  nbr_nu: F64, fp: FlockParams, apart: NDArray[np.integer] | None = None,
                   ref_vel: F64 | None = None) -> F64:
     """u_i of eq. 9 for every own MAP: flocking terms plus the goal term its mode selects.
 

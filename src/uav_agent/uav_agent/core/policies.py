@@ -16,7 +16,7 @@ from .clusters import NO_GOAL, ClusterMap, merge_achieved
 from .demand import Demand
 from .params import OPEN_CHOICES, FlockParams
 from .params import check as check_values
-from .state import NOBODY, Memory, Near, Reference, Told
+from .state import APART, NOBODY, PASSING, RELATED, Memory, Near, Reference, Told
 from .vacancy import Heard, gossip
 
 
@@ -74,8 +74,10 @@ def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told
     return ALLOCATIONS[fp.allocation].reference(mem, agent_id, q, nbr_q, told, clusters, fp)
 
 
-def apart_links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[bool]:
-    """For each neighbour heard, whether its link to this MAP (as decided this step) joins unrelated roles."""
+def apart_links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[int]:
+    """For each neighbour heard, what its link to this MAP (as decided this step) is to the flocking terms:
+    RELATED roles, APART (unrelated), or PASSING (unrelated, and one of the two on its way to a new role)."""
     own = Told.of(mem)
     allocation = ALLOCATIONS[fp.allocation]
-    return [not allocation.related(own, t) for t in heard]
+    return [RELATED if allocation.related(own, t) else PASSING if own.transit or t.transit else APART
+            for t in heard]
