@@ -57,12 +57,10 @@ def flocking_terms(own_q: F64, own_p: F64, own_nu: F64, owner: NDArray[np.intp],
     gain = action(z, fp.d, fp.r, fp.epsilon, fp.a, fp.b, fp.gamma) + fp.a * overload_weight(nbr_nu, fp)
     spare = spare_weight(own_nu[owner], fp)
     if apart is not None and apart.any():
-        repel = np.minimum(gain, 0.0)
+        gain = np.where(apart > 0, np.minimum(gain, 0.0), gain)
         passing = apart == PASSING
-        if passing.any():
-            repel = np.where(passing, np.minimum(action(z, fp.d / 2, fp.r, fp.epsilon, fp.a, fp.b, fp.gamma), 0.0),
-                             repel)
-        gain = np.where(apart > 0, repel, gain)
+        if passing.any():  # Phi's action again, with d/2 for d, on those links only
+            gain[passing] = np.minimum(action(z[passing], fp.d / 2, fp.r, fp.epsilon, fp.a, fp.b, fp.gamma), 0.0)
         spare = np.where(apart > 0, 0.0, spare)
     f_edges = gain[:, None] * sigma_grad(dq, fp.epsilon)
     g_edges = spare[:, None] * (nbr_p - own_p[owner])
