@@ -20,7 +20,9 @@ for the kinds with an event (loss, wipeout, arrival) the time from the event to 
 and connected again, and how many runs end covered and connected over their last 10 s. Then where the
 split time after convergence goes, by what the split cuts off from the largest component: at most three
 MAPs (each counted as on its way to a new role, a relay or a server) or a larger piece (a cluster's servers,
-part of a chain).
+part of a chain); and the larger pieces by what changed last within 20 s before: the spanning tree swapped
+an edge for one that shares a cluster with it (its relays swing) or for one that shares none (the old chain
+stands), a surveyed cluster ended (merged into another, or left) or began (parted from another, or arrived).
 """
 from __future__ import annotations
 
@@ -47,6 +49,8 @@ EVENT_S = {'loss': 45.0, 'wipeout': 45.0, 'arrival': 40.0}
 HELD_S = 10.0  # a run "ends covered and connected" when it is so over its last HELD_S
 FEW = 3        # up to this many MAPs cut off are told apart by what each was doing; more are a piece
 CUT = ('transit', 'relay', 'server', 'piece')
+AFTER = ('swing', 'standing', 'ended', 'began', 'none')  # what changed last before a larger piece split off
+RECENT_S = 20.0  # a change longer ago than this is 'none'
 
 
 def lb_along(s: Scenario, until: float) -> int:
@@ -134,23 +138,44 @@ def cut_off(sim: BatchSimulator) -> np.ndarray:
     return share
 
 
+def change(was: tuple[int, tuple], now: tuple[int, tuple]) -> Optional[str]:
+    """What changed between two (live clusters, spanning tree) pairs, as an AFTER name; None if nothing."""
+    (live0, tree0), (live1, tree1) = was, now
+    if live1 != live0:
+        return 'ended' if live0 & ~live1 else 'began'
+    if tree1 == tree0:
+        return None
+    ends = {k for e in tree1 if e not in tree0 for k in e}
+    return 'swing' if any(ends & set(e) for e in tree0 if e not in tree1) else 'standing'
+
+
 def run(job: tuple[str, Scenario, int]) -> dict[str, Optional[float]]:
     kind, s, draw_seed = job
     rng = np.random.default_rng(draw_seed)
     sim = BatchSimulator(s)
     event = EVENT_S.get(kind)
     cut = [cut_off(sim)]  # row k: the state metrics row k records
+    follows = [AFTER.index('none')]  # row k: what changed last before step k, for a larger piece then
+    tree = (sim.clusters.live, sim.clusters.mst(sim.clusters.live))
+    last, since = 'none', -math.inf
     for _ in range(s.steps):
         if kind == 'wipeout' and abs(sim.world.k * s.dt - event) < s.dt / 2:
             wipe_out(sim, rng)
         sim.step()
         cut.append(cut_off(sim))
+        now = (sim.clusters.live, sim.clusters.mst(sim.clusters.live))
+        what = change(tree, now)
+        if what is not None:
+            last, since = what, sim.world.k * s.dt
+        tree = now
+        follows.append(AFTER.index(last if sim.world.k * s.dt - since < RECENT_S else 'none'))
     sim.step(integrate=False)
     m = sim.result().metrics
     t, rc, connected = m[:, 1], m[:, 2], m[:, 3] > 0
     ok = (rc >= 0.95) & connected
     out: dict[str, Optional[float]] = {'converged': None, 'connected': None, 'outage': None, 'rc': None,
-                                       'recovery': None, 'ends_ok': None, **{f'split_{c}': None for c in CUT}}
+                                       'recovery': None, 'ends_ok': None, **{f'split_{c}': None for c in CUT},
+                                       **{f'piece_after_{a}': None for a in AFTER}}
     held = int(round(HELD_S / s.dt))
     out['ends_ok'] = float(ok[-held:].all())
     out['end_rc'], out['end_components'] = float(rc[-1]), float(m[-1, 5])
@@ -162,6 +187,9 @@ def run(job: tuple[str, Scenario, int]) -> dict[str, Optional[float]]:
         out.update(converged=float(t[first]), connected=float(connected[first:].mean()),
                    outage=outage_s(~connected[first:], s.dt), rc=float(rc[first:].mean()))
         out.update({f'split_{c}': float(x) for c, x in zip(CUT, np.sum(cut[first:], axis=0) * s.dt)})
+        piece = np.array(cut)[first:, CUT.index('piece')] > 0
+        out.update({f'piece_after_{a}': float(np.sum(piece & (np.array(follows[first:]) == i)) * s.dt)
+                    for i, a in enumerate(AFTER)})
     return out
 
 
@@ -192,6 +220,15 @@ def where_split(kind: str, results: list[dict[str, Optional[float]]]) -> str:
     total = by.sum(axis=1).mean()
     shares = ' | '.join(f'{x:.2f} s ({100 * x / total:.0f} %)' if total > 0 else f'{x:.2f} s' for x in by.mean(axis=0))
     return f'| {kind} | {total:.2f} s | {shares} |'
+
+
+def where_pieces(kind: str, results: list[dict[str, Optional[float]]]) -> str:
+    """Seconds per run (mean) with a larger piece cut off after convergence, by what changed last before."""
+    conv = [r for r in results if r['connected'] is not None]
+    if not conv:
+        return f'| {kind} | — |' + ' — |' * len(AFTER)
+    by = np.array([[r[f'piece_after_{a}'] for a in AFTER] for r in conv]).mean(axis=0)
+    return f'| {kind} | {by.sum():.2f} s | ' + ' | '.join(f'{x:.2f} s' for x in by) + ' |'
 
 
 def main() -> int:
@@ -237,6 +274,12 @@ def main() -> int:
     print('|---|---|---|---|---|---|')
     for kind in kinds:
         print(where_split(kind, [r for (k, _, _), r in zip(jobs, results) if k == kind]))
+    print(f'\n| kind | a larger piece cut off, per run | within {RECENT_S:g} s of: an edge swapped for one sharing a '
+          'cluster (swing) | for one sharing none (standing) | a cluster ended (merged, left) | a cluster began '
+          '(parted, arrived) | none of these |')
+    print('|---|---|---|---|---|---|---|')
+    for kind in kinds:
+        print(where_pieces(kind, [r for (k, _, _), r in zip(jobs, results) if k == kind]))
     if args.per_run:
         fields = list(results[0])
         with open(args.per_run, 'w', newline='') as f:
