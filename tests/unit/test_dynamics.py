@@ -22,7 +22,7 @@ from uav_agent.core.params import FlockParams
 from uav_flock_tools.batch import BatchSimulator
 from world_sim.core.crowd import center_at
 from world_sim.core.scenario import Cluster, ScenarioError, parse
-from world_sim.core.survey import NONE, settle, survey
+from world_sim.core.survey import NONE, find_clusters, settle, survey
 
 
 def blobs(rng: np.random.Generator, centres: np.ndarray, size: int = 200, spread: float = 10.0) -> np.ndarray:
@@ -434,3 +434,28 @@ def test_an_edge_that_leaves_the_tree_keeps_its_chain_while_the_new_one_is_staff
         assert mem.goal == last[i] and mem.transit and mem.straight
         assert en_route(mem, q, maps[-1], fp) == NO_GOAL
         assert en_route(mem._replace(straight=False), q, maps[-1], fp) != NO_GOAL, 'the tree would go round'
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(10.0, 16.0), st.floats(10.0, 16.0), st.integers(200, 700),
+       st.integers(200, 700), st.floats(1.0, 4.0), st.floats(-1.0, 1.0))
+def test_two_crowds_that_meet_stay_two_clusters(seed: int, sa: float, sb: float, na: int, nb: int, speed: float,
+                                               offset: float) -> None:
+    """Two crowds that walk into and through each other are two tracked clusters at every 2 s survey, and
+    each crowd is one of them once they are apart again. DBSCAN alone finds them as one while their tails
+    touch, and the tracker ended one id (docs/dynamics.md, "Crowds that meet stay two")."""
+    rng = np.random.default_rng(seed)
+    a, b = rng.normal(0.0, sa, size=(na, 2)), rng.normal(0.0, sb, size=(nb, 2))
+    ca, cb = np.array([0.0, 0.0]), np.array([200.0, offset * sa])  # offset: how far off head-on, up to one sigma
+    va, vb = np.array([speed, 0.0]), np.array([-speed, 0.0])
+    tracks, merged_by_dbscan = None, 0
+    for k in range(int(400.0 / (2 * speed) / 2.0) + 1):  # until they are as far apart on the other side
+        t = 2.0 * k
+        xy = np.concatenate([a + ca + va * t, b + cb + vb * t])
+        tracks, labels = survey(xy, tracks, 2.0)
+        assert int(tracks.active.sum()) == 2, f't = {t:g} s: {int(tracks.active.sum())} clusters, not 2'
+        merged_by_dbscan += int(find_clusters(xy).max()) + 1 < 2
+    assert merged_by_dbscan > 0, 'the crowds never met, so nothing was tested'
+    la, lb = labels[:na], labels[na:]
+    ia, ib = np.bincount(la[la >= 0]).argmax(), np.bincount(lb[lb >= 0]).argmax()
+    assert ia != ib and np.mean(la == ia) > 0.9 and np.mean(lb == ib) > 0.9, 'apart again, each crowd is one cluster'

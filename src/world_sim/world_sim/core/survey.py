@@ -5,7 +5,8 @@ a cluster of its own and a group that left stops being one, and the odd MSD betw
 unclustered rather than pulling a centroid. Ids are kept by tracking, not relabelled at each survey: the
 new clusters are matched to the last survey's by the Hungarian method (scipy's linear_sum_assignment) on
 centroid distance, within a gate of the two clusters' radii; an unmatched new cluster takes a new id, an
-unmatched old one ends (size 0). docs/dynamics.md gives the reasons for the constants.
+unmatched old one ends (size 0). Two tracked clusters that DBSCAN finds as one are kept apart (`separate`):
+crowds that meet stay two clusters. docs/dynamics.md gives the reasons for the constants.
 """
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from typing import Optional
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.cluster.vq import ClusterError, kmeans2
 from scipy.optimize import linear_sum_assignment
 
 from .physics import survey_radii
@@ -28,6 +30,7 @@ GATE_MARGIN = 10.0    # m added to the two radii within which a new cluster cont
 # nearly equal length the MAPs' tree flips back and forth, moving whole relay chains (docs/dynamics.md).
 SETTLE_M = 2.0
 SETTLE_MPS = 0.25
+SEPARATE_ITER = 10    # k-means iterations that split a found cluster among the tracks it holds
 MAX_IDS = 63          # ids a run may use (the agents' achieved-goal masks hold 63 clusters)
 NONE = -1             # label of an MSD in no cluster
 
@@ -64,10 +67,48 @@ def find_clusters(xy: NDArray[np.float64]) -> NDArray[np.intp]:
     return remap[labels]  # labels == -1 index remap[-1], which is NONE
 
 
+def separate(xy: NDArray[np.float64], found: NDArray[np.intp], previous: Optional[Tracks],
+             period: float) -> NDArray[np.intp]:
+    """found, with each cluster that holds the predicted centroids of two or more live tracks split among them.
+
+    DBSCAN chains two crowds into one once their tails touch, centred on the empty ground between them; the
+    tracker then ended one id, and the MAPs re-planned the tree around a cluster that was not there. A
+    track is predicted where its velocity takes it in one period; it is held by the found cluster whose
+    centroid is nearest among those whose 95 % radius reaches it. The held cluster's MSDs are split by
+    k-means (scipy's kmeans2, seeded at the predictions; single-threaded, so every process splits alike),
+    unless a part would be smaller than MIN_SIZE. New parts take labels after the found ones.
+    """
+    n = int(found.max()) + 1 if len(found) else 0
+    live = np.flatnonzero(previous.active) if previous is not None else np.zeros(0, np.intp)
+    if n == 0 or len(live) < 2:
+        return found
+    pred = previous.centroids[live] + previous.velocities[live] * period
+    cen = np.array([xy[found == j].mean(axis=0) for j in range(n)])
+    dist = np.linalg.norm(pred[:, None, :] - cen[None, :, :], axis=-1)
+    within = dist <= survey_radii(xy, found, cen)[None, :]
+    host = np.where(within.any(axis=1), np.argmin(np.where(within, dist, np.inf), axis=1), NONE)
+    out, label = found.copy(), n
+    for j in range(n):
+        held = np.flatnonzero(host == j)
+        if len(held) < 2:
+            continue
+        members = np.flatnonzero(found == j)
+        try:
+            _, part = kmeans2(xy[members], pred[held], iter=SEPARATE_ITER, minit='matrix', missing='raise')
+        except ClusterError:  # a prediction no MSD is nearest to: nothing to split off for it
+            continue
+        if np.bincount(part, minlength=len(held)).min() < MIN_SIZE:
+            continue
+        for k in range(1, len(held)):
+            out[members[part == k]] = label
+            label += 1
+    return out
+
+
 def survey(xy: NDArray[np.float64], previous: Optional[Tracks], period: float) -> tuple[Tracks, NDArray[np.intp]]:
     """(the tracks after this survey, each MSD's cluster id or NONE) from the MSDs' positions xy (M, 2),
     period s after the previous survey."""
-    found = find_clusters(xy)
+    found = separate(xy, find_clusters(xy), previous, period)
     n = int(found.max()) + 1 if len(found) else 0
     cen = np.array([xy[found == j].mean(axis=0) for j in range(n)]).reshape(-1, 2)
     rad = survey_radii(xy, found, cen) if n else np.zeros(0)
