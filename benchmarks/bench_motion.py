@@ -6,8 +6,8 @@ Layout n is layout n of `./uav-flock layouts --seed 0` (3 to 6 clusters); defaul
 batch runs. Per layout and seed, one case of each kind, drawn with the job's own generator:
   drift1/2/3  a cluster picked at random drifts in a random direction at 1, 2 or 3 m/s for the whole 90 s;
               N = ceil(1.5 x the largest LB the layout reaches along the drift, sampled every 5 s)
-  crossing    two neighbouring clusters drift through each other's place (they merge and part again by
-              t = 90 s); N as for a drift
+  crossing    two neighbouring clusters drift through each other's place (each is at the other's at 45 s
+              and as far beyond it by 90 s); N as for a drift
   loss        a static layout, N = ceil(1.8 x LB), 30 % of the MAPs fail at 45 s (the scenario's random
               failure), 120 s
   wipeout     the same, but the MAPs that fail at 45 s are all the MAPs of one role then (a cluster's

@@ -5,18 +5,20 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 from helpers.runs import cli
 from rosbags.highlevel import AnyReader
 from uav_flock_tools.bag import typestore
+from world_sim.core.survey import find_clusters
 
 
 def dynamic_scenario(paper_scenario_path: str, out: Path) -> Path:
-    """A small run in which one cluster drifts, one arrives and the survey runs every second."""
+    """A small run in which one cluster drifts into another, one arrives and the survey runs every second."""
     doc: dict[str, Any] = yaml.safe_load(Path(paper_scenario_path).read_text())
     doc.pop('policies')  # the demand allocation
     doc['users'] = {'survey': 'online', 'survey_period': 1.0, 'clusters': [
-        {'center': [-60.0, 40.0], 'spread': 10.0, 'size': 150, 'velocity': [3.0, 0.0]},
+        {'center': [-60.0, -20.0], 'spread': 10.0, 'size': 150, 'velocity': [3.0, 0.0]},
         {'center': [0.0, -20.0], 'spread': 10.0, 'size': 150, 'walk': 0.5},
         {'center': [-120.0, -30.0], 'spread': 10.0, 'size': 150, 'start': 4.0},
     ]}
@@ -48,6 +50,12 @@ def test_a_run_with_moving_users_equals_sim_and_its_bag_holds_their_motion(
     assert len(users[80].positions) == 450 and len(users[0].positions) == 300, 'the third cluster arrives at 4 s'
     assert users[80].positions[0].x > users[0].positions[0].x + 20, 'the first cluster drifts east at 3 m/s'
     assert len(versions) > 2, 'the survey re-published the clusters as they moved'
+    met = np.array([[p.x, p.y] for p in users[80].positions[:300]])
+    assert find_clusters(met).max() == 0, 'by 8 s DBSCAN finds the first two crowds as one (else nothing is tested)'
+    a, b = np.array(users[80].cluster[:150]), np.array(users[80].cluster[150:300])
+    ia, ib = np.bincount(a[a >= 0]).argmax(), np.bincount(b[b >= 0]).argmax()
+    assert ia != ib and np.mean(a == ia) > 0.9 and np.mean(b == ib) > 0.9, \
+        'the survey keeps the two crowds that met as two clusters (survey.separate)'
 
     report = cli('report', str(tmp_path / 'up'), '--out', str(tmp_path / 'report'))
     assert report.returncode == 0, report.stderr
