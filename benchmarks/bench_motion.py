@@ -156,18 +156,21 @@ def run(job: tuple[str, Scenario, int]) -> dict[str, Optional[float]]:
     event = EVENT_S.get(kind)
     cut = [cut_off(sim)]  # row k: the state metrics row k records
     follows = [AFTER.index('none')]  # row k: what changed last before step k, for a larger piece then
-    tree = (sim.clusters.live, sim.clusters.mst(sim.clusters.live))
+    known = sim.clusters
+    tree = (known.live, known.mst(known.live))
     last, since = 'none', -math.inf
     for _ in range(s.steps):
         if kind == 'wipeout' and abs(sim.world.k * s.dt - event) < s.dt / 2:
             wipe_out(sim, rng)
         sim.step()
         cut.append(cut_off(sim))
-        now = (sim.clusters.live, sim.clusters.mst(sim.clusters.live))
-        what = change(tree, now)
-        if what is not None:
-            last, since = what, sim.world.k * s.dt
-        tree = now
+        if sim.clusters is not known:  # the tree changes only with the clusters the MAPs are told of
+            known = sim.clusters
+            now = (known.live, known.mst(known.live))
+            what = change(tree, now)
+            if what is not None:
+                last, since = what, sim.world.k * s.dt
+            tree = now
         follows.append(AFTER.index(last if sim.world.k * s.dt - since < RECENT_S else 'none'))
     sim.step(integrate=False)
     m = sim.result().metrics

@@ -67,6 +67,12 @@ def find_clusters(xy: NDArray[np.float64]) -> NDArray[np.intp]:
     return remap[labels]  # labels == -1 index remap[-1], which is NONE
 
 
+def _discs(xy: NDArray[np.float64], found: NDArray[np.intp], n: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Centroid and 95 % radius of each of the n labelled clusters."""
+    cen = np.array([xy[found == j].mean(axis=0) for j in range(n)]).reshape(-1, 2)
+    return cen, (survey_radii(xy, found, cen) if n else np.zeros(0))
+
+
 def separate(xy: NDArray[np.float64], found: NDArray[np.intp], previous: Optional[Tracks],
              period: float) -> NDArray[np.intp]:
     """found, with each cluster that holds the predicted centroids of two or more live tracks split among them.
@@ -83,9 +89,9 @@ def separate(xy: NDArray[np.float64], found: NDArray[np.intp], previous: Optiona
     if n == 0 or len(live) < 2:
         return found
     pred = previous.centroids[live] + previous.velocities[live] * period
-    cen = np.array([xy[found == j].mean(axis=0) for j in range(n)])
+    cen, rad = _discs(xy, found, n)
     dist = np.linalg.norm(pred[:, None, :] - cen[None, :, :], axis=-1)
-    within = dist <= survey_radii(xy, found, cen)[None, :]
+    within = dist <= rad[None, :]
     host = np.where(within.any(axis=1), np.argmin(np.where(within, dist, np.inf), axis=1), NONE)
     out, label = found.copy(), n
     for j in range(n):
@@ -110,8 +116,7 @@ def survey(xy: NDArray[np.float64], previous: Optional[Tracks], period: float) -
     period s after the previous survey."""
     found = separate(xy, find_clusters(xy), previous, period)
     n = int(found.max()) + 1 if len(found) else 0
-    cen = np.array([xy[found == j].mean(axis=0) for j in range(n)]).reshape(-1, 2)
-    rad = survey_radii(xy, found, cen) if n else np.zeros(0)
+    cen, rad = _discs(xy, found, n)
     size = np.bincount(found[found >= 0], minlength=n)
     if previous is None:
         previous = Tracks(np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.intp), np.zeros((0, 2)))
