@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -272,11 +273,26 @@ def test_golden_bag_replays_exactly_for_every_map() -> None:
         assert 'commands compared' in done.stdout
 
 
-def test_replay_notices_a_changed_behaviour() -> None:
+def test_replay_with_a_parameter_changed_is_an_experiment(tmp_path: Path) -> None:
+    """--set is asked for on purpose: exit 0, how the commands differ, and |Δu| over time as a plot."""
     for value in ('c1=0.35', 'c1=1'):  # `c1=1` reads as an integer: the agent's double parameter still takes it
-        done = cli('replay', str(GOLDEN / 'bag'), '--agent', '2', '--set', value)
-        assert done.returncode == 1, done.stdout + done.stderr
-        assert 'behaviour differs from the recording' in done.stdout
+        plot = tmp_path / f'{value}.png'
+        done = cli('replay', str(GOLDEN / 'bag'), '--agent', '2', '--set', value, '--plot', str(plot))
+        assert done.returncode == 0, done.stdout + done.stderr
+        said = done.stdout
+        assert f'MAP 2 with {value}' in said and '|Δu|: max' in said and 'first difference at step' in said, said
+        steps = int(re.search(r'(\d+) commands compared', said)[1])
+        differ = int(re.search(r'(\d+) of \d+ steps differ', said)[1])
+        assert steps > 0 and 0 < differ <= steps, said
+        assert plot.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n' and str(plot) in said
+
+
+def test_a_replay_without_set_that_differs_fails() -> None:
+    """Without --set a difference is a finding about the code: exit 1 (the CLI's `0 if ok else 1`)."""
+    from uav_flock_tools.replay import Outcome
+    differs = Outcome(agent=2, steps=10, mismatches=['step 3: |Δu| = 0.1'])
+    assert not differs.ok and 'behaviour differs from the recording' in differs.describe()
+    assert Outcome(agent=2, steps=10, mismatches=['step 3'], changed={'c1': 0.4}).ok
 
 
 def children(pid: int) -> list[int]:

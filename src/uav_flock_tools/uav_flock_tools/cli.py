@@ -10,6 +10,7 @@ import argparse
 import signal
 import sys
 import time
+from dataclasses import fields
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any, Callable, NoReturn, Optional, Sequence
@@ -39,8 +40,11 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _ints_from(text: str, low: int, what: str) -> list[int]:
+    parts = [v.strip() for v in text.split(',')]
+    if '' in parts:  # `--maps 60,` or `--seed 0,,1`: a value left out, not one to drop silently
+        raise argparse.ArgumentTypeError(f'expected {what} separated by commas, got {text!r} (an empty item)')
     try:
-        values = [int(v) for v in text.split(',') if v.strip()]
+        values = [int(v) for v in parts]
     except ValueError:
         raise argparse.ArgumentTypeError(f'expected integers separated by commas, got {text!r}') from None
     if not values or any(v < low for v in values):
@@ -123,6 +127,25 @@ def domain_id(text: str) -> int:
     return _number_in(text, integer=True, low=0, high=MAX_DOMAIN_ID)
 
 
+MAX_PORT = 65535
+
+
+def port(text: str) -> int:
+    """A TCP port number, for every option that takes one (--view, view --port)."""
+    return _number_in(text, integer=True, low=1, high=MAX_PORT)
+
+
+def serve_port(cmd: str, option: str, number: int) -> None:
+    """One line if the port cannot be served on now: the one check of every command that serves one."""
+    import socket
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        try:
+            probe.bind(('127.0.0.1', number))
+        except OSError as exc:
+            raise UsageError(f'{cmd}: {option} {number}: the port is in use ({exc.strerror}); '
+                             f'give another ({option} PORT)') from None
+
+
 def default_out(kind: str) -> Path:
     return Path('runs') / f'{kind}-{time.strftime("%Y%m%d-%H%M%S")}'
 
@@ -164,7 +187,7 @@ SCENARIO_HELP = 'scenario YAML file, or a shipped name (default: paper)'
 BAG_HELP = 'the bag folder: RUN/bag for `up --record`, or just RUN'
 
 
-def add_scenario_options(p: argparse.ArgumentParser, grid: bool) -> None:
+def add_scenario_options(p: argparse.ArgumentParser, grid: bool, failures: bool = True) -> None:
     """grid: lists of MAP counts and seeds (a batch sweep); else one of each (a single distributed run)."""
     p.add_argument('--scenario', default='paper', help=SCENARIO_HELP)
     if grid:
@@ -174,19 +197,26 @@ def add_scenario_options(p: argparse.ArgumentParser, grid: bool) -> None:
         p.add_argument('--maps', type=positive_int, help='MAP count, e.g. 90 (default: scenario)')
         p.add_argument('--seed', type=non_negative_int, help='seed, e.g. 3 (default: scenario)')
     p.add_argument('--duration', type=positive_float, help='simulated time in s (default: scenario)')
-    p.add_argument('--fail-at', type=positive_float, help='time of the random failure in s')
-    p.add_argument('--fail-fraction', type=fraction, help='fraction of MAPs failing at --fail-at')
+    if failures:
+        p.add_argument('--fail-at', type=positive_float,
+                       help="time of the random failure in s (default: the scenario's failure.at; paper: none)")
+        p.add_argument('--fail-fraction', type=fraction,
+                       help="fraction of the MAPs failing at --fail-at, 0 to 1 (default: the scenario's "
+                            'failure.fraction; paper: none)')
 
 
 def check_failure(cmd: str, base: 'Scenario', args: argparse.Namespace) -> None:
     """A failure option that would do nothing is a mistake: say so rather than run without the failure."""
+    duration = args.duration or base.duration
+    if args.duration is not None and args.duration < base.dt:
+        raise UsageError(f'{cmd}: --duration {args.duration:g} s is shorter than one step of the scenario '
+                         f'(dt = {base.dt:g} s)')
     if args.fail_fraction and args.fail_at is None and base.fail_at is None:
         raise UsageError(f'{cmd}: --fail-fraction needs --fail-at (or failure.at in the scenario)')
     if args.fail_at is None:
         return
     if args.fail_fraction is None and not base.fail_fraction:
         raise UsageError(f'{cmd}: --fail-at needs --fail-fraction (or failure.fraction in the scenario)')
-    duration = args.duration or base.duration
     if args.fail_at >= duration:
         raise UsageError(f'{cmd}: --fail-at {args.fail_at:g} s is not before the end of the run ({duration:g} s)')
 
@@ -195,11 +225,12 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from . import plots, simrun
+    cmd = args.command
     base = simrun.load_scenario(args.scenario)
-    check_failure('sim', base, args)
+    check_failure(cmd, base, args)
     maps = args.maps or [base.maps]
     seeds = args.seed or [base.seed]
-    out = run_folder(Path(args.out) if args.out else default_out('sim'), 'sim: --out', args.replace)
+    out = run_folder(Path(args.out) if args.out else default_out(cmd), f'{cmd}: --out', args.replace)
     runs = simrun.grid(base, maps, seeds, duration=args.duration, fail_at=args.fail_at,
                        fail_fraction=args.fail_fraction)
     if (note := floor_note(base, min(maps))) is not None:
@@ -239,19 +270,33 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 VIEW_PORT = 8765  # the live view's WebSocket port when --view names none (Foxglove's usual)
-RUN_AGENTS_PER_PROCESS = 10  # the main job packs agents: see docs/benchmarks.md for one process per MAP
+PROCESSES_PER_CORE = 4  # agent processes per core when packing is left to `up` (docs/benchmarks.md)
+
+
+def auto_agents_per_process(maps: int, cores: Optional[int] = None) -> int:
+    """About four agent processes per core, the MAPs shared among them: 12 a process for 90 MAPs on 2 cores.
+
+    One process per MAP costs 2.1 times the CPU per MAP-step of ten per process (docs/benchmarks.md), and
+    90 of them spend their first minute in discovery.
+    """
+    import math
+    import os
+    return max(1, math.ceil(maps / (PROCESSES_PER_CORE * (cores or os.cpu_count() or 1))))
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    """The main job: the paper scenario with 90 MAPs, distributed and recorded, then its report."""
-    ns = argparse.Namespace(scenario='paper', maps=[90], seed=None, duration=None, fail_at=None,
-                            fail_fraction=None, out=args.out or str(default_out('run')), replace=args.replace)
+    """The main job: a scenario (the paper's with 90 MAPs by default), distributed and recorded, then its report."""
+    ns = argparse.Namespace(command='run', scenario=args.scenario, maps=args.maps, seed=args.seed,
+                            duration=args.duration, fail_at=None, fail_fraction=None,
+                            out=args.out or str(default_out('run')), replace=args.replace)
     if args.batch:
         if args.view is not None:
             raise UsageError('run: --view watches the distributed run; --batch has no topics to watch')
+        ns.__dict__.update(maps=None if args.maps is None else [args.maps],
+                           seed=None if args.seed is None else [args.seed], pictures=None)
         return cmd_sim(ns)
-    ns.__dict__.update(maps=90, agents_per_process=RUN_AGENTS_PER_PROCESS, domain_id=None, discovery='auto',
-                       record=True, sync='lockstep', rate=1.0, listen=None, agents_here=None, view=args.view)
+    ns.__dict__.update(agents_per_process=None, domain_id=None, discovery='auto', record=True, sync='lockstep',
+                       rate=1.0, listen=None, agents_here=None, view=args.view)
     code = cmd_up(ns)
     bag_path = Path(ns.out) / 'bag'
     if (bag_path / 'metadata.yaml').exists():
@@ -260,35 +305,34 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_up(args: argparse.Namespace) -> int:
-    """world_sim and one process per MAP (or K per process), in lockstep or in real time."""
+    """world_sim and the MAPs' agent processes (K MAPs a process), in lockstep or in real time."""
     from world_sim.shipped import resolve
 
     from . import domains, launcher, simrun
+    cmd = args.command
     path = resolve(args.scenario)
     base = simrun.load_scenario(args.scenario)
-    check_failure('up', base, args)
+    check_failure(cmd, base, args)
     s = base.with_overrides(maps=args.maps, seed=args.seed, duration=args.duration, fail_at=args.fail_at,
                             fail_fraction=args.fail_fraction)
     if args.rate != 1.0 and args.sync != 'realtime':
-        raise UsageError('up: --rate sets the pace of --sync realtime; lockstep runs as fast as it can')
+        raise UsageError(f'{cmd}: --rate sets the pace of --sync realtime; lockstep runs as fast as it can')
     if args.listen is not None:
         listen_address(args.listen)
     if args.agents_here is not None and args.listen is None:
-        raise UsageError('up: --agents-here leaves MAPs to agents of other hosts: give --listen ADDRESS for them')
+        raise UsageError(f'{cmd}: --agents-here leaves MAPs to agents of other hosts: give --listen ADDRESS for them')
     if args.agents_here is not None and args.agents_here > s.maps:
-        raise UsageError(f'up: --agents-here {args.agents_here}: the run has {s.maps} MAPs')
+        raise UsageError(f'{cmd}: --agents-here {args.agents_here}: the run has {s.maps} MAPs')
     if args.view is not None:
-        try:
-            launcher.port_free(args.view)
-        except ValueError as exc:
-            raise UsageError(f'up: {exc}') from None
-    out = run_folder(Path(args.out) if args.out else default_out('up'), 'up: --out', args.replace)
+        serve_port(cmd, '--view', args.view)
+    per_process = args.agents_per_process or auto_agents_per_process(s.maps)
+    out = run_folder(Path(args.out) if args.out else default_out(cmd), f'{cmd}: --out', args.replace)
     try:
-        code, result = launcher.up(path.resolve(), s, out.resolve(), args.agents_per_process, args.domain_id,
+        code, result = launcher.up(path.resolve(), s, out.resolve(), per_process, args.domain_id,
                                    args.discovery, args.record, args.sync, args.rate, args.listen, args.agents_here,
                                    floor_note(s, s.maps), args.view)
     except (FileExistsError, ValueError, domains.DomainInUse) as exc:
-        raise UsageError(f'up: {exc}') from None
+        raise UsageError(f'{cmd}: {exc}') from None
     if result is None:
         return code or 1
     simrun.write_run(result, out, f'{s.maps} MAPs, seed {s.seed} (distributed)')
@@ -415,6 +459,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 def cmd_view(args: argparse.Namespace) -> int:
     from . import bag, view
+    serve_port('view', '--port', args.port)
     try:
         path = bag.find_bag(Path(args.bag))
         sent = view.play(path, args.port, args.rate, args.loop)
@@ -425,12 +470,27 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    """Without --set a check (exit 1 if the agent now commands otherwise); with it an experiment (exit 0)."""
     from . import bag, domains, replay
+    if args.plot and not args.set:
+        raise UsageError('replay: --plot draws the difference that --set makes: give --set KEY=VALUE')
     try:
-        outcome = replay.replay(Path(args.bag), args.agent, args.tolerance, args.timeout, dict(args.set or []))
+        path = bag.find_bag(Path(args.bag))
+        plot = Path(args.plot) if args.plot else path.parent / f'replay_map{args.agent}.png'  # beside the bag
+        if args.set:
+            make_folder(plot.parent, 'replay: --plot')
+        outcome = replay.replay(path, args.agent, args.tolerance, args.timeout, dict(args.set or []))
     except (bag.BagError, replay.ReplayError, domains.DomainInUse) as exc:
         raise UsageError(f'replay: {exc}') from None
     print(outcome.describe())
+    if outcome.changed and outcome.du:
+        import numpy as np
+
+        from . import plots
+        t, du = np.array(outcome.du).T
+        setting = ', '.join(f'{k}={v}' for k, v in outcome.changed.items())
+        plots.command_difference(t, du, args.tolerance, f'MAP {args.agent} replayed with {setting}', plot)
+        print(f'  |Δu| over time: {plot}')
     return 0 if outcome.ok else 1
 
 
@@ -498,6 +558,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+AGENTS_PER_PROCESS_HELP = (f'K MAPs\' agent nodes in each process (default: about {PROCESSES_PER_CORE} processes per core, '
+                           'ceil(MAPs / (4 x cores)): 12 for 90 MAPs on 2 cores; 1 gives each MAP a process of its '
+                           'own, which costs twice the CPU and a slow start: 90 MAPs take several minutes)')
+
+
 def add_run_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
     """sim, run, up and agents: what runs a scenario."""
     from uav_flock_ros.qos import SYNC_MODES
@@ -505,15 +570,16 @@ def add_run_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
     add_scenario_options(p, grid=True)
     p.add_argument('--out', help='output folder (default: runs/sim-<time>)')
     p.add_argument('--replace', action='store_true', help='replace the earlier run in --out (refused otherwise)')
-    p = command(sub, 'run', cmd_run, 'the main job: the paper scenario with 90 MAPs, distributed and recorded, '
+    p = command(sub, 'run', cmd_run, 'the main job: a scenario (the paper with 90 MAPs) distributed and recorded, '
                                    'with plots and a report of its bag')
+    add_scenario_options(p, grid=False, failures=False)
     p.add_argument('--batch', action='store_true', help='in one process with the batch simulator instead (seconds)')
     add_view_option(p)
     p.add_argument('--out', help='output folder (default: runs/run-<time>)')
     p.add_argument('--replace', action='store_true', help='replace the earlier run in --out (refused otherwise)')
-    p = command(sub, 'up', cmd_up, 'run a scenario distributed: world_sim and one process per MAP')
+    p = command(sub, 'up', cmd_up, 'run a scenario distributed: world_sim and the MAPs as agent processes')
     add_scenario_options(p, grid=False)
-    p.add_argument('--agents-per-process', type=positive_int, default=1, help='pack K agent nodes into one process')
+    p.add_argument('--agents-per-process', type=positive_int, metavar='K', help=AGENTS_PER_PROCESS_HELP)
     p.add_argument('--domain-id', type=domain_id,
                    help='ROS_DOMAIN_ID to use (default: one from 1 to 101 that no other run on this host holds)')
     p.add_argument('--discovery', choices=('auto', 'localhost', 'subnet', 'server'), default='auto',
@@ -535,7 +601,7 @@ def add_run_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
     p = command(sub, 'agents', cmd_agents, 'agent processes on this host that join a run of `up --listen` on another')
     p.add_argument('--join', required=True, metavar='HOST:PORT', help='the address `up --listen` printed')
     p.add_argument('--ids', type=id_list, required=True, help='MAP ids to run here, e.g. 30-89')
-    p.add_argument('--agents-per-process', type=positive_int, default=1, help='pack K agent nodes into one process')
+    p.add_argument('--agents-per-process', type=positive_int, metavar='K', help=AGENTS_PER_PROCESS_HELP)
     p.add_argument('--timeout', type=positive_float, default=RUN_INFO_TIMEOUT_S,
                    help=f'wait this long for the run to answer (s, default: {RUN_INFO_TIMEOUT_S:g})')
     p.add_argument('--out', help='folder for this host\'s logs and pids (default: runs/agents-<time>)')
@@ -543,7 +609,7 @@ def add_run_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
 
 
 def add_view_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument('--view', nargs='?', const=VIEW_PORT, type=positive_int, metavar='PORT',
+    p.add_argument('--view', nargs='?', const=VIEW_PORT, type=port, metavar='PORT',
                    help=f'serve the run live to Foxglove or Lichtblick on ws://localhost:PORT (default {VIEW_PORT})')
 
 
@@ -572,7 +638,7 @@ def add_inspect_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
     p.add_argument('--replace', action='store_true', help='write over an earlier report in that folder (refused otherwise)')
     p = command(sub, 'view', cmd_view, 'play a recorded run into the live view (Foxglove WebSocket) at its pace')
     p.add_argument('bag', help=BAG_HELP)
-    p.add_argument('--port', type=positive_int, default=VIEW_PORT, help=f'WebSocket port (default {VIEW_PORT})')
+    p.add_argument('--port', type=port, default=VIEW_PORT, help=f'WebSocket port (default {VIEW_PORT})')
     p.add_argument('--rate', type=positive_float, default=1.0, help='simulated seconds per wall second (default 1)')
     p.add_argument('--loop', action='store_true', help='start again at the end, until Ctrl-C')
     p = command(sub, 'replay', cmd_replay, "feed one MAP's recorded inputs to a fresh agent node, compare commands")
@@ -580,9 +646,18 @@ def add_inspect_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
     p.add_argument('--agent', type=non_negative_int, required=True, help='the MAP id to replay')
     p.add_argument('--tolerance', type=non_negative_float, default=1e-9,
                    help='largest |Δu| accepted (m/s^2, default 1e-9)')
-    p.add_argument('--timeout', type=positive_float, default=20.0, help='wait this long for a command (s)')
+    p.add_argument('--timeout', type=positive_float, default=20.0,
+                   help='wait this long for each command (s, default 20)')
     p.add_argument('--set', type=key_value, action='append', metavar='KEY=VALUE',
-                   help='replay with an agent parameter changed, e.g. --set c1=0.4 (repeatable)')
+                   help='an experiment: replay with an agent parameter changed, e.g. --set c1=0.4 (repeatable); '
+                        f'exit 0 and a summary of how the commands differ. Keys: {", ".join(replay_keys())}')
+    p.add_argument('--plot', metavar='PNG', help='with --set: where the plot of |Δu| over time goes '
+                                                 '(default: replay_map<ID>.png beside the bag folder)')
+
+
+def replay_keys() -> list[str]:
+    from uav_agent.core.params import FlockParams
+    return [f.name for f in fields(FlockParams)]
 
 
 def add_study_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
@@ -621,8 +696,11 @@ def _main(argv: Optional[Sequence[str]]) -> int:
                              f'(see `uav-flock {args.command} --help`)')
         func: Callable[[argparse.Namespace], int] = args.func
         return func(args)
-    except (UsageError, ScenarioError) as exc:
+    except UsageError as exc:
         print(f'uav-flock: error: {exc}', file=sys.stderr)
+        return EXIT_USAGE
+    except ScenarioError as exc:  # the scenario, or an option that overrides a key of it
+        print(f'uav-flock: error: {args.command}: {exc}', file=sys.stderr)
         return EXIT_USAGE
 
 
@@ -659,6 +737,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except KeyboardInterrupt:
         print('uav-flock: interrupted', file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # The reader of our output left (`echo /metrics | head -3`): done, quietly, as `ros2 topic echo | head`.
+        # What Python would still flush at exit goes nowhere instead of raising again.
+        import os
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 if __name__ == '__main__':

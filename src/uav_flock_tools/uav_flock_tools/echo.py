@@ -6,6 +6,7 @@ import json
 import math
 import os
 import re
+import sys
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Optional
@@ -127,6 +128,11 @@ def topics(run: Optional[str], domain_id: Optional[int]) -> int:
         raise KeyboardInterrupt  # before the list was complete: the CLI says it was interrupted
     for name, types in sorted(seen, key=lambda nt: natural(nt[0])):
         print(f'{name} [{", ".join(types)}]')
+    if not any(name not in OWN_TOPICS for name, _ in seen):
+        domain = os.environ.get('ROS_DOMAIN_ID', '0')
+        print(f'topics: only these two, which every node has, on ROS_DOMAIN_ID={domain}: no run there. Each run of `up` '
+              'has a domain of its own: give --run RUN (its folder) or --domain-id ID (its run.json names it)',
+              file=sys.stderr)
     return 0
 
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -128,17 +127,6 @@ def plan(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process:
     return Plan(scenario_path, scenario, run, agents_per_process, record, sync, rate, claim, server_address,
                 discovery_range, ros_env(claim.domain, server_address, discovery_range), timeout, groups,
                 list(range(here, scenario.maps)), view)
-
-
-def port_free(port: int) -> None:
-    """ValueError naming the port if the live view could not serve on it (taken, or not a port)."""
-    if not 0 < port < 65536:
-        raise ValueError(f'--view {port}: not a TCP port (1 to 65535)')
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
-        try:
-            probe.bind(('127.0.0.1', port))
-        except OSError:
-            raise ValueError(f'--view {port}: the port is in use; give another (--view PORT)') from None
 
 
 class Run:

@@ -79,6 +79,16 @@ def fiedler_series(series: Sequence[tuple[str, np.ndarray, np.ndarray]], title: 
     return save(fig, path)
 
 
+def command_difference(t: np.ndarray, du: np.ndarray, tolerance: float, title: str, path: Path) -> Path:
+    """|Δu| of a replay against the recording over time, on a log axis where 1e-12 and 1 both read."""
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    floor = tolerance / 100 if tolerance > 0 else 1e-15
+    ax.semilogy(t, np.maximum(du, floor), lw=1.2, label='|Δu|, replayed - recorded')
+    ax.axhline(max(tolerance, floor), color='grey', ls='--', lw=1, label=f'tolerance {tolerance:g}')
+    finish(ax, 'time t (s)', '|Δu| (m/s², log)', title)
+    return save(fig, path)
+
+
 def mode_counts(t: np.ndarray, counts: np.ndarray, title: str, path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for m in range(3):

@@ -41,12 +41,44 @@ class Outcome:
     stuck_at: Optional[int] = None       # step the agent gave no command for
     tolerance: float = 1e-9
     note: str = ''
+    changed: dict[str, object] = field(default_factory=dict)  # --set: an experiment, not a check
+    du: list[tuple[float, float]] = field(default_factory=list)  # (t in s, |Δu|) of each step compared
+    differing: list[int] = field(default_factory=list)  # steps whose command differs beyond the tolerance
+    compared: list[int] = field(default_factory=list)  # the steps compared, in order
+    mode_changes: int = 0  # steps whose mode differs from the recorded one
+    goal_changes: int = 0
 
     @property
     def ok(self) -> bool:
+        """A check passes when nothing differs; an experiment when it ran to the end of the recording."""
+        if self.changed:
+            return self.steps > 0 and self.stuck_at is None
         return self.steps > 0 and not self.mismatches and self.stuck_at is None
 
     def describe(self) -> str:
+        return self.describe_experiment() if self.changed else self.describe_check()
+
+    def describe_experiment(self) -> str:
+        """How the commands with the parameters changed differ from the recorded ones, in a few lines."""
+        setting = ', '.join(f'{k}={v}' for k, v in self.changed.items())
+        du = np.array([d for _, d in self.du]) if self.du else np.zeros(1)
+        lines = [f'MAP {self.agent} with {setting}: {self.steps} commands compared with the recording',
+                 f'  |Δu|: max {du.max():.3g}, mean {du.mean():.3g} m/s^2; {len(self.differing)} of {self.steps} '
+                 f'steps differ by more than {self.tolerance:g}']
+        if self.differing:
+            first = self.differing[0]
+            t_first = next(t for (t, _), k in zip(self.du, self.compared) if k == first)
+            lines.append(f'  first difference at step {first} (t = {t_first:.1f} s); '
+                         f'{self.mode_changes} steps with another mode, {self.goal_changes} with another goal')
+        else:
+            lines.append('  no step differs: the change does not touch what this MAP did in this run')
+        if self.stuck_at is not None:
+            lines.append(f'  no command for step {self.stuck_at}: the agent waited for something the bag does not hold')
+        if self.note:
+            lines.append(f'  note: {self.note}')
+        return '\n'.join(lines)
+
+    def describe_check(self) -> str:
         head = (f'MAP {self.agent}: {self.steps} commands compared, max |Δu| = {self.max_du:.3g} m/s^2 '
                 f'(tolerance {self.tolerance:g}), {len(self.mismatches)} mismatching')
         lines = [head] + [f'  {m}' for m in self.mismatches[:10]]
@@ -73,13 +105,8 @@ def replay(path: Path, agent: int, tolerance: float = 1e-9, timeout: float = 20.
     if not inputs.params:
         outcome.note = 'the bag carries no agent parameters (uav_flock.params): the defaults were used'
     if overrides:
-        unknown = sorted(set(overrides) - {f.name for f in fields(FlockParams)})
-        if unknown:
-            raise ReplayError(f'--set: no agent parameter {unknown[0]!r}')
-        # `--set c1=1` reads as an integer; ROS parameters are typed, and the agent declares c1 a double.
-        floats = {f.name for f in fields(FlockParams) if isinstance(f.default, float)}
-        inputs.params = {**inputs.params, **{k: float(v) if k in floats and type(v) is int else v
-                                            for k, v in overrides.items()}}
+        outcome.changed = checked_overrides(overrides, inputs.params)
+        inputs.params = {**inputs.params, **outcome.changed}
     with domains.claim_domain() as domain, tempfile.TemporaryDirectory(prefix='uav-flock-replay-') as tmp:
         env = domains.ros_env(domain)
         params = write_params(Path(tmp) / 'agent_params.yaml', inputs.params)
@@ -110,10 +137,43 @@ def replay(path: Path, agent: int, tolerance: float = 1e-9, timeout: float = 20.
     return outcome
 
 
+def _lookalike(name: str) -> str:
+    """A name as it reads to the eye: `cl` for c1 and `n0` for nO are typing slips, not other names."""
+    return name.lower().translate(str.maketrans('lio', '110'))
+
+
+def checked_overrides(overrides: dict[str, object], recorded: dict[str, object]) -> dict[str, object]:
+    """--set KEY=VALUE pairs as agent parameters (`flock.c1` as in a scenario names c1 too), each checked as
+    the agent node would check it, with the bag's other parameters: ReplayError in one line, before any
+    process starts."""
+    import difflib
+
+    from uav_agent.core.policies import check
+    names = [f.name for f in fields(FlockParams)]
+    # `--set c1=1` reads as an integer; ROS parameters are typed, and the agent declares c1 a double.
+    floats = {f.name for f in fields(FlockParams) if isinstance(f.default, float)}
+    changed: dict[str, object] = {}
+    for key, value in overrides.items():
+        name = key.removeprefix('flock.')
+        if name not in names:
+            near = [n for n in names if _lookalike(n) == _lookalike(name)] or \
+                difflib.get_close_matches(name, names, n=1, cutoff=0.5)
+            hint = f'; did you mean {near[0]}?' if near else ''
+            raise ReplayError(f'--set: no agent parameter {key!r}{hint} (keys: {", ".join(names)})')
+        changed[name] = float(value) if name in floats and type(value) is int else value
+    base = {k: v for k, v in recorded.items() if k in names}
+    try:
+        check(FlockParams(**{**base, **changed}), lambda name: f'--set {name}')
+    except ValueError as exc:
+        raise ReplayError(str(exc)) from None
+    return changed
+
+
 def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
            agent_exit: Callable[[], Optional[str]]) -> None:
     import rclpy
     from rclpy.node import Node
+    from rclpy.serialization import deserialize_message
     from rclpy.signals import SignalHandlerOptions
     from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
 
@@ -179,7 +239,8 @@ def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
             if k not in answers:
                 outcome.stuck_at = k
                 return
-            _compare(outcome, answers.pop(k), inputs.commands[k])
+            stamp = deserialize_message(raw, Sensing).header.stamp  # the simulated time of step k
+            _compare(outcome, answers.pop(k), inputs.commands[k], stamp.sec + stamp.nanosec * 1e-9)
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
@@ -193,11 +254,16 @@ def _still_starting(agent: int, deadline: float, agent_exit: Callable[[], Option
         raise ReplayError(f'the agent node of MAP {agent} did not appear within {READY_TIMEOUT_S:g} s')
 
 
-def _compare(outcome: Outcome, got: 'convert.CommandData', want: 'convert.CommandData') -> None:
+def _compare(outcome: Outcome, got: 'convert.CommandData', want: 'convert.CommandData', t: float) -> None:
     """One step's command against the recorded one."""
     du = float(np.max(np.abs(got.u - want.u)))
     outcome.max_du = max(outcome.max_du, du)
     outcome.steps += 1
+    outcome.du.append((t, du))
+    outcome.compared.append(got.step)
+    outcome.mode_changes += got.mode != want.mode
+    outcome.goal_changes += got.goal != want.goal
     if du > outcome.tolerance or got.mode != want.mode or got.goal != want.goal:
+        outcome.differing.append(got.step)
         outcome.mismatches.append(f'step {got.step}: |Δu| = {du:.3g}, mode {got.mode} (recorded {want.mode}), '
                                   f'goal {got.goal} (recorded {want.goal})')
