@@ -93,7 +93,8 @@ def test_a_run_whose_maps_all_fail_goes_on_to_its_end(tmp_path: Path, ros_env: d
 def test_killed_agents_are_dropped_and_the_run_completes(tmp_path: Path, ros_env: dict[str, str]) -> None:
     run = tmp_path / 'up'
     shm_before = shm_entries()
-    proc = up('--maps', '12', '--seed', '0', '--duration', '60', '--out', str(run), env=ros_env)
+    proc = up('--maps', '12', '--seed', '0', '--duration', '60', '--agents-per-process', '1', '--out', str(run),
+              env=ros_env)
     seen, rest = kill_during(proc, str(run), '3,7', 't =   2.0 s')
     assert proc.returncode == 0, seen + rest
     assert shm_entries() - shm_before == set(), 'SIGKILLed agents left shared-memory files (segments or ports)'
@@ -106,32 +107,40 @@ def test_killed_agents_are_dropped_and_the_run_completes(tmp_path: Path, ros_env
     assert last == set(range(12)) - {3, 7}
 
 
-def test_kill_takes_exactly_the_maps_it_says_when_agents_are_packed(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    """A SIGKILL takes a whole process: one MAP of five packed is refused, naming the others; with
-    --whole-processes all five go, and what kill prints is what world_sim drops and the alive count shows."""
+def test_kill_of_one_packed_map_ends_its_node_alone(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """A MAP packed with four others is killed alone: its node ends inside the living process, world_sim drops
+    exactly it, and the run goes on with one MAP fewer; its four process mates fly to the end. Then
+    --whole-processes SIGKILLs a whole process, and what kill prints is what world_sim drops."""
     run = tmp_path / 'up'
     proc = up('--maps', '10', '--seed', '0', '--duration', '150', '--agents-per-process', '5', '--out', str(run),
               env=ros_env)
     try:
         wait_for_line(proc, 't =   2.0 s', 120)
-        refused = cli('kill', '--run', str(run), '--ids', '3')
-        assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1, refused.stderr
-        assert 'MAPs [0, 1, 2, 4]' in refused.stderr and '--whole-processes' in refused.stderr, refused.stderr
-        fraction = cli('kill', '--run', str(run), '--fraction', '0.1')
-        assert fraction.returncode == 2 and '--whole-processes' in fraction.stderr, fraction.stderr
-        killed = cli('kill', '--run', str(run), '--ids', '3', '--whole-processes')
-        assert killed.returncode == 0 and 'SIGKILLed MAPs [0, 1, 2, 3, 4]' in killed.stdout, killed.stdout + killed.stderr
+        pids = json.loads((run / 'pids.json').read_text())
+        killed = cli('kill', '--run', str(run), '--ids', '3')
+        assert killed.returncode == 0 and 'killed MAPs [3]' in killed.stdout, killed.stdout + killed.stderr
         seen = ''.join(wait_for_line(proc, '(killed)', 60))
-        if len(dropped_ids(seen)) < 5:
-            seen += ''.join(wait_for_line(proc, '(killed)', 60))
+        assert dropped_ids(seen) == [3], seen
+        assert not dead(pids['3']), 'the process of MAP 3 lives on for its other MAPs'
+        again = cli('kill', '--run', str(run), '--ids', '3')
+        assert again.returncode == 2 and 'MAP 3 is not alive' in again.stderr, again.stderr
+        whole = cli('kill', '--run', str(run), '--ids', '7', '--whole-processes')
+        assert whole.returncode == 0 and 'SIGKILLed MAPs [5, 6, 7, 8, 9]' in whole.stdout, whole.stdout + whole.stderr
+        more = ''.join(wait_for_line(proc, '(killed)', 60))
+        if len(dropped_ids(more)) < 5:
+            more += ''.join(wait_for_line(proc, '(killed)', 60))
         rest, _ = proc.communicate(timeout=300)
     finally:
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 0, seen + rest
-    assert dropped_ids(seen) == [0, 1, 2, 3, 4], seen
+    assert dropped_ids(more) == [5, 6, 7, 8, 9], more
     m = read_csv(run / 'metrics.csv')
-    assert m['alive'][0] == 10 and m['alive'][-1] == 5
+    assert m['alive'][0] == 10 and m['alive'][-1] == 4 and m['t'][-1] == 150.0
+    assert sorted(set(m['alive'].astype(int).tolist())) == [4, 9, 10], 'one fewer, then five fewer, nothing else'
+    t = read_csv(run / 'trajectory.csv')
+    last = set(t['id'][t['step'] == t['step'].max()].astype(int).tolist())
+    assert last == {0, 1, 2, 4}, 'the killed MAP\'s process mates fly to the end'
     after = cli('kill', '--run', str(run), '--ids', '5')
     assert after.returncode == 2 and 'has ended' in after.stderr, after.stdout + after.stderr
 

@@ -10,9 +10,12 @@ its /map_<id>/state for step k. Then, by sync mode:
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import time
 from dataclasses import fields
+from pathlib import Path
+from types import FrameType
 from typing import Optional
 
 import numpy as np
@@ -77,6 +80,7 @@ class AgentNode(Node):
         self.hysteresis = float(node.hysteresis)
         self.realtime = is_realtime(str(node.sync))
         self.world_start_timeout = float(node.world_start_timeout)
+        self.crash_dir = str(node.crash_dir)
         self.world_seen = False
 
         self.memory = Memory()
@@ -358,9 +362,33 @@ def parse_ids(argv: list[str]) -> list[int]:
     return ids
 
 
+class CrashRequests:
+    """SIGUSR1 says `uav-flock kill` has named MAPs of this process in crash_dir: their nodes are to end.
+
+    A SIGKILL takes every MAP of a process; this takes one, between callbacks, as abruptly: no last state or
+    command, nothing flushed. Its writers and readers leave the graph with it, which is how world_sim tells
+    that it is gone (as of a MAP on another host).
+    """
+
+    def __init__(self) -> None:
+        self.pending = False
+        signal.signal(signal.SIGUSR1, self._on_signal)
+
+    def _on_signal(self, signum: int, frame: Optional[FrameType]) -> None:
+        self.pending = True
+
+    def take(self, nodes: list['AgentNode']) -> list['AgentNode']:
+        """The nodes named in crash_dir, once per signal."""
+        if not self.pending:
+            return []
+        self.pending = False
+        return [n for n in nodes if n.crash_dir and (Path(n.crash_dir) / str(n.map_id)).exists()]
+
+
 def main(argv: Optional[list[str]] = None) -> int:
     argv = sys.argv if argv is None else argv
     ids = parse_ids(rclpy.utilities.remove_ros_args(argv)[1:])
+    crashes = CrashRequests()  # before the nodes exist: a request that comes early waits for the loop
     # No rclpy signal handlers: theirs shut the context down under a running callback, whose publish then
     # fails and is logged as a fatal callback error. The loop ends on the flag instead, between callbacks.
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
@@ -375,8 +403,12 @@ def main(argv: Optional[list[str]] = None) -> int:
     for n in nodes:
         executor.add_node(n)
     try:
-        while not stop.received and not all(n.stopped for n in nodes):
+        while nodes and not stop.received and not all(n.stopped for n in nodes):
             executor.spin_once(timeout_sec=0.5)
+            for n in crashes.take(nodes):
+                executor.remove_node(n)
+                n.destroy_node()
+                nodes.remove(n)
     finally:
         # What the MAPs said last reaches every reader that has not acknowledged it yet (the recorder may be
         # repairing a lost datagram) before the writers go; a reader that died with its MAP is waited for no

@@ -417,10 +417,14 @@ def cmd_kill(args: argparse.Namespace) -> int:
     if (args.ids is None) == (args.fraction is None):
         raise UsageError('kill: give exactly one of --ids or --fraction')
     try:
-        killed, pids = kill(Path(args.run), args.ids, args.fraction, args.whole_processes)
+        killed, pids, whole = kill(Path(args.run), args.ids, args.fraction, args.whole_processes)
     except (FileNotFoundError, ValueError) as exc:
         raise UsageError(f'kill: {exc}') from None
-    print(f'SIGKILLed MAPs {killed} (processes {pids})')
+    if whole:
+        print(f'SIGKILLed MAPs {killed} (processes {pids})')
+    else:
+        print(f'killed MAPs {killed} (their nodes ended inside processes {pids}, whose other MAPs fly on; '
+              'a MAP alone in its process was SIGKILLed with it)')
     return 0
 
 
@@ -615,13 +619,13 @@ def add_view_option(p: argparse.ArgumentParser) -> None:
 
 def add_inspect_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
     """kill, echo, topics, report and replay: what looks into a run, or breaks it on purpose."""
-    p = command(sub, 'kill', cmd_kill, 'SIGKILL agent processes of a running `up`')
+    p = command(sub, 'kill', cmd_kill, 'kill MAPs of a running `up` as a crash would: a MAP packed with others has '
+                                     'its node ended inside its process, the others fly on')
     p.add_argument('--run', required=True, help='the run folder of `up`')
     p.add_argument('--ids', type=int_list, help='MAP ids to kill, e.g. 3,7')
     p.add_argument('--fraction', type=fraction, help='fraction of the live MAPs to kill, chosen at random')
     p.add_argument('--whole-processes', action='store_true',
-                   help='with agents packed several to a process: kill every MAP of the processes concerned '
-                        '(refused otherwise, since a SIGKILL takes them all)')
+                   help='SIGKILL the whole agent processes of the MAPs named, with every MAP they hold')
     p = command(sub, 'echo', cmd_echo, 'print messages of a topic as `ros2 topic echo` does')
     p.add_argument('topic', help='the topic, e.g. /metrics or map_3/state (relative names are taken from /)')
     p.add_argument('--once', action='store_true', help='print one message and exit')

@@ -18,7 +18,7 @@ from pathlib import Path
 from uav_flock_ros.processes import write_params
 
 from .domains import DISCOVERY_BASE_PORT, ros_env
-from .spawn import ForkedAgent, start_agents, stop, write_pid_table
+from .spawn import CRASH_DIR, ForkedAgent, start_agents, stop, write_pid_table
 
 POLL_S = 0.5
 
@@ -85,7 +85,8 @@ def join(address: str, ids: list[int], out: Path, agents_per_process: int, timeo
     info = fetch_run_info(address, env, timeout)
     check_ids(ids, info)
     out.mkdir(parents=True, exist_ok=True)
-    params = write_params(out / 'agent_params.yaml', dict(info['agent_params']))  # type: ignore[arg-type]
+    params = write_params(out / 'agent_params.yaml', {**info['agent_params'],  # type: ignore[dict-item]
+                                                      'crash_dir': str(out / CRASH_DIR)})
     (out / 'run.json').write_text(json.dumps({'domain_id': domain, 'discovery_server': address, 'join': address,
                                               'maps': info['maps'], 'ids': ids}, indent=1))
     logs = out / 'logs'

@@ -8,32 +8,31 @@ import signal
 from pathlib import Path
 from typing import Optional
 
-from .spawn import read_pid_table
+from .spawn import CRASH_DIR, read_pid_table
+
 
 def kill(run: Path, ids: Optional[list[int]], fraction: Optional[float], whole_processes: bool = False
-         ) -> tuple[list[int], list[int]]:
-    """SIGKILL agent processes of a running `up`: by MAP id, or a random fraction of the live MAPs.
+         ) -> tuple[list[int], list[int], bool]:
+    """Kill MAPs of a running `up`, by id or a random fraction of the live ones, as a failure would.
 
-    Returns (MAP ids killed, pids killed). A SIGKILL takes every MAP of a process: with agents packed
-    several to a process, asking for some of them is refused (ValueError naming the others), unless
-    whole_processes says to take all MAPs of the processes concerned.
+    Returns (MAP ids killed, pids concerned, whole processes SIGKILLed). A MAP alone in its process dies by
+    SIGKILL with it. A MAP packed with others has its node ended inside the process, as abruptly (no last
+    message, nothing flushed; see agent_node.CrashRequests), and the other MAPs fly on; whole_processes
+    instead SIGKILLs every process concerned with all of its MAPs.
     """
     if run_has_ended(run):
         raise ValueError(f'the run in {run} has ended: nothing to kill')
     table = read_pid_table(run)
     params = run.resolve() / 'agent_params.yaml'
-    live = sorted(i for i, pid in table.items() if agent_of_run(pid, params))
+    crashed = run / CRASH_DIR
+    live = sorted(i for i, pid in table.items() if agent_of_run(pid, params) and not (crashed / str(i)).exists())
     by_pid: dict[int, list[int]] = {}
     for i in live:
         by_pid.setdefault(table[i], []).append(i)
     if ids is None:
         count = int(round((fraction or 0.0) * len(live)))
-        if all(len(maps) == 1 for maps in by_pid.values()):
+        if not whole_processes:
             ids = sorted(random.SystemRandom().sample(live, count))
-        elif not whole_processes:
-            raise ValueError(f'--fraction: agents are packed up to {max(map(len, by_pid.values()))} to a process '
-                             'and a SIGKILL takes them all; pass --whole-processes to kill whole processes '
-                             f'holding about {count} MAPs')
         else:
             ids = []
             for pid in random.SystemRandom().sample(sorted(by_pid), len(by_pid)):
@@ -50,16 +49,19 @@ def kill(run: Path, ids: Optional[list[int]], fraction: Optional[float], whole_p
     if not ids:
         raise ValueError(f'--fraction {fraction:g} of {len(live)} live MAPs is no MAP: nothing to kill')
     pids = sorted({table[i] for i in ids})
-    taken = sorted(i for pid in pids for i in by_pid[pid])
-    extra = sorted(set(taken) - set(ids))
-    if extra and not whole_processes:
-        first = next(i for i in ids if i in live and set(by_pid[table[i]]) - set(ids))
-        others = sorted(set(by_pid[table[first]]) - set(ids))
-        raise ValueError(f'--ids: MAP {first} shares its process (pid {table[first]}) with MAPs {others}, which a '
-                         f'SIGKILL takes too; ask for them as well, or pass --whole-processes (MAPs {taken} would die)')
+    # A process whose every live MAP is asked for dies whole, as it would in a crash of its host's software.
+    whole = [pid for pid in pids if whole_processes or set(by_pid[pid]) <= set(ids)]
+    crashed.mkdir(exist_ok=True)
     for pid in pids:
+        if pid not in whole:
+            for i in ids:
+                if table[i] == pid:
+                    (crashed / str(i)).touch()
+            os.kill(pid, signal.SIGUSR1)
+    for pid in whole:
         os.kill(pid, signal.SIGKILL)
-    return taken, pids
+    taken = sorted({*ids, *(i for pid in whole for i in by_pid[pid])})
+    return taken, pids, bool(whole) and whole == pids
 
 
 def _running(pid: int, *words: str) -> bool:

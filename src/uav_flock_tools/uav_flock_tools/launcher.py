@@ -23,8 +23,8 @@ from world_sim.core.scenario import Scenario
 
 from .cleanup import clean_shared_memory
 from .domains import DomainClaim, claim_domain, discovery_server_address, ros_env, start_discovery_server
-from .spawn import (GRACE_S, ForkedAgent, describe_exit, dies_with_parent, executable, relay_log, start_agents, stop,
-                    write_pid_table)
+from .spawn import (CRASH_DIR, GRACE_S, ForkedAgent, describe_exit, dies_with_parent, executable, relay_log,
+                    start_agents, stop, write_pid_table)
 
 # rmw_fastrtps finds no more than about 32 participants on one host with LOCALHOST discovery; beyond
 # this many processes `up` starts a Fast DDS discovery server for the run (--discovery auto).
@@ -155,7 +155,7 @@ class Run:
         p, s = self.p, self.p.scenario
         p.run.mkdir(parents=True, exist_ok=True)
         agent_params = {**s.flock.as_dict(), 'sync': p.sync, 'world_start_timeout': 2 * p.start_timeout}
-        params = write_params(p.run / 'agent_params.yaml', agent_params)
+        params = write_params(p.run / 'agent_params.yaml', {**agent_params, 'crash_dir': str(p.run / CRASH_DIR)})
         self.info = {'domain_id': p.claim.domain, 'discovery_server': p.server_address,
                      'discovery_range': None if p.server_address else p.discovery_range,
                      'scenario': str(p.scenario_path), 'maps': s.maps, 'seed': s.seed,

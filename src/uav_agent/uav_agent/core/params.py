@@ -82,3 +82,6 @@ class AgentNodeParams:
     sync: str = 'lockstep'                                            # lockstep or realtime (uav_flock_ros.qos)
     # Many processes starting on few cores take a while to bring the world up: wait this long for it (s).
     world_start_timeout: float = field(default=120.0, metadata=bound(low=0.0, low_open=True))
+    # Where `uav-flock kill` leaves a file named by a MAP id before it sends SIGUSR1: that MAP's node then ends
+    # at once inside its process, as a crash would, while the process's other MAPs fly on ('' : none).
+    crash_dir: str = ''
