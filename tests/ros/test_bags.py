@@ -139,14 +139,18 @@ def test_run_trends_modes_and_numbers_from_the_bag_alone(recorded: Path) -> None
         assert after[-1, 2] > after[:, 2].min(), 'coverage recovers after the failure'
 
 
-def test_sigkilled_agents_leave_a_complete_bag(tmp_path: Path, ros_env: dict[str, str]) -> None:
+@pytest.mark.parametrize('per_process, said', [('1', 'SIGKILLed MAPs'), ('5', 'their nodes ended inside processes')])
+def test_killed_agents_leave_a_complete_bag(tmp_path: Path, ros_env: dict[str, str], per_process: str,
+                                            said: str) -> None:
+    """Whole processes SIGKILLed (one MAP each), or packed MAPs' nodes ended inside living processes."""
     run = tmp_path / 'up'
     # 10 MAPs step about 100 times a second here: long enough a run that the kill lands while it goes on.
-    proc = up('--scenario', SCENARIO, '--maps', '10', '--duration', '150', '--record', '--out', str(run), env=ros_env)
+    proc = up('--scenario', SCENARIO, '--maps', '10', '--duration', '150', '--record', '--agents-per-process',
+              per_process, '--out', str(run), env=ros_env)
     try:
         wait_for_line(proc, 't =   2.0 s', 120)
         killed = cli('kill', '--run', str(run), '--fraction', '0.3')
-        assert killed.returncode == 0 and 'SIGKILLed MAPs' in killed.stdout, killed.stdout + killed.stderr
+        assert killed.returncode == 0 and said in killed.stdout, killed.stdout + killed.stderr
         assert proc.wait(timeout=300) == 0
     finally:
         proc.kill()
@@ -157,7 +161,8 @@ def test_sigkilled_agents_leave_a_complete_bag(tmp_path: Path, ros_env: dict[str
 
 def test_ctrl_c_leaves_a_finalised_readable_bag(tmp_path: Path, ros_env: dict[str, str]) -> None:
     run = tmp_path / 'up'
-    proc = up('--scenario', SCENARIO, '--duration', '60', '--record', '--out', str(run), env=ros_env)
+    proc = up('--scenario', SCENARIO, '--duration', '60', '--fail-at', '50', '--fail-fraction', '0.2', '--record',
+              '--out', str(run), env=ros_env)
     try:
         wait_for_line(proc, 't =   3.0 s', 120)
         proc.send_signal(signal.SIGINT)
@@ -167,6 +172,11 @@ def test_ctrl_c_leaves_a_finalised_readable_bag(tmp_path: Path, ros_env: dict[st
     assert (run / 'bag' / 'metadata.yaml').exists(), 'metadata.yaml is written on Ctrl-C'
     b = assert_nothing_lost(run)
     assert 30 <= len(b.metrics) < 601
+    # Its report says the run was cut short, and that the failure it was to have never came.
+    reported = cli('report', str(run))
+    assert reported.returncode == 0, reported.stderr
+    assert 'INTERRUPTED: the run was to last 60 s' in reported.stdout, reported.stdout
+    assert '20 % of the MAPs were to fail at t = 50 s, after the run was cut short' in reported.stdout, reported.stdout
 
 
 def test_report_plots_and_summarises_a_bag(tmp_path: Path) -> None:
@@ -356,8 +366,8 @@ def test_bag_tools_reject_bad_input_in_one_line(tmp_path: Path) -> None:
                  ('report', str(GOLDEN / 'bag'), '--out', str(GOLDEN / 'scenario.yaml'))):
         done = cli(*args)
         assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
-    # A value the agent refuses ends the replay with the agent's own reason, not a wait for a node that is gone.
-    for value, says in (('r=-1', 'parameter r: must be positive'), ('zero_users=sometimes', 'parameter zero_users')):
+    # A value the agent would refuse is refused before it starts, in the words of the option typed.
+    for value, says in (('r=-1', '--set r: must be positive'), ('zero_users=sometimes', '--set zero_users: must be one of')):
         done = cli('replay', str(GOLDEN / 'bag'), '--agent', '3', '--set', value)
         assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1 and says in done.stderr, done.stderr
     (tmp_path / 'broken').mkdir()

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import base64
 import json
+import signal
 import socket
 import struct
 import subprocess
@@ -111,11 +112,19 @@ def test_view_plays_a_recorded_run_into_the_same_server(tmp_path: Path) -> None:
     proc = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'view', str(GOLDEN), '--port', str(port),
                              '--rate', '2'], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
+        wait_for_line(proc, 'Waiting for a client', 60)
+        time.sleep(3.0)  # a user who connects a while after starting it still sees the run from its start
         channels, got = asyncio.run(watch(port, 10))
+        seen = wait_for_line(proc, 'left', 30)
+        assert proc.poll() is None, 'it serves on until Ctrl-C'
+        proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=60)
     finally:
         proc.kill()
-    assert proc.returncode == 0 and 'frames played' in out, out
+    out = ''.join(seen) + out
+    assert proc.returncode == 0 and 'frames played' in out and 'Traceback' not in out, out
+    assert 'view: client 1 connected' in out and 'view: client 1 left' in out, out
+    assert got[0][0] == 0, f'the first frame a late client sees is t = 0, not {got[0][0] / 1e9} s'
     c = channels['/scene']
     decode = DecoderFactory().decoder_for('protobuf', Schema(id=1, name=c['schemaName'], encoding=c['schemaEncoding'],
                                                             data=base64.b64decode(c['schema'])))

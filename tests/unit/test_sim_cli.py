@@ -69,9 +69,26 @@ def test_several_runs_get_a_folder_each_and_failures_drop_maps(tmp_path: Path) -
         [event] = failures['events']
         assert event['step'] == 10 and event['cause'] == 'scheduled' and event['ids'] == failures['failed']
     assert (tmp_path / 'coverage.png').exists() and (tmp_path / 'fiedler.png').exists()
+    assert not list(tmp_path.glob('maps*/*.png')) and not list(tmp_path.glob('maps*/*.gif')), \
+        "a sweep draws each run's pictures only when asked (--pictures)"
     summary = read_csv(tmp_path / 'summary.csv')
     assert summary['maps'].tolist() == [10, 20] and summary['alive'].tolist() == [5, 10], 'one row per run'
     assert '| 10 | 1 |' in proc.stdout and 'time to success' in proc.stdout, 'mean ± std per MAP count'
+
+
+def test_a_sweep_draws_each_runs_pictures_when_asked_and_spreads_only_several_runs(tmp_path: Path) -> None:
+    """--pictures: each run's plots and animation too. Time to success of one run that got there is that
+    time, with no ± of a spread that one run cannot have."""
+    # 18 s: seed 0 reaches R_c >= 95 % connected at 16.8 s, seed 1 not yet
+    proc = sim('--maps', '90', '--seed', '0,1', '--duration', '18', '--pictures', '--out', str(tmp_path))
+    assert proc.returncode == 0, proc.stderr
+    for k in (0, 1):
+        assert (tmp_path / f'maps90_seed{k}' / 'formation.gif').exists()
+        assert (tmp_path / f'maps90_seed{k}' / 'coverage.png').exists()
+    reached = read_csv(tmp_path / 'summary.csv')['time_to_success_s']
+    assert int(np.sum(np.isfinite(reached))) == 1, reached
+    row = next(line for line in proc.stdout.splitlines() if line.startswith('| 90 |'))
+    assert re.search(r'\| [\d.]+ s \(1/2\) \|$', row), row
 
 
 def test_same_seed_same_run(tmp_path: Path) -> None:

@@ -312,7 +312,15 @@ def summary(run: BagRun) -> dict[str, Any]:
         'time_to_connectivity_s': first_time(t, lam2 > 0),
         'failures': [{'t_s': step * run.dt, 'ids': ids, 'cause': cause} for step, ids, cause in run.failures],
         'missing_commands': missing_commands(run),
+        # what the run was set to do (None from a bag without our metadata): a run cut short says so
+        'planned_duration_s': _number(run.scenario.get('duration')),
+        'scheduled_failure': None if not run.scenario.get('fail_fraction') else
+        {'t_s': _number(run.scenario.get('fail_at')), 'fraction': float(run.scenario['fail_fraction'])},
     }
+
+
+def _number(value: Any) -> Optional[float]:
+    return None if value is None else float(value)
 
 
 @dataclass

@@ -244,7 +244,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
             folder = out / f'maps{s.maps}_seed{s.seed}' if several else out
             bar.set_postfix_str(label)
             result, complete = simrun.simulate(s, bar.update)
-            simrun.write_run(result, folder, label)
+            simrun.write_run(result, folder, label, pictures=not several or args.pictures)
             done.append((label, result))
             if not complete:
                 bar.close()
@@ -254,9 +254,9 @@ def cmd_sim(args: argparse.Namespace) -> int:
                 return EXIT_INTERRUPTED
     if several:
         series = [(label, r.metrics[:, 1], 100 * r.metrics[:, 2]) for label, r in done]
-        plots.time_series(series, 'coverage ratio R_c (%)', 'Coverage', out / 'coverage.png')
-        plots.fiedler_series([(label, r.metrics[:, 1], r.metrics[:, 3]) for label, r in done], 'Connectivity',
-                             out / 'fiedler.png')
+        plots.time_series(series, 'coverage ratio R_c (%)', f'Coverage, {base.name}', out / 'coverage.png')
+        plots.fiedler_series([(label, r.metrics[:, 1], r.metrics[:, 3]) for label, r in done],
+                             f'Connectivity, {base.name}', out / 'fiedler.png')
     for label, r in done:
         m = r.metrics
         print(f'{label}: t = {m[-1, 1]:.1f} s, R_c = {100 * m[-1, 2]:.1f} %, Fiedler = {m[-1, 3]:.4f}, '
@@ -405,7 +405,8 @@ def cmd_agents(args: argparse.Namespace) -> int:
         raise UsageError(f'agents: {exc}') from None
     out = run_folder(Path(args.out) if args.out else default_out('agents'), 'agents: --out', args.replace)
     try:
-        return join.join(args.join, args.ids, out.resolve(), args.agents_per_process, args.timeout)
+        return join.join(args.join, args.ids, out.resolve(),
+                         args.agents_per_process or auto_agents_per_process(len(args.ids)), args.timeout)
     except join.JoinError as exc:
         if out.is_dir() and not any(out.iterdir()):
             out.rmdir()  # nothing joined: leave no empty folder behind
@@ -535,11 +536,10 @@ def cmd_paper(args: argparse.Namespace) -> int:
         folder = run_folder(Path(args.out) if args.out else default_out('paper'), 'paper: --out', args.replace)
         results, figures = folder / 'results.md', folder / 'figures'
     make_folder(figures, 'paper: --out')
-    code = paper.main(seeds=args.seeds, out=figures, docs=results, scenario=args.scenario,
-                      ablation=not args.no_ablation, random_layouts=args.layouts)
-    if code == 0:
-        print(f'results in {results}, figures in {figures}')
-    return code
+    import shlex
+    ran = shlex.join(['./uav-flock', *args.argv])  # exactly what was typed, for results.md to name
+    return paper.main(seeds=args.seeds, out=figures, docs=results, scenario=args.scenario,
+                      ablation=not args.no_ablation, random_layouts=args.layouts, command=ran)
 
 
 RUN_INFO_TIMEOUT_S = 20.0  # agents --join: how long a run's /run_info is waited for
@@ -572,6 +572,9 @@ def add_run_commands(sub: 'argparse._SubParsersAction[_Parser]') -> None:
     from uav_flock_ros.qos import SYNC_MODES
     p = command(sub, 'sim', cmd_sim, 'run a scenario in-process for one or more MAP counts and seeds')
     add_scenario_options(p, grid=True)
+    p.add_argument('--pictures', action='store_true',
+                   help="in a sweep, draw each run's own plots and formation.gif too (a single run always draws "
+                        'them; a sweep otherwise draws only its coverage and Fiedler plots of all runs)')
     p.add_argument('--out', help='output folder (default: runs/sim-<time>)')
     p.add_argument('--replace', action='store_true', help='replace the earlier run in --out (refused otherwise)')
     p = command(sub, 'run', cmd_run, 'the main job: a scenario (the paper with 90 MAPs) distributed and recorded, '
@@ -698,6 +701,7 @@ def _main(argv: Optional[Sequence[str]]) -> int:
         if extra:  # the top-level parser would say it without naming the subcommand
             raise UsageError(f'{args.command}: unrecognized arguments: {" ".join(extra)} '
                              f'(see `uav-flock {args.command} --help`)')
+        args.argv = list(sys.argv[1:] if argv is None else argv)
         func: Callable[[argparse.Namespace], int] = args.func
         return func(args)
     except UsageError as exc:

@@ -97,15 +97,20 @@ def mode_counts(t: np.ndarray, counts: np.ndarray, title: str, path: Path) -> Pa
     return save(fig, path)
 
 
+def links_within(q: np.ndarray, r: float) -> np.ndarray:
+    """The MAP-MAP links of a formation as segments (n, 2, 2): every pair within r, once."""
+    d = np.linalg.norm(q[:, None] - q[None], axis=-1)
+    i, j = np.nonzero(np.triu(d <= r, 1))
+    return np.stack([q[i], q[j]], axis=1)
+
+
 def formation(ax: plt.Axes, users_xy: np.ndarray, users_cluster: np.ndarray, centroids: np.ndarray,
               q: np.ndarray, mode: np.ndarray, r: float, title: str) -> None:
     """MSDs (grey, by cluster), MAPs coloured by mode, MAP-MAP links within r, cluster centroids."""
+    from matplotlib.collections import LineCollection
     ax.scatter(users_xy[:, 0], users_xy[:, 1], s=2, c='0.75', zorder=1, label='MSD')
     if len(q):
-        d = np.linalg.norm(q[:, None, :2] - q[None, :, :2], axis=-1)
-        i, j = np.nonzero(np.triu(d <= r, 1))
-        for a, b in zip(i, j):
-            ax.plot(q[[a, b], 0], q[[a, b], 1], color='0.35', lw=0.5, zorder=2)
+        ax.add_collection(LineCollection(links_within(q[:, :2], r), colors='0.35', linewidths=0.5, zorder=2))
     for m in range(3):
         sel = mode == m
         if np.any(sel):
@@ -157,13 +162,15 @@ def formation_snapshots(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
 
 def formation_animation(traj: dict[str, np.ndarray], users_xy: np.ndarray, users_cluster: np.ndarray, r: float,
                         title: str, path: Path, users_at: UsersAt | None = None, every: float = 1.0,
-                        fps: int = 5) -> Path:
+                        fps: int = 5, metrics: np.ndarray | None = None) -> Path:
     """The formation as an animated GIF, one frame per `every` s of simulated time: MSDs, MAPs by mode,
     links within r, cluster centroids and the tracks of moving clusters so far, MAPs lost marked where they
-    were last. A picture to watch where snapshots leave gaps; kept small (about 1 MB for 90 s).
+    were last, and (given the run's metrics rows) R_c and λ2 of the frame's step. A picture to watch where
+    snapshots leave gaps; kept small (about 1 MB for 90 s).
 
-    The axes are drawn once; each frame redraws only what moves over them (blitting), and Pillow writes
-    the GIF."""
+    The axes are drawn once; each frame redraws only what moves over them (blitting). Every frame takes the
+    first frame's palette, which the legend fills with every colour drawn: a colour never shifts between
+    frames, and Pillow quantizes once."""
     from matplotlib.collections import LineCollection
     from PIL import Image
 
@@ -179,7 +186,7 @@ def formation_animation(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
     pts = np.vstack([*(u[0] for u in users.values()), np.column_stack([traj['x'], traj['y']])[np.concatenate(frames)]])
     lo, hi = pts.min(axis=0) - 15.0, pts.max(axis=0) + 15.0
     aspect = (hi[1] - lo[1]) / max(hi[0] - lo[0], 1e-9)
-    height = min(max(5.4 * aspect, 3.0), 6.4) + 1.1  # the axes, and 1.1 in for the title, labels and legend
+    height = min(max(5.4 * aspect, 3.0), 6.4) + 1.5  # the axes, and 1.5 in for the title, labels and legend
     fig, ax = plt.subplots(figsize=(6.0, height))
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
@@ -202,9 +209,7 @@ def formation_animation(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
         q = np.column_stack([traj['x'][sel], traj['y'][sel]])
         ids, mode = traj['id'][sel].astype(int).tolist(), traj['mode'][sel].astype(int)
         msd.set_offsets(users[t][0])
-        d = np.linalg.norm(q[:, None] - q[None], axis=-1)
-        i, j = np.nonzero(np.triu(d <= r, 1))
-        links.set_segments(np.stack([q[i], q[j]], axis=1))
+        links.set_segments(links_within(q, r))
         for m, artist in enumerate(maps):
             artist.set_offsets(q[mode == m] if np.any(mode == m) else none)
         marks.set_offsets(np.array(list(centroids[n].values())).reshape(-1, 2))
@@ -215,13 +220,22 @@ def formation_animation(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
         gone = [last_seen[i] for i in last_seen if i not in set(ids)]
         lost.set_offsets(np.array(gone).reshape(-1, 2))
         last_seen.update(zip(ids, q))
-        heading.set_text(f'{title}, t = {t:.0f} s')
+        heading.set_text(f'{title}\nt = {t:.0f} s{readout(t)}')
 
-    handles = [plt.Line2D([], [], ls='', marker='o', ms=5, color=c, label=m) for c, m in zip(MODE_COLOURS, MODE_NAMES)]
-    handles += [plt.Line2D([], [], ls='', marker='X', ms=6, color='tab:red', label='MAP lost'),
+    def readout(t: float) -> str:
+        if metrics is None or not len(metrics):
+            return ''
+        row = metrics[np.argmin(np.abs(metrics[:, 1] - t))]
+        return f'   R_c = {100 * row[2]:.1f} %   λ2 = {row[3]:.4f}{" (split)" if row[3] <= 0 else ""}'
+
+    handles = [plt.Line2D([], [], ls='', marker='o', ms=3, color='0.75', label='MSD')]
+    handles += [plt.Line2D([], [], ls='', marker='o', ms=5, color=c, label=m) for c, m in zip(MODE_COLOURS, MODE_NAMES)]
+    handles += [plt.Line2D([], [], ls='', marker='x', ms=6, color='k', label='cluster centroid'),
+                plt.Line2D([], [], color='0.35', lw=0.8, label=f'link (within r = {r:g} m)'),
+                plt.Line2D([], [], ls='', marker='X', ms=6, color='tab:red', label='MAP lost'),
                 plt.Line2D([], [], color='tab:purple', lw=1.0, label='cluster track')]
-    fig.legend(handles=handles, loc='lower center', ncol=3, fontsize=7, frameon=False)
-    fig.subplots_adjust(bottom=0.8 / height, top=1.0 - 0.3 / height)
+    fig.legend(handles=handles, loc='lower center', ncol=4, fontsize=7, frameon=False)
+    fig.subplots_adjust(bottom=1.0 / height, top=1.0 - 0.45 / height)
     fig.set_dpi(80)
     moving = [msd, links, *tracks.values(), *maps, marks, lost, heading]
     for artist in moving:
@@ -229,13 +243,15 @@ def formation_animation(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
     canvas = fig.canvas
     canvas.draw()
     background = canvas.copy_from_bbox(fig.bbox)
-    images = []
+    images: list[Image.Image] = []
     for n in range(len(shown)):
         draw(n)
         canvas.restore_region(background)
         for artist in moving:
             fig.draw_artist(artist)
-        images.append(Image.fromarray(np.asarray(canvas.buffer_rgba())[..., :3].copy()))
+        frame = Image.fromarray(np.asarray(canvas.buffer_rgba())[..., :3].copy())
+        images.append(frame.quantize(colors=255, dither=Image.Dither.NONE) if not images else
+                      frame.quantize(palette=images[0], dither=Image.Dither.NONE))
     images[0].save(path, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0)
     plt.close(fig)
     return path
@@ -260,5 +276,6 @@ def run_figures(metrics: np.ndarray, traj: dict[str, np.ndarray], users_xy: np.n
         times = sorted({0.0, round(end / 4, 1), round(end / 2, 1), end})
         out.append(formation_snapshots(traj, users_xy, users_cluster, centroids, r, times,
                                        f'Formation, {label}', folder / 'formation.png', users_at))
-        out.append(formation_animation(traj, users_xy, users_cluster, r, label, folder / 'formation.gif', users_at))
+        out.append(formation_animation(traj, users_xy, users_cluster, r, label, folder / 'formation.gif', users_at,
+                                       metrics=metrics))
     return out

@@ -29,8 +29,16 @@ def summary_table(s: dict[str, Any]) -> str:
     """The summary as a Markdown table (what `report` prints and writes to summary.md)."""
     failures = '; '.join(f'MAP{"s" if len(f["ids"]) > 1 else ""} {", ".join(map(str, f["ids"]))} at t = {f["t_s"]:.1f} s '
                          f'({f["cause"]})' for f in s['failures'])
+    planned = s.get('planned_duration_s')
+    cut = planned is not None and s['duration_s'] < planned - 1e-6
+    scheduled = s.get('scheduled_failure')
+    if not failures and scheduled is not None and scheduled['t_s'] is not None:
+        after = cut and scheduled['t_s'] >= s['duration_s']
+        failures = (f'none: {100 * scheduled["fraction"]:g} % of the MAPs were to fail at t = {scheduled["t_s"]:g} s, '
+                    + ('after the run was cut short' if after else 'but no MAP was dropped'))
     rows = [
-        ('simulated time', f'{s["duration_s"]:.1f} s ({s["steps"]} steps)'),
+        ('simulated time', f'{s["duration_s"]:.1f} s ({s["steps"]} steps)'
+         + (f', INTERRUPTED: the run was to last {planned:g} s' if cut else '')),
         ('MAPs at start / end', f'{s["maps_start"]} / {s["maps_end"]}'),
         ('final coverage R_c', f'{100 * s["final_coverage"]:.1f} %'),
         ('final Fiedler value λ2', f'{s["final_fiedler"]:.4f}'),

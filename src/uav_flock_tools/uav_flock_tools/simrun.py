@@ -23,14 +23,16 @@ def trajectory_columns(result: RunResult) -> dict[str, np.ndarray]:
     return records.columns(result.trajectory)
 
 
-def write_run(result: RunResult, folder: Path, label: str) -> list[Path]:
-    """metrics.csv, trajectory.csv, the MSDs and failures, and the run's figures into folder; their titles
-    name the scenario and the label."""
+def write_run(result: RunResult, folder: Path, label: str, pictures: bool = True) -> list[Path]:
+    """metrics.csv, trajectory.csv, the MSDs and failures, and (with pictures) the run's figures into folder;
+    their titles name the scenario and the label."""
     folder.mkdir(parents=True, exist_ok=True)
     records.write_metrics(folder / 'metrics.csv', result.metrics)
     records.write_trajectory(folder / 'trajectory.csv', result.trajectory)
     records.write_users(folder / records.USERS_FILE, result.users, result.motion)
     records.write_failures(folder / records.FAILURES_FILE, result.failed, result.fail_step, result.events)
+    if not pictures:
+        return []
     events = [result.fail_step * result.scenario.dt] if result.fail_step is not None and len(result.failed) else []
     u, dt = result.users, result.scenario.dt
     moving = None if result.motion is None else (lambda t: result.motion.at(int(round(t / dt))))
@@ -104,8 +106,8 @@ def write_summary(results: list[RunResult], out: Path) -> list[str]:
     for maps, v in sorted(by_maps.items()):
         a = np.array(v)
         reached = a[np.isfinite(a[:, 4]), 4]
-        success = f'{reached.mean():.1f} ± {reached.std():.1f} s ({len(reached)}/{len(a)})' if len(reached) else \
-            f'never (0/{len(a)})'
+        spread = f' ± {reached.std():.1f}' if len(reached) > 1 else ''  # no spread of a single run
+        success = f'{reached.mean():.1f}{spread} s ({len(reached)}/{len(a)})' if len(reached) else f'never (0/{len(a)})'
         table.append(f'| {maps} | {len(a)} | {100 * a[:, 0].mean():.1f} ± {100 * a[:, 0].std():.1f} % | '
                      f'{a[:, 1].mean():.4f} ± {a[:, 1].std():.4f} | {a[:, 2].mean():.1f} ± {a[:, 2].std():.1f} | '
                      f'{success} |')

@@ -1,0 +1,47 @@
+"""README.md as a new user meets it: every command it shows flies its layout at 1.5 x its floor or more.
+
+Running them all (`tools/readme_check.py`) takes half an hour; what they ask for is checked here in seconds.
+"""
+from __future__ import annotations
+
+import importlib.util
+import shlex
+import sys
+from pathlib import Path
+
+import pytest
+
+from world_sim.core import layouts
+from world_sim.shipped import load_scenario
+
+ROOT = Path(__file__).resolve().parents[2]
+SPEC = importlib.util.spec_from_file_location('readme_check', ROOT / 'tools' / 'readme_check.py')
+assert SPEC is not None and SPEC.loader is not None
+readme_check = importlib.util.module_from_spec(SPEC)
+sys.modules['readme_check'] = readme_check  # its dataclasses look their module up there
+SPEC.loader.exec_module(readme_check)
+MARGIN = 1.5  # MAPs over the floor LB that a demo flies with (docs/allocation.md: LB alone splits often)
+COPIES = {'my.yaml': 'paper'}  # the README's own scenario starts as a copy of paper.yaml
+
+
+def runs_of_the_readme() -> list[list[str]]:
+    lines = readme_check.commands((ROOT / 'README.md').read_text())
+    return [w for w in map(shlex.split, lines) if len(w) > 1 and w[0] == './uav-flock' and w[1] in ('sim', 'up', 'run')]
+
+
+def test_the_readme_shows_runs_of_every_kind() -> None:
+    kinds = {w[1] for w in runs_of_the_readme()}
+    assert {'sim', 'up'} <= kinds, kinds
+
+
+@pytest.mark.parametrize('words', runs_of_the_readme(), ids=shlex.join)
+def test_every_run_the_readme_shows_flies_above_its_floor(words: list[str]) -> None:
+    """Also after a failure it asks for: the MAPs left must still be MARGIN x LB."""
+    scenario = load_scenario(COPIES.get(str(readme_check.option(words, '--scenario')),
+                                        readme_check.option(words, '--scenario') or 'paper'))
+    lb = layouts.floor(scenario).total
+    counts = [int(n) for n in (readme_check.option(words, '--maps') or str(scenario.maps)).split(',')]
+    left = 1.0 - float(readme_check.option(words, '--fail-fraction') or 0.0)
+    for n in counts:
+        assert n * left >= MARGIN * lb, (f'{shlex.join(words)}: {n} MAPs ({n * left:.0f} after the failure) is below '
+                                         f'{MARGIN} x LB = {MARGIN * lb:.1f} for {scenario.name}')
