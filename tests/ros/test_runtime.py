@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import shlex
 import signal
 import subprocess
 import sys
@@ -137,7 +138,9 @@ def test_kill_of_one_packed_map_ends_its_node_alone(tmp_path: Path, ros_env: dic
     assert dropped_ids(more) == [5, 6, 7, 8, 9], more
     m = read_csv(run / 'metrics.csv')
     assert m['alive'][0] == 10 and m['alive'][-1] == 4 and m['t'][-1] == 150.0
-    assert sorted(set(m['alive'].astype(int).tolist())) == [4, 9, 10], 'one fewer, then five fewer, nothing else'
+    alive = m['alive'].astype(int)
+    assert np.all(np.diff(alive) <= 0) and 9 in alive, 'one fewer after the first kill, then the process of five'
+    # (the five of a SIGKILLed process are dropped as each is waited for: those that had answered, a step later)
     t = read_csv(run / 'trajectory.csv')
     last = set(t['id'][t['step'] == t['step'].max()].astype(int).tolist())
     assert last == {0, 1, 2, 4}, 'the killed MAP\'s process mates fly to the end'
@@ -332,6 +335,12 @@ def test_echo_and_topics_show_a_live_run(tmp_path: Path, ros_env: dict[str, str]
             streaming.terminate()
             _, said = streaming.communicate(timeout=30)
             assert streaming.returncode == code and 'Traceback' not in said, said
+        # A reader that leaves (`| head -3`) ends the echo quietly, as `ros2 topic echo | head` does.
+        piped = subprocess.run(['bash', '-c', f'set -o pipefail; {shlex.quote(sys.executable)} -m uav_flock_tools.cli '
+                                f'echo /metrics --run {shlex.quote(str(run))} | head -3'],
+                               capture_output=True, text=True, timeout=60)
+        assert piped.returncode == 0 and piped.stderr == '', piped.stderr
+        assert len(piped.stdout.splitlines()) == 3, piped.stdout
     finally:
         proc.send_signal(signal.SIGINT)
         proc.communicate(timeout=30)
@@ -346,6 +355,16 @@ def test_echo_and_topics_show_a_live_run(tmp_path: Path, ros_env: dict[str, str]
     for args in (('echo', '/metrics'), ('topics',)):
         after = cli(*args, '--run', str(run), timeout=60)
         assert after.returncode == 2 and 'has ended' in after.stderr, after.stderr
+
+
+def test_topics_where_no_run_is_says_where_to_look(ros_env: dict[str, str]) -> None:
+    """A domain with no run lists only the two topics every node has, and says how to name a run."""
+    with claim_domain(None) as domain:
+        listed = cli('topics', '--domain-id', str(domain), timeout=120)
+    assert listed.returncode == 0, listed.stderr
+    assert set(listed.stdout.split()) <= {'/parameter_events', '/rosout', '[rcl_interfaces/msg/ParameterEvent]',
+                                          '[rcl_interfaces/msg/Log]'}, listed.stdout
+    assert f'ROS_DOMAIN_ID={domain}: no run there' in listed.stderr and '--run RUN' in listed.stderr, listed.stderr
 
 
 def test_discovery_server_run_equals_the_batch_simulator(tmp_path: Path, ros_env: dict[str, str]) -> None:

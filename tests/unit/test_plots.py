@@ -39,3 +39,24 @@ def test_a_single_series_gets_no_legend_of_its_own(tmp_path) -> None:
     plots.finish(ax, 'x', 'y', 'title')
     assert ax.get_legend() is not None
     plt.close(fig)
+
+
+def test_every_frame_of_the_animation_keeps_the_colours_of_the_first(tmp_path) -> None:
+    """One palette for the whole GIF: a colour (a legend swatch, a mode) reads the same in every frame."""
+    import numpy as np
+    from PIL import Image
+
+    from uav_flock_tools import simrun
+    s = simrun.load_scenario('paper').with_overrides(maps=60, duration=12.0)
+    result, _ = simrun.simulate(s)
+    simrun.write_run(result, tmp_path, '60 MAPs')
+    with Image.open(tmp_path / 'formation.gif') as gif:
+        frames = []
+        for n in range(gif.n_frames):
+            gif.seek(n)
+            frames.append(np.asarray(gif.convert('RGB')).reshape(-1, 3))
+    first = {tuple(c) for c in np.unique(frames[0], axis=0)}
+    assert len(frames) == 13
+    for n, f in enumerate(frames[1:], 1):
+        extra = {tuple(c) for c in np.unique(f, axis=0)} - first
+        assert not extra, f'frame {n} has colours the first has not: {sorted(extra)[:5]}'

@@ -7,6 +7,11 @@ from typing import Any
 import yaml
 
 
+# In a run folder, beside pids.json: one empty file per MAP that `uav-flock kill` ended inside a process
+# that lives on for its other MAPs (world_sim drops those MAPs as it drops one whose process is gone).
+CRASH_DIR = 'crash'
+
+
 def write_params(path: Path, values: dict[str, Any]) -> Path:
     """A ros__parameters file that applies to every node of the process (`--ros-args --params-file`)."""
     path.write_text(yaml.safe_dump({'/**': {'ros__parameters': values}}, sort_keys=False))

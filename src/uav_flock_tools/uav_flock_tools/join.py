@@ -15,10 +15,10 @@ import time
 from pathlib import Path
 
 
-from uav_flock_ros.processes import write_params
+from uav_flock_ros.processes import CRASH_DIR, write_params
 
 from .domains import DISCOVERY_BASE_PORT, ros_env
-from .spawn import CRASH_DIR, ForkedAgent, start_agents, stop, write_pid_table
+from .spawn import ForkedAgent, start_agents, stop, write_pid_table
 
 POLL_S = 0.5
 

@@ -8,7 +8,9 @@ import signal
 from pathlib import Path
 from typing import Optional
 
-from .spawn import CRASH_DIR, read_pid_table
+from uav_flock_ros.processes import CRASH_DIR
+
+from .spawn import read_pid_table
 
 
 def kill(run: Path, ids: Optional[list[int]], fraction: Optional[float], whole_processes: bool = False

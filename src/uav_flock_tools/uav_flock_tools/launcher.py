@@ -16,14 +16,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Optional
 
-from uav_flock_ros.processes import write_params
+from uav_flock_ros.processes import CRASH_DIR, write_params
 from world_sim.core.model import RunResult
 from world_sim.core import records
 from world_sim.core.scenario import Scenario
 
 from .cleanup import clean_shared_memory
 from .domains import DomainClaim, claim_domain, discovery_server_address, ros_env, start_discovery_server
-from .spawn import (CRASH_DIR, GRACE_S, ForkedAgent, describe_exit, dies_with_parent, executable, relay_log,
+from .spawn import (GRACE_S, ForkedAgent, describe_exit, dies_with_parent, executable, relay_log,
                     start_agents, stop, write_pid_table)
 
 # rmw_fastrtps finds no more than about 32 participants on one host with LOCALHOST discovery; beyond

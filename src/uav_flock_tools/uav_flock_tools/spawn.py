@@ -69,9 +69,6 @@ def end_with(pid: int, signum: int) -> None:
     threading.Thread(target=wait, name=f'end-with-{pid}', daemon=True).start()
 
 
-CRASH_DIR = 'crash'  # in a run folder: `kill` names MAPs here whose nodes end inside their processes
-
-
 def write_pid_table(path: Path, table: dict[int, int]) -> None:
     tmp = path.with_suffix('.tmp')
     tmp.write_text(json.dumps({str(k): v for k, v in sorted(table.items())}, indent=1))

@@ -35,7 +35,7 @@ from uav_agent.core.checks import check_fields
 from uav_agent.core.clusters import NO_GOAL
 from uav_flock_ros import convert
 from uav_flock_ros.executors import StopSignals, spun_node
-from uav_flock_ros.processes import process_alive
+from uav_flock_ros.processes import CRASH_DIR, process_alive
 from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, RECORDER_MAX_LAG_STEPS, STEP_QOS, is_realtime
 
 from .core.model import Sensed, World
@@ -100,7 +100,6 @@ class WorldNode(Node):
         self.step_started = time.monotonic()
         self.resent = 0
         self.step_resends = 0  # repeats of the current step's sensing
-        self.deaf: set[int] = set()  # MAPs waited for whose node did not read its sensing at the last check
         if self.record:
             self.create_subscription(Int64, '/recorder/progress', self.on_recorder, LATCHED_QOS)
         n = scenario.maps
@@ -387,10 +386,9 @@ class WorldNode(Node):
         except (ValueError, OSError):
             return {}
 
-    def listens(self, i: int) -> bool:
-        """MAP i's own node reads its sensing (the recorder and the viewer read it too, and do not count)."""
-        own = f'/map_{i}'
-        return any(info.node_namespace == own for info in self.get_subscriptions_info_by_topic(f'{own}/sensing'))
+    def crashed(self, i: int) -> bool:
+        """`uav-flock kill` ended MAP i's node inside its process (the file it leaves beside pids.json)."""
+        return self.pid_table is not None and (self.pid_table.parent / CRASH_DIR / str(i)).exists()
 
     def check_liveness(self) -> None:
         """Drop the MAPs we wait for whose process is gone; a slow but living MAP is waited for."""
@@ -401,13 +399,12 @@ class WorldNode(Node):
         waiting = [i for i in s.ids.tolist() if self.world.alive[i] and (self.realtime or i not in self.commands)]
         if not waiting:
             return
-        # A MAP of this host whose process is gone; or any MAP whose node no longer reads its sensing: one
-        # ended inside a process that lives on (`kill` of a packed MAP), or one on another host whose
-        # participant left or whose lease expired (link down). Not listening in two checks running: gone.
+        # A MAP of this host whose process is gone, or whose node `kill` ended inside a process that lives on
+        # (it names the MAP in the run's crash folder first). One on another host (no pid here): DDS no longer
+        # matches its reader, once its participant left or its lease expired (link down).
         table = self.pids()
-        deaf = {i for i in waiting if not self.listens(i)}
-        gone = [i for i in waiting if (i in table and not process_alive(table[i])) or i in deaf & self.deaf]
-        self.deaf = deaf
+        gone = [i for i in waiting if (i in table and (not process_alive(table[i]) or self.crashed(i)))
+                or (i not in table and self.sensing_pubs[i].get_subscription_count() == 0)]
         if gone:
             self.drop(np.array(gone), 'killed')
             if not self.realtime:
