@@ -61,11 +61,11 @@ def dropped_ids(text: str, cause: str = 'killed') -> list[int]:
 
 
 def kill_during(proc: subprocess.Popen[str], run: str, ids: str, after: str) -> tuple[str, str]:
-    """SIGKILL MAP ids of a running `up` once it prints `after`; (what it printed until the drops, all the rest)."""
+    """Kill MAP ids of a running `up` once it prints `after`; (what it printed until the drops, all the rest)."""
     try:
         wait_for_line(proc, after, 120)
         killed = cli('kill', '--run', run, '--ids', ids)
-        assert killed.returncode == 0 and f"SIGKILLed MAPs [{ids.replace(',', ', ')}]" in killed.stdout, \
+        assert killed.returncode == 0 and f"MAPs [{ids.replace(',', ', ')}]" in killed.stdout, \
             killed.stdout + killed.stderr
         seen = ''.join(wait_for_line(proc, '(killed)', 60))
         if len(dropped_ids(seen)) < len(ids.split(',')):  # the deaths may be noticed in two liveness checks

@@ -10,7 +10,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pytest
 from helpers.runs import cli, dead, dropped_ids, helper, kill_during, shm_entries, up, wait_for_line
 from uav_flock_tools.domains import claim_domain
 from world_sim.core.records import read_csv

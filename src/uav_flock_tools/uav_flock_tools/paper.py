@@ -188,6 +188,7 @@ def write_results(docs: Path, out: Path, base: Scenario, seeds: int, metrics: di
 def _paper_lines(base: Scenario, command: str, seed_ids: list[int], elapsed: float, runs: Runs,
                  settled_f: dict[int, list[float]]) -> list[str]:
     """The table of the paper's claims beside ours."""
+    seeds = len(seed_ids)
     final: Callable[[str, int], list[float]] = lambda prefix, col: [settled(m, col) for m in runs(prefix)]
     t_conn = [time_to_connected_coverage(m) for m in runs('sweep/90')]
     lines = [
