@@ -154,6 +154,12 @@ class AgentNode(Node):
         self.get_logger().info(f'world_sim finished the run after {msg.data} steps: stopping MAP {self.map_id}')
         self.run_finished = self.stopped = True
 
+    def crash(self) -> None:
+        """Fall silent at once, as a crash would. Events the executor queued before the node goes still come in:
+        with failed set and no step pending, each is a no-op (none uses the node's handles)."""
+        self.failed = True
+        self.pending = None
+
     def on_failure(self, msg: FailureEvent) -> None:
         event = convert.FailureData.from_msg(msg)
         self.dead.update(event.ids)
@@ -295,6 +301,8 @@ class AgentNode(Node):
 
     def watch_world(self) -> None:
         """Say what a stuck step waits for; end on our own when the world is gone."""
+        if self.failed:
+            return  # silent: nothing to wait for, and a crashed node has no handles to ask the graph with
         silent = time.monotonic() - self.sensed_at
         if self.pending is not None and silent > 2.0:
             missing = {j: (self.latest[j].step if j in self.latest else None) for j in self.unheard(self.pending)}
@@ -406,6 +414,7 @@ def main(argv: Optional[list[str]] = None) -> int:
         while nodes and not stop.received and not all(n.stopped for n in nodes):
             executor.spin_once(timeout_sec=0.5)
             for n in crashes.take(nodes):
+                n.crash()
                 executor.remove_node(n)
                 n.destroy_node()
                 nodes.remove(n)
