@@ -17,7 +17,7 @@ from world_sim.core.records import read_csv
 
 def test_lockstep_run_equals_the_batch_simulator(tmp_path: Path, ros_env: dict[str, str]) -> None:
     args = ('--maps', '20', '--seed', '3', '--duration', '10')
-    distributed = cli('up', *args, '--out', str(tmp_path / 'up'), env=ros_env)
+    distributed = cli('up', *args, '--agents-per-process', '1', '--out', str(tmp_path / 'up'), env=ros_env)
     assert distributed.returncode == 0, distributed.stdout + distributed.stderr
     batch = cli('sim', *args, '--out', str(tmp_path / 'sim'))
     assert batch.returncode == 0, batch.stderr
@@ -57,7 +57,7 @@ def test_packed_agents_give_the_same_run(tmp_path: Path, ros_env: dict[str, str]
 def test_scheduled_failures_sigkill_the_agent_processes(tmp_path: Path, ros_env: dict[str, str]) -> None:
     args = ('--maps', '8', '--seed', '2', '--duration', '20', '--fail-at', '2', '--fail-fraction', '0.25')
     run = tmp_path / 'up'
-    proc = up(*args, '--out', str(run), env=ros_env)
+    proc = up(*args, '--agents-per-process', '1', '--out', str(run), env=ros_env)
     try:
         seen = wait_for_line(proc, '(scheduled)', 120)
         failed = dropped_ids(seen[-1], 'scheduled')
