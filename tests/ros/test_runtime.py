@@ -260,7 +260,10 @@ def test_agents_listen_only_to_maps_in_radio_range(tmp_path: Path, ros_env: dict
     r, hysteresis, dt = 24.0, 2.0, 0.1
     sampler = helper('graph_sampler', '16', env=ros_env)
     try:
-        run = cli('up', '--maps', '16', '--seed', '5', '--duration', '12', '--domain-id', ros_env['ROS_DOMAIN_ID'],
+        # One process per MAP: a packed run of 16 MAPs is over in a few seconds, before the sampler's discovery of
+        # the world's /metrics may have completed.
+        run = cli('up', '--maps', '16', '--seed', '5', '--duration', '12', '--agents-per-process', '1',
+                  '--domain-id', ros_env['ROS_DOMAIN_ID'],
                   '--out', str(tmp_path), env=ros_env)
     finally:
         sampler.terminate()
