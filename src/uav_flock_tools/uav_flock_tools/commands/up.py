@@ -60,11 +60,11 @@ def handle(args: argparse.Namespace) -> int:
     per_process = args.agents_per_process or auto_agents_per_process(s.maps)
     out = run_folder(Path(args.out) if args.out else default_out(cmd), f'{cmd}: --out', args.replace)
     try:
-        code, result = launcher.up(path.resolve(), s, out.resolve(), per_process, args.domain_id,
-                                   args.discovery, args.record, args.sync, args.rate, args.listen, args.agents_here,
-                                   floor_note(s, s.maps), args.view)
+        code = launcher.up(path.resolve(), s, out.resolve(), per_process, args.domain_id, args.discovery, args.record,
+                           args.sync, args.rate, args.listen, args.agents_here, floor_note(s, s.maps), args.view)
     except (FileExistsError, ValueError, domains.DomainInUse) as exc:
         raise UsageError(f'{cmd}: {exc}') from None
+    result = simrun.read_run(out, s)
     if result is None:
         return code or 1
     simrun.write_run(result, out, f'{s.maps} MAPs, seed {s.seed} (distributed)')
