@@ -222,3 +222,10 @@ def test_a_new_allocation_is_a_class_and_one_registry_line(paper_scenario_path: 
     assert set(result.trajectory[:, 9].astype(int).tolist()) <= {M0, M2}, 'it never bridges'
     assert all(m.goal == sim.clusters.nearest(q, 0) for m, q in zip(sim.memory, sim.q)), \
         'every MAP ends serving its nearest cluster'
+
+
+def test_the_95_percent_radius_constant_is_scipys_quantile_to_the_last_bit() -> None:
+    from scipy.stats import chi2
+
+    from world_sim.core.layouts import CHI2_2DOF_95
+    assert CHI2_2DOF_95 == chi2.ppf(0.95, 2)

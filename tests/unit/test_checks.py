@@ -8,7 +8,7 @@ import pytest
 
 from uav_agent.core.checks import check_fields, number
 from uav_agent.core.params import AgentNodeParams, FlockParams, check
-from uav_flock_tools.cli import positive_float
+from uav_flock_tools.commands.options import positive_float
 from world_sim.core.scenario import ScenarioError, WorldNodeParams, _num
 
 

@@ -31,7 +31,7 @@ from uav_flock_ros import convert
 from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, make_executor, take_waiting
 from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STEP_QOS, is_realtime
 
-from .core.agent import Neighbourhood, agent_step
+from .core.agent import Neighbourhood, Said, agent_step
 from .core.clusters import NO_GOAL, ClusterMap, ids_of, mask_of
 from .core.state import Memory, Told
 from .core.checks import check_fields
@@ -265,13 +265,8 @@ class AgentNode(Node):
             return
         else:
             heard = [self.latest[j] for j in needed]  # ascending id, as the world lists them
-        hood = Neighbourhood(
-            q=np.array([m.q for m in heard]).reshape(-1, 3),
-            p=np.array([m.p for m in heard]).reshape(-1, 3),
-            n_users=np.array([float(m.n_users) for m in heard]),
-            achieved=[mask_of(m.achieved) for m in heard],
-            told=[Told(m.mode, m.goal, m.bridge, m.transit) for m in heard],
-            seen=[m.seen for m in heard], lost=[m.lost for m in heard], short=[m.short for m in heard])
+        hood = Neighbourhood.hearing(np.array([m.q for m in heard]), np.array([m.p for m in heard]),
+                                     np.array([float(m.n_users) for m in heard]), [said(m) for m in heard])
         coverage = np.zeros(self.clusters.count)
         if self.memory.goal != NO_GOAL:
             coverage[self.memory.goal] = s.goal_coverage  # r_g of the goal the world knows we hold
@@ -355,6 +350,11 @@ class AgentNode(Node):
             return j in self.neighbour_subs  # the sample may have made us step and drop j
 
         return take_waiting(self.neighbour_subs[j], handle)
+
+
+def said(m: convert.AgentStateData) -> Said:
+    """What a neighbour's state message says, as the step reads it (core.agent.Neighbourhood.hearing)."""
+    return Said(mask_of(m.achieved), Told(m.mode, m.goal, m.bridge, m.transit), m.seen, m.lost, m.short)
 
 
 def parse_ids(argv: list[str]) -> list[int]:

@@ -14,7 +14,7 @@ from collections import Counter, defaultdict
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Optional
+from typing import TYPE_CHECKING, Any, Iterator, Optional
 
 import numpy as np
 import yaml
@@ -26,6 +26,9 @@ from rosbags.typesys.store import Typestore
 from uav_agent.core.params import FlockParams
 from uav_flock_ros import convert
 from world_sim.core import outcome, physics, records
+
+if TYPE_CHECKING:
+    from world_sim.core.scenario import Scenario
 
 MSG_PACKAGE = 'uav_flock_msgs'
 PARAMS_KEY = 'uav_flock.params'      # custom_data key: the run's FlockParams as JSON
@@ -370,3 +373,9 @@ def replay_inputs(path: Path, agent: int) -> ReplayInputs:
         raise BagError(f'{path}: no /clusters message')
     return ReplayInputs(agent, _custom(path, PARAMS_KEY), clusters, sensing, dict(states), commands,
                         sorted(failures, key=lambda f: f[0].step))
+
+
+def scenario_summary(path: Path, s: Scenario) -> dict[str, object]:
+    """What a bag says about the run it holds, beside the agents' parameters."""
+    return {'scenario': Path(path).name, 'maps': s.maps, 'seed': s.seed, 'dt': s.dt, 'duration': s.duration,
+            'fail_at': s.fail_at, 'fail_fraction': s.fail_fraction, 'association': s.association}

@@ -10,9 +10,9 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from uav_agent.core.agent import Neighbourhood, Said, plan
 from uav_agent.core.control import control_input
-from uav_agent.core.policies import apart_links, decide, reference
-from uav_agent.core.state import Memory, Near, Told
+from uav_agent.core.state import Memory
 
 from world_sim.core.model import RunResult, Sensed, World
 from world_sim.core.scenario import Scenario
@@ -42,22 +42,17 @@ class BatchSimulator:
             w.drop(failing)
         sensed = w.sense()
         rows = sensed.ids
-        stated = [self.memory[i] for i in rows]  # what each MAP's state message of step k carries
-        achieved_stated = [m.achieved for m in stated]
-        roles_stated = [Told.of(m) for m in stated]
+        said = [Said.of(self.memory[i]) for i in rows]  # what each MAP's state message of step k carries
         nbr, counts, bounds = sensed.pairs[:, 1].tolist(), sensed.n_users.tolist(), sensed.bounds
         refs, apart = [], []
         for n, i in enumerate(rows.tolist()):
             near = nbr[bounds[n]:bounds[n + 1]]
-            heard = [achieved_stated[j] for j in near]
-            roles_heard = ([stated[j].seen for j in near], [stated[j].lost for j in near],
-                           [stated[j].short for j in near])
-            heard_roles = [roles_stated[j] for j in near]
-            mem = decide(self.memory[i], i, counts[n], sensed.cluster_coverage, sensed.q[n], heard, w.clusters, fp,
-                         sensed.k, roles_heard, Near(sensed.q[near], heard_roles))
-            self.memory[i] = mem
-            refs.append(reference(mem, i, sensed.q[n], sensed.q[near], heard_roles, w.clusters, fp))
-            apart += apart_links(mem, heard_roles, fp)
+            hood = Neighbourhood.hearing(sensed.q[near], sensed.p[near], sensed.n_users[near],
+                                         [said[j] for j in near])
+            self.memory[i], ref, links = plan(self.memory[i], i, sensed.q[n], counts[n], sensed.cluster_coverage,
+                                              hood, w.clusters, fp, sensed.k)
+            refs.append(ref)
+            apart += links
         target, qa, qb = (np.array([ref[c] for ref in refs]).reshape(-1, 3) for c in range(3))
         mode = np.array([ref.mode for ref in refs], dtype=np.intp)
         ref_vel = np.array([ref.velocity for ref in refs]).reshape(-1, 3, 3)

@@ -14,13 +14,12 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Optional
+from typing import Optional
 
 from uav_flock_ros.processes import CRASH_DIR, write_params
-from world_sim.core.model import RunResult
-from world_sim.core import records
 from world_sim.core.scenario import Scenario
 
+from . import bag, viewer
 from .cleanup import clean_shared_memory
 from .domains import DomainClaim, claim_domain, discovery_server_address, ros_env, start_discovery_server
 from .spawn import (GRACE_S, ForkedAgent, describe_exit, dies_with_parent, executable, relay_log,
@@ -37,41 +36,6 @@ LOCALHOST_MAPS_LIMIT = 100
 START_TIMEOUT_MIN_S = 60.0
 START_TIMEOUT_PER_PROCESS_S = 1.5
 JOIN_TIMEOUT_S = 300.0  # a run that listens for agents of other hosts waits this long for them to appear
-
-
-def scenario_summary(path: Path, s: Scenario) -> dict[str, object]:
-    """What a bag says about the run it holds, beside the agents' parameters."""
-    return {'scenario': Path(path).name, 'maps': s.maps, 'seed': s.seed, 'dt': s.dt, 'duration': s.duration,
-            'fail_at': s.fail_at, 'fail_fraction': s.fail_fraction, 'association': s.association}
-
-
-VIEW_START_S = 60.0  # the viewer imports rclpy and the SDK and starts its server well within this
-
-
-def announce_view(viewer: subprocess.Popen, port: int, log: Path, stopping: Callable[[], bool]) -> None:
-    """Say on the terminal, once, whether the live view serves: its URL and how to connect, or why not.
-
-    The port was found free before the run, but another program may take it before the viewer binds it;
-    the run then goes on without a view, and the user hears so here rather than only in viewer.log. A run
-    that ends before the viewer serves (a short lockstep run) says nothing of it.
-    """
-    deadline = time.monotonic() + VIEW_START_S
-    while time.monotonic() < deadline and not stopping():
-        said = log.read_text(errors='replace') if log.exists() else ''
-        if 'serving on' in said:
-            print(f'uav-flock up: live view on ws://localhost:{port}: in Foxglove (or Lichtblick), Open connection, '
-                  f'Foxglove WebSocket, that URL; docs/foxglove_layout.json lays out the 3-D scene and the plots',
-                  flush=True)
-            return
-        if viewer.poll() is not None:
-            why = next((line for line in reversed(said.splitlines()) if line.strip()), f'exit code {viewer.returncode}')
-            print(f'uav-flock up: the live view is not served ({why.strip()}); the run goes on without it '
-                  f'(logs/viewer.log)', flush=True)
-            return
-        time.sleep(0.2)
-    if not stopping():
-        print(f'uav-flock up: the live view did not start serving within {VIEW_START_S:.0f} s; the run goes on '
-              f'(logs/viewer.log)', flush=True)
 
 
 @dataclass
@@ -207,7 +171,7 @@ class Run:
         if p.record:
             rec_params = write_params(p.run / 'recorder_params.yaml', {
                 'out': str(p.bag_path), 'maps': s.maps, 'sync': p.sync, 'params_json': json.dumps(s.flock.as_dict()),
-                'scenario_json': json.dumps({**scenario_summary(p.scenario_path, s), 'sync': p.sync})})
+                'scenario_json': json.dumps({**bag.scenario_summary(p.scenario_path, s), 'sync': p.sync})})
             # With a discovery server, a plain client hears only of the topics it already uses; the recorder
             # finds its topics in the graph, so it is a super-client, which hears of every endpoint.
             self.recorder = subprocess.Popen(
@@ -224,7 +188,7 @@ class Run:
                 env={**p.env, 'ROS_SUPER_CLIENT': 'TRUE'} if p.server_address else p.env,
                 stdout=open(p.logs / 'viewer.log', 'w'), stderr=subprocess.STDOUT, start_new_session=True,
                 preexec_fn=dies_with_parent(signal.SIGINT))
-            threading.Thread(target=announce_view, daemon=True,
+            threading.Thread(target=viewer.announce, daemon=True,
                              args=(self.viewer, p.view, p.logs / 'viewer.log', lambda: self.stopping)).start()
             self.raise_if_interrupted()
         world_args = [executable('world_sim', 'world_sim_node'), '--ros-args',
@@ -300,8 +264,8 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
        domain_id: Optional[int] = None, discovery: str = 'auto', record: bool = False,
        sync: str = 'lockstep', rate: float = 1.0, listen: Optional[str] = None,
        agents_here: Optional[int] = None, note: Optional[str] = None,
-       view: Optional[int] = None) -> tuple[int, Optional[RunResult]]:
-    """Run the scenario distributed, in stages; returns (exit code, result read back from the run folder).
+       view: Optional[int] = None) -> int:
+    """Run the scenario distributed, in stages; returns the exit code (the records are in the run folder).
     A note (e.g. too few MAPs for the layout) goes to stderr once the run is planned and its files written."""
     r = Run(plan(scenario_path, scenario, run, agents_per_process, domain_id, discovery, record, sync, rate,
                  listen, agents_here, view))
@@ -319,23 +283,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
             r.stop_all()
         # Still under our handler, which ignores a Ctrl-C from the stop on: one that came just after the
         # processes ended must not cut the report short.
-        return r.report(code), read_result(run, scenario)
+        return r.report(code)
     finally:
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)
-
-
-def read_result(run: Path, scenario: Scenario) -> Optional[RunResult]:
-    """The run's records as a RunResult, from the files world_sim wrote (None if it wrote none)."""
-    if not all((run / f).exists() for f in ('metrics.csv', 'trajectory.csv', records.USERS_FILE,
-                                            records.FAILURES_FILE)):
-        return None
-    m = records.read_csv(run / 'metrics.csv')
-    if len(m['step']) == 0:
-        return None
-    t = records.read_csv(run / 'trajectory.csv')
-    metrics = records.rows(m, records.METRICS_COLUMNS)
-    traj = records.rows(t, records.TRAJECTORY_COLUMNS)
-    failed, fail_step, events = records.read_failures(run / records.FAILURES_FILE)
-    return RunResult(scenario, records.read_users(run / records.USERS_FILE), metrics, traj, failed, fail_step,
-                     records.read_motion(run / records.USERS_FILE), events)

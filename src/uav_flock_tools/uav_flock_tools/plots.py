@@ -104,6 +104,19 @@ def links_within(q: np.ndarray, r: float) -> np.ndarray:
     return np.stack([q[i], q[j]], axis=1)
 
 
+def legend_handles(r: float, lost: bool = False, tracks: bool = False) -> list[plt.Line2D]:
+    """The formation's legend in reading order, with every mode whether or not a picture shows it."""
+    handles = [plt.Line2D([], [], ls='', marker='o', ms=3, color='0.75', label='MSD')]
+    handles += [plt.Line2D([], [], ls='', marker='o', ms=5, color=c, label=n) for c, n in zip(MODE_COLOURS, MODE_NAMES)]
+    handles += [plt.Line2D([], [], ls='', marker='x', ms=7, color='k', label='cluster centroid'),
+                plt.Line2D([], [], color='0.35', lw=0.8, label=f'link (within r = {r:g} m)')]
+    if lost:
+        handles.append(plt.Line2D([], [], ls='', marker='X', ms=6, color='tab:red', label='MAP lost'))
+    if tracks:
+        handles.append(plt.Line2D([], [], color='tab:purple', lw=1.0, label='cluster track'))
+    return handles
+
+
 def formation(ax: plt.Axes, users_xy: np.ndarray, users_cluster: np.ndarray, centroids: np.ndarray,
               q: np.ndarray, mode: np.ndarray, r: float, title: str) -> None:
     """MSDs (grey, by cluster), MAPs coloured by mode, MAP-MAP links within r, cluster centroids."""
@@ -147,11 +160,7 @@ def formation_snapshots(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
         formation(ax, *panels[t], q, traj['mode'][sel].astype(int), r, f't = {t:.1f} s')
         ax.set_xlim(lo[0], hi[0])
         ax.set_ylim(lo[1], hi[1])
-    # The legend in reading order, with every mode whether or not a panel shows it.
-    handles = [plt.Line2D([], [], ls='', marker='o', ms=3, color='0.75', label='MSD')]
-    handles += [plt.Line2D([], [], ls='', marker='o', ms=5, color=c, label=n) for c, n in zip(MODE_COLOURS, MODE_NAMES)]
-    handles += [plt.Line2D([], [], ls='', marker='x', ms=7, color='k', label='cluster centroid'),
-                plt.Line2D([], [], color='0.35', lw=0.8, label=f'link (within r = {r:g} m)')]
+    handles = legend_handles(r)
     fig.legend(handles=handles, loc='lower center', ncol=len(handles), fontsize=8, frameon=False)
     fig.suptitle(title)
     fig.tight_layout(rect=(0, 0.08, 1, 0.96))
@@ -166,95 +175,94 @@ def formation_animation(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
     """The formation as an animated GIF, one frame per `every` s of simulated time: MSDs, MAPs by mode,
     links within r, cluster centroids and the tracks of moving clusters so far, MAPs lost marked where they
     were last, and (given the run's metrics rows) R_c and λ2 of the frame's step. A picture to watch where
-    snapshots leave gaps; kept small (about 1 MB for 90 s).
-
-    The axes are drawn once; each frame redraws only what moves over them (blitting). Every frame takes the
-    first frame's palette, which the legend fills with every colour drawn: a colour never shifts between
-    frames, and Pillow quantizes once."""
-    from matplotlib.collections import LineCollection
-    from PIL import Image
-
+    snapshots leave gaps; kept small (about 1 MB for 90 s)."""
     all_t = np.unique(traj['t'])
     shown = sorted({all_t[np.argmin(np.abs(all_t - want))] for want in np.arange(0.0, all_t[-1] + 1e-9, every)}
                    | {all_t[-1]})
     users = {t: (users_xy, users_cluster) if users_at is None else users_at(float(t)) for t in shown}
-    centroids = []
-    for t in shown:
-        xy, cl = users[t]
-        centroids.append(label_centroids(xy, cl))
-    frames = [np.flatnonzero(traj['t'] == t) for t in shown]
-    pts = np.vstack([*(u[0] for u in users.values()), np.column_stack([traj['x'], traj['y']])[np.concatenate(frames)]])
-    lo, hi = pts.min(axis=0) - 15.0, pts.max(axis=0) + 15.0
-    aspect = (hi[1] - lo[1]) / max(hi[0] - lo[0], 1e-9)
-    height = min(max(5.4 * aspect, 3.0), 6.4) + 1.5  # the axes, and 1.5 in for the title, labels and legend
-    fig, ax = plt.subplots(figsize=(6.0, height))
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
-    ax.set_aspect('equal')
-    ax.set_xlabel('x (m)')
-    ax.set_ylabel('y (m)')
-    msd = ax.scatter(*users[shown[0]][0].T, s=2, c='0.75', zorder=1)
-    links = LineCollection([], colors='0.35', linewidths=0.5, zorder=2)
-    ax.add_collection(links)
-    tracks = {k: ax.plot([], [], color='tab:purple', lw=1.0, zorder=2)[0] for c in centroids for k in c}
-    maps = [ax.scatter([], [], s=14, c=colour, zorder=3) for colour in MODE_COLOURS]
-    marks = ax.scatter([], [], marker='x', s=50, c='k', zorder=4)
-    lost = ax.scatter([], [], marker='X', s=40, c='tab:red', zorder=5)
-    heading = ax.set_title('', fontsize=9)
-    none = np.zeros((0, 2))
-    last_seen: dict[int, np.ndarray] = {}
+    movie = FormationMovie(traj, shown, users, r, title, metrics)
+    return movie.write(path, fps)
 
-    def draw(n: int) -> None:
-        t, sel = shown[n], frames[n]
-        q = np.column_stack([traj['x'][sel], traj['y'][sel]])
-        ids, mode = traj['id'][sel].astype(int).tolist(), traj['mode'][sel].astype(int)
-        msd.set_offsets(users[t][0])
-        links.set_segments(links_within(q, r))
-        for m, artist in enumerate(maps):
-            artist.set_offsets(q[mode == m] if np.any(mode == m) else none)
-        marks.set_offsets(np.array(list(centroids[n].values())).reshape(-1, 2))
-        for k, line in tracks.items():
-            path_k = np.array([c[k] for c in centroids[:n + 1] if k in c]).reshape(-1, 2)
-            moved = len(path_k) > 1 and np.ptp(path_k, axis=0).max() > 1.0
-            line.set_data(*(path_k.T if moved else ([], [])))
-        gone = [last_seen[i] for i in last_seen if i not in set(ids)]
-        lost.set_offsets(np.array(gone).reshape(-1, 2))
-        last_seen.update(zip(ids, q))
-        heading.set_text(f'{title}\nt = {t:.0f} s{readout(t)}')
 
-    def readout(t: float) -> str:
-        if metrics is None or not len(metrics):
+class FormationMovie:
+    """The artists of formation.gif over axes drawn once; each frame redraws only what moves (blitting).
+
+    Every frame takes the first frame's palette, which the legend fills with every colour drawn: a colour
+    never shifts between frames, and Pillow quantizes once.
+    """
+
+    def __init__(self, traj: dict[str, np.ndarray], shown: list[float],
+                 users: dict[float, tuple[np.ndarray, np.ndarray]], r: float, title: str,
+                 metrics: np.ndarray | None) -> None:
+        from matplotlib.collections import LineCollection
+        self.traj, self.shown, self.users, self.r, self.title, self.metrics = traj, shown, users, r, title, metrics
+        self.centroids = [label_centroids(*users[t]) for t in shown]
+        self.rows = [np.flatnonzero(traj['t'] == t) for t in shown]
+        pts = np.vstack([*(u[0] for u in users.values()),
+                         np.column_stack([traj['x'], traj['y']])[np.concatenate(self.rows)]])
+        lo, hi = pts.min(axis=0) - 15.0, pts.max(axis=0) + 15.0
+        aspect = (hi[1] - lo[1]) / max(hi[0] - lo[0], 1e-9)
+        height = min(max(5.4 * aspect, 3.0), 6.4) + 1.5  # the axes, and 1.5 in for the title, labels and legend
+        self.fig, ax = plt.subplots(figsize=(6.0, height))
+        ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), xlabel='x (m)', ylabel='y (m)')
+        ax.set_aspect('equal')
+        self.msd = ax.scatter(*users[shown[0]][0].T, s=2, c='0.75', zorder=1)
+        self.links = ax.add_collection(LineCollection([], colors='0.35', linewidths=0.5, zorder=2))
+        self.tracks = {k: ax.plot([], [], color='tab:purple', lw=1.0, zorder=2)[0] for c in self.centroids for k in c}
+        self.maps = [ax.scatter([], [], s=14, c=colour, zorder=3) for colour in MODE_COLOURS]
+        self.marks = ax.scatter([], [], marker='x', s=50, c='k', zorder=4)
+        self.lost = ax.scatter([], [], marker='X', s=40, c='tab:red', zorder=5)
+        self.heading = ax.set_title('', fontsize=9)
+        self.last_seen: dict[int, np.ndarray] = {}
+        self.fig.legend(handles=legend_handles(r, lost=True, tracks=True), loc='lower center', ncol=4, fontsize=7,
+                        frameon=False)
+        self.fig.subplots_adjust(bottom=1.0 / height, top=1.0 - 0.45 / height)
+        self.fig.set_dpi(80)
+
+    def readout(self, t: float) -> str:
+        if self.metrics is None or not len(self.metrics):
             return ''
-        row = metrics[np.argmin(np.abs(metrics[:, 1] - t))]
+        row = self.metrics[np.argmin(np.abs(self.metrics[:, 1] - t))]
         return f'   R_c = {100 * row[2]:.1f} %   λ2 = {row[3]:.4f}{" (split)" if row[3] <= 0 else ""}'
 
-    handles = [plt.Line2D([], [], ls='', marker='o', ms=3, color='0.75', label='MSD')]
-    handles += [plt.Line2D([], [], ls='', marker='o', ms=5, color=c, label=m) for c, m in zip(MODE_COLOURS, MODE_NAMES)]
-    handles += [plt.Line2D([], [], ls='', marker='x', ms=6, color='k', label='cluster centroid'),
-                plt.Line2D([], [], color='0.35', lw=0.8, label=f'link (within r = {r:g} m)'),
-                plt.Line2D([], [], ls='', marker='X', ms=6, color='tab:red', label='MAP lost'),
-                plt.Line2D([], [], color='tab:purple', lw=1.0, label='cluster track')]
-    fig.legend(handles=handles, loc='lower center', ncol=4, fontsize=7, frameon=False)
-    fig.subplots_adjust(bottom=1.0 / height, top=1.0 - 0.45 / height)
-    fig.set_dpi(80)
-    moving = [msd, links, *tracks.values(), *maps, marks, lost, heading]
-    for artist in moving:
-        artist.set_animated(True)
-    canvas = fig.canvas
-    canvas.draw()
-    background = canvas.copy_from_bbox(fig.bbox)
-    images: list[Image.Image] = []
-    for n in range(len(shown)):
-        draw(n)
-        canvas.restore_region(background)
+    def draw(self, n: int) -> None:
+        traj, t, sel = self.traj, self.shown[n], self.rows[n]
+        q = np.column_stack([traj['x'][sel], traj['y'][sel]])
+        ids, mode = traj['id'][sel].astype(int).tolist(), traj['mode'][sel].astype(int)
+        self.msd.set_offsets(self.users[t][0])
+        self.links.set_segments(links_within(q, self.r))
+        for m, artist in enumerate(self.maps):
+            artist.set_offsets(q[mode == m] if np.any(mode == m) else np.zeros((0, 2)))
+        self.marks.set_offsets(np.array(list(self.centroids[n].values())).reshape(-1, 2))
+        for k, line in self.tracks.items():
+            path_k = np.array([c[k] for c in self.centroids[:n + 1] if k in c]).reshape(-1, 2)
+            moved = len(path_k) > 1 and np.ptp(path_k, axis=0).max() > 1.0
+            line.set_data(*(path_k.T if moved else ([], [])))
+        here = set(ids)
+        self.lost.set_offsets(np.array([q_i for i, q_i in self.last_seen.items() if i not in here]).reshape(-1, 2))
+        self.last_seen.update(zip(ids, q))
+        self.heading.set_text(f'{self.title}\nt = {t:.0f} s{self.readout(t)}')
+
+    def write(self, path: Path, fps: int) -> Path:
+        from PIL import Image
+        moving = [self.msd, self.links, *self.tracks.values(), *self.maps, self.marks, self.lost, self.heading]
         for artist in moving:
-            fig.draw_artist(artist)
-        frame = Image.fromarray(np.asarray(canvas.buffer_rgba())[..., :3].copy())
-        images.append(frame.quantize(colors=255, dither=Image.Dither.NONE) if not images else
-                      frame.quantize(palette=images[0], dither=Image.Dither.NONE))
-    images[0].save(path, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0)
-    plt.close(fig)
-    return path
+            artist.set_animated(True)
+        canvas = self.fig.canvas
+        canvas.draw()
+        background = canvas.copy_from_bbox(self.fig.bbox)
+        images: list[Image.Image] = []
+        for n in range(len(self.shown)):
+            self.draw(n)
+            canvas.restore_region(background)
+            for artist in moving:
+                self.fig.draw_artist(artist)
+            frame = Image.fromarray(np.asarray(canvas.buffer_rgba())[..., :3].copy())
+            images.append(frame.quantize(colors=255, dither=Image.Dither.NONE) if not images else
+                          frame.quantize(palette=images[0], dither=Image.Dither.NONE))
+        images[0].save(path, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0)
+        plt.close(self.fig)
+        return path
 
 
 def run_figures(metrics: np.ndarray, traj: dict[str, np.ndarray], users_xy: np.ndarray | None,
@@ -262,20 +270,66 @@ def run_figures(metrics: np.ndarray, traj: dict[str, np.ndarray], users_xy: np.n
                 folder: Path, events: Sequence[Event] = (), users_at: UsersAt | None = None) -> list[Path]:
     """The figures of one run: coverage, Fiedler value, mode counts, formation snapshots and animation.
 
-    metrics rows follow the METRICS_COLUMNS order; without MSDs the formation snapshots are left out.
+    metrics rows follow the METRICS_COLUMNS order; without MSDs the formation pictures are left out. The
+    animation, the costliest, is drawn by a forked child meanwhile (on a machine of one core, here after).
     """
-    t = metrics[:, 1]
-    out = [
-        time_series([(label, t, 100 * metrics[:, 2])], 'coverage ratio R_c (%)', f'Coverage, {label}',
-                    folder / 'coverage.png', events),
-        fiedler_series([(label, t, metrics[:, 3])], f'Connectivity, {label}', folder / 'fiedler.png', events),
-        mode_counts(t, metrics[:, 6:9], f'Modes, {label}', folder / 'modes.png'),
-    ]
-    if users_xy is not None and users_cluster is not None and centroids is not None and len(traj['t']):
-        end = float(traj['t'].max())
-        times = sorted({0.0, round(end / 4, 1), round(end / 2, 1), end})
-        out.append(formation_snapshots(traj, users_xy, users_cluster, centroids, r, times,
-                                       f'Formation, {label}', folder / 'formation.png', users_at))
-        out.append(formation_animation(traj, users_xy, users_cluster, r, label, folder / 'formation.gif', users_at,
-                                       metrics=metrics))
-    return out
+    animated = users_xy is not None and users_cluster is not None and centroids is not None and len(traj['t'])
+    gif = folder / 'formation.gif'
+    child = Meanwhile(lambda: formation_animation(traj, users_xy, users_cluster, r, label, gif, users_at,
+                                                  metrics=metrics)) if animated else None
+    try:
+        t = metrics[:, 1]
+        out = [
+            time_series([(label, t, 100 * metrics[:, 2])], 'coverage ratio R_c (%)', f'Coverage, {label}',
+                        folder / 'coverage.png', events),
+            fiedler_series([(label, t, metrics[:, 3])], f'Connectivity, {label}', folder / 'fiedler.png', events),
+            mode_counts(t, metrics[:, 6:9], f'Modes, {label}', folder / 'modes.png'),
+        ]
+        if child is not None:
+            end = float(traj['t'].max())
+            times = sorted({0.0, round(end / 4, 1), round(end / 2, 1), end})
+            out.append(formation_snapshots(traj, users_xy, users_cluster, centroids, r, times,
+                                           f'Formation, {label}', folder / 'formation.png', users_at))
+            child.wait(f'drawing {gif}')
+            out.append(gif)
+        return out
+    finally:
+        if child is not None:
+            child.stop()
+
+
+class Meanwhile:
+    """A drawing done by a forked child while this process goes on: two cores draw two pictures at once.
+
+    The child shares what this process holds at the fork (no pickling) and leaves by os._exit, as
+    multiprocessing's children do, so it tears nothing of ours down. Ctrl-C is this process's to act on.
+    """
+
+    def __init__(self, draw: Callable[[], object]) -> None:
+        import multiprocessing
+        import os
+        self.child = None
+        if (os.cpu_count() or 1) < 2:
+            draw()
+            return
+        self.child = multiprocessing.get_context('fork').Process(target=_quietly, args=(draw,), daemon=True)
+        self.child.start()
+
+    def wait(self, what: str) -> None:
+        if self.child is None:
+            return
+        self.child.join()
+        if self.child.exitcode != 0:
+            raise RuntimeError(f'{what} failed (exit {self.child.exitcode}; its error is above)')
+
+    def stop(self) -> None:
+        if self.child is not None and self.child.exitcode is None:
+            self.child.terminate()
+            self.child.join()
+
+
+def _quietly(draw: Callable[[], object]) -> None:
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops it on Ctrl-C; no traceback of its own
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    draw()

@@ -112,3 +112,19 @@ def write_summary(results: list[RunResult], out: Path) -> list[str]:
                      f'{a[:, 1].mean():.4f} ± {a[:, 1].std():.4f} | {a[:, 2].mean():.1f} ± {a[:, 2].std():.1f} | '
                      f'{success} |')
     return table
+
+
+def read_run(run: Path, scenario: Scenario) -> Optional[RunResult]:
+    """The run's records as a RunResult, from the files world_sim wrote (None if it wrote none)."""
+    if not all((run / f).exists() for f in ('metrics.csv', 'trajectory.csv', records.USERS_FILE,
+                                            records.FAILURES_FILE)):
+        return None
+    m = records.read_csv(run / 'metrics.csv')
+    if len(m['step']) == 0:
+        return None
+    t = records.read_csv(run / 'trajectory.csv')
+    metrics = records.rows(m, records.METRICS_COLUMNS)
+    traj = records.rows(t, records.TRAJECTORY_COLUMNS)
+    failed, fail_step, events = records.read_failures(run / records.FAILURES_FILE)
+    return RunResult(scenario, records.read_users(run / records.USERS_FILE), metrics, traj, failed, fail_step,
+                     records.read_motion(run / records.USERS_FILE), events)

@@ -8,8 +8,11 @@ when the world's metrics of a step arrive: by then the world has told every MAP 
 """
 from __future__ import annotations
 
+import subprocess
 import sys
-from typing import Optional
+import time
+from pathlib import Path
+from typing import Callable, Optional
 
 import numpy as np
 import rclpy
@@ -24,6 +27,35 @@ from uav_flock_ros.qos import STATE_QOS, STEP_QOS
 from . import scene
 
 DEFAULT_PORT = 8765
+
+
+VIEW_START_S = 60.0  # the viewer imports rclpy and the SDK and starts its server well within this
+
+
+def announce(viewer: subprocess.Popen, port: int, log: Path, stopping: Callable[[], bool]) -> None:
+    """Say on the terminal, once, whether the live view serves: its URL and how to connect, or why not.
+
+    The port was found free before the run, but another program may take it before the viewer binds it;
+    the run then goes on without a view, and the user hears so here rather than only in viewer.log. A run
+    that ends before the viewer serves (a short lockstep run) says nothing of it.
+    """
+    deadline = time.monotonic() + VIEW_START_S
+    while time.monotonic() < deadline and not stopping():
+        said = log.read_text(errors='replace') if log.exists() else ''
+        if 'serving on' in said:
+            print(f'uav-flock up: live view on ws://localhost:{port}: in Foxglove (or Lichtblick), Open connection, '
+                  f'Foxglove WebSocket, that URL; docs/foxglove_layout.json lays out the 3-D scene and the plots',
+                  flush=True)
+            return
+        if viewer.poll() is not None:
+            why = next((line for line in reversed(said.splitlines()) if line.strip()), f'exit code {viewer.returncode}')
+            print(f'uav-flock up: the live view is not served ({why.strip()}); the run goes on without it '
+                  f'(logs/viewer.log)', flush=True)
+            return
+        time.sleep(0.2)
+    if not stopping():
+        print(f'uav-flock up: the live view did not start serving within {VIEW_START_S:.0f} s; the run goes on '
+              f'(logs/viewer.log)', flush=True)
 
 
 class ViewerError(Exception):

@@ -1,15 +1,37 @@
-"""One MAP's whole step, as its node runs it: neighbours' messages and own sensing in, u_i and memory out."""
+"""One MAP's whole step, written once: the agent node runs it for its MAP, the batch simulator for every MAP.
+
+What a MAP hears of its neighbours (`Said`, gathered into a `Neighbourhood`) and its own sensing go in;
+`plan` decides its mode and role and what eq. 9's terms aim at; `control_input` (control.py) turns that
+into u_i. The batch simulator sums eq. 9 for all MAPs at once with the same function, fed the same rows.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from .control import control_input
 from .clusters import ClusterMap
+from .control import control_input
 from .params import FlockParams
 from .policies import apart_links, decide, reference
-from .state import Memory, Near, Told
+from .state import Memory, Near, Reference, Told
+
+
+class Said(NamedTuple):
+    """What a MAP's state message of step k tells its neighbours besides q, p and N_u: the goals it knows
+    achieved (a mask), its role (Told) and what it gossips of the roles (vacancy.py: seen, lost, short)."""
+
+    achieved: int
+    told: Told
+    seen: tuple[tuple[int, int], ...] = ()
+    lost: tuple[tuple[float, float], ...] = ()
+    short: tuple[tuple[int, int], ...] = ()
+
+    @classmethod
+    def of(cls, mem: Memory) -> 'Said':
+        """What a MAP with this memory says, as its state message carries it (agent_node.publish_state)."""
+        return cls(mem.achieved, Told.of(mem), mem.seen, mem.lost, mem.short)
 
 
 @dataclass
@@ -29,16 +51,39 @@ class Neighbourhood:
     def empty(cls) -> 'Neighbourhood':
         return cls(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), [], [])
 
+    @classmethod
+    def hearing(cls, q: np.ndarray, p: np.ndarray, n_users: np.ndarray, said: Sequence[Said]) -> 'Neighbourhood':
+        """The neighbourhood of what each neighbour said, rows alike: the one place the gossip is gathered."""
+        return cls(np.asarray(q, dtype=float).reshape(-1, 3), np.asarray(p, dtype=float).reshape(-1, 3),
+                   np.asarray(n_users, dtype=float), [s.achieved for s in said], [s.told for s in said],
+                   [s.seen for s in said], [s.lost for s in said], [s.short for s in said])
+
+
+class Plan(NamedTuple):
+    """One MAP's decision of step k: its memory after it, what eq. 9's goal term aims at, and what each
+    neighbour's link is to the flocking terms (state.RELATED, APART or PASSING), rows as the neighbours'."""
+
+    memory: Memory
+    reference: Reference
+    links: list[int]
+
+
+def plan(mem: Memory, agent_id: int, q: np.ndarray, n_users: int, cluster_coverage: np.ndarray, nbrs: Neighbourhood,
+         clusters: ClusterMap, params: FlockParams, step: int = 0) -> Plan:
+    """Algorithm 1 lines 3-5 for one MAP at step k: gossip, mode switch (Alg. 2), the goal term's reference."""
+    mem = decide(mem, agent_id, n_users, cluster_coverage, q, nbrs.achieved, clusters, params, step,
+                 (nbrs.seen, nbrs.lost, nbrs.short), Near(nbrs.q, nbrs.told))
+    return Plan(mem, reference(mem, agent_id, q, nbrs.q, nbrs.told, clusters, params),
+                apart_links(mem, nbrs.told, params))
+
 
 def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_users: int, cluster_coverage: np.ndarray,
                nbrs: Neighbourhood, clusters: ClusterMap, params: FlockParams, step: int = 0) -> tuple[np.ndarray, Memory]:
-    """Algorithm 1 lines 3-6 for one MAP at step k: gossip, mode switch (Alg. 2), control input (eq. 9)."""
-    mem = decide(mem, agent_id, n_users, cluster_coverage, q, nbrs.achieved, clusters, params, step,
-                 (nbrs.seen, nbrs.lost, nbrs.short), Near(nbrs.q, nbrs.told))
-    ref = reference(mem, agent_id, q, nbrs.q, nbrs.told, clusters, params)
+    """Algorithm 1 lines 3-6 for one MAP at step k: its plan, then its control input (eq. 9)."""
+    mem, ref, links = plan(mem, agent_id, q, n_users, cluster_coverage, nbrs, clusters, params, step)
     owner = np.zeros(len(nbrs.q), dtype=np.intp)
     u = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([ref.mode]),
                       ref.target[None, :], ref.q1[None, :], ref.q2[None, :], owner, nbrs.q, nbrs.p,
-                      np.asarray(nbrs.n_users, dtype=float), params,
-                      np.array(apart_links(mem, nbrs.told, params), dtype=np.intp), ref.velocity[None])
+                      np.asarray(nbrs.n_users, dtype=float), params, np.array(links, dtype=np.intp),
+                      ref.velocity[None])
     return u[0], mem

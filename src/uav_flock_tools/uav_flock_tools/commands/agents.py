@@ -1,0 +1,41 @@
+"""`uav-flock agents`: agent processes on this host that join an `up --listen` on another host."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from .options import (AGENTS_PER_PROCESS_HELP, UsageError, auto_agents_per_process, default_out, id_list,
+                      positive_float, positive_int, run_folder)
+
+RUN_INFO_TIMEOUT_S = 20.0  # agents --join: how long a run's /run_info is waited for
+
+
+SUMMARY = 'agent processes on this host that join a run of `up --listen` on another'
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument('--join', required=True, metavar='HOST:PORT', help='the address `up --listen` printed')
+    p.add_argument('--ids', type=id_list, required=True, help='MAP ids to run here, e.g. 30-89')
+    p.add_argument('--agents-per-process', type=positive_int, metavar='K', help=AGENTS_PER_PROCESS_HELP)
+    p.add_argument('--timeout', type=positive_float, default=RUN_INFO_TIMEOUT_S,
+                   help=f'wait this long for the run to answer (s, default: {RUN_INFO_TIMEOUT_S:g})')
+    p.add_argument('--out', help='folder for this host\'s logs and pids (default: runs/agents-<time>)')
+    p.add_argument('--replace', action='store_true', help='replace an earlier folder in --out (refused otherwise)')
+
+
+def handle(args: argparse.Namespace) -> int:
+    """Agent processes on this host that join a run listening on another (`up --listen`)."""
+    from .. import join
+    try:
+        join.parse_address(args.join)
+    except join.JoinError as exc:
+        raise UsageError(f'agents: {exc}') from None
+    out = run_folder(Path(args.out) if args.out else default_out('agents'), 'agents: --out', args.replace)
+    try:
+        return join.join(args.join, args.ids, out.resolve(),
+                         args.agents_per_process or auto_agents_per_process(len(args.ids)), args.timeout)
+    except join.JoinError as exc:
+        if out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # nothing joined: leave no empty folder behind
+        raise UsageError(f'agents: {exc}') from None
+

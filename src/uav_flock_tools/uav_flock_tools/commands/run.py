@@ -1,0 +1,39 @@
+"""`uav-flock run`: the main job, a scenario distributed and recorded, then the report of its bag."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from . import report, sim, up
+from .options import UsageError, add_scenario_options, add_view_option, default_out
+
+SUMMARY = 'the main job: a scenario (the paper with 90 MAPs) distributed and recorded, with plots and a report of its bag'
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_scenario_options(p, grid=False, failures=False)
+    p.add_argument('--batch', action='store_true', help='in one process with the batch simulator instead (seconds)')
+    add_view_option(p)
+    p.add_argument('--out', help='output folder (default: runs/run-<time>)')
+    p.add_argument('--replace', action='store_true', help='replace the earlier run in --out (refused otherwise)')
+
+
+def handle(args: argparse.Namespace) -> int:
+    """The main job: a scenario (the paper's with 90 MAPs by default), distributed and recorded, then its report."""
+    ns = argparse.Namespace(command='run', scenario=args.scenario, maps=args.maps, seed=args.seed,
+                            duration=args.duration, fail_at=None, fail_fraction=None,
+                            out=args.out or str(default_out('run')), replace=args.replace)
+    if args.batch:
+        if args.view is not None:
+            raise UsageError('run: --view watches the distributed run; --batch has no topics to watch')
+        ns.__dict__.update(maps=None if args.maps is None else [args.maps],
+                           seed=None if args.seed is None else [args.seed], pictures=None)
+        return sim.handle(ns)
+    ns.__dict__.update(agents_per_process=None, domain_id=None, discovery='auto', record=True, sync='lockstep',
+                       rate=1.0, listen=None, agents_here=None, view=args.view)
+    code = up.handle(ns)
+    bag_path = Path(ns.out) / 'bag'
+    if (bag_path / 'metadata.yaml').exists():
+        code = report.handle(argparse.Namespace(bag=str(bag_path), out=None, replace=True)) or code
+    return code
+
