@@ -41,8 +41,9 @@ def test_a_single_series_gets_no_legend_of_its_own(tmp_path) -> None:
     plt.close(fig)
 
 
-def test_every_frame_of_the_animation_keeps_the_colours_of_the_first(tmp_path) -> None:
-    """One palette for the whole GIF: a colour (a legend swatch, a mode) reads the same in every frame."""
+def test_the_legend_of_the_animation_reads_the_same_in_every_frame(tmp_path) -> None:
+    """One palette for the whole GIF: what does not move (the legend under the axes) is the same pixels in
+    every frame, where a palette of each frame's own shifted its swatches' colours from frame to frame."""
     import numpy as np
     from PIL import Image
 
@@ -54,9 +55,9 @@ def test_every_frame_of_the_animation_keeps_the_colours_of_the_first(tmp_path) -
         frames = []
         for n in range(gif.n_frames):
             gif.seek(n)
-            frames.append(np.asarray(gif.convert('RGB')).reshape(-1, 3))
-    first = {tuple(c) for c in np.unique(frames[0], axis=0)}
+            frames.append(np.asarray(gif.convert('RGB')))
     assert len(frames) == 13
+    legend = slice(int(0.9 * frames[0].shape[0]), None)  # the bottom tenth: the legend, below the x axis label
+    assert len(np.unique(frames[0][legend].reshape(-1, 3), axis=0)) > 5, 'the legend is drawn there'
     for n, f in enumerate(frames[1:], 1):
-        extra = {tuple(c) for c in np.unique(f, axis=0)} - first
-        assert not extra, f'frame {n} has colours the first has not: {sorted(extra)[:5]}'
+        assert np.array_equal(f[legend], frames[0][legend]), f'the legend of frame {n} differs from the first'

@@ -80,8 +80,8 @@ def test_command_line_reports_one_line_and_exit_2(doc: dict[str, Any], tmp_path:
     proc = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'sim', '--scenario', str(bad)],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
-    assert proc.stderr.strip().splitlines() == [f'uav-flock: error: {bad}: flock.d: must be below flock.r (24.0), '
-                                                'got 25.0']
+    assert proc.stderr.strip().splitlines() == [f'uav-flock: error: sim: {bad}: flock.d: must be below flock.r '
+                                                '(24.0), got 25.0']
     assert 'Traceback' not in proc.stderr
 
 

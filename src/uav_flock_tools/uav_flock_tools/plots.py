@@ -252,14 +252,15 @@ class FormationMovie:
         canvas.draw()
         background = canvas.copy_from_bbox(self.fig.bbox)
         images: list[Image.Image] = []
+        palette = None
         for n in range(len(self.shown)):
             self.draw(n)
             canvas.restore_region(background)
             for artist in moving:
                 self.fig.draw_artist(artist)
             frame = Image.fromarray(np.asarray(canvas.buffer_rgba())[..., :3].copy())
-            images.append(frame.quantize(colors=255, dither=Image.Dither.NONE) if not images else
-                          frame.quantize(palette=images[0], dither=Image.Dither.NONE))
+            palette = palette or frame.quantize(colors=255, dither=Image.Dither.NONE)  # the first frame's colours
+            images.append(frame.quantize(palette=palette, dither=Image.Dither.NONE))  # each mapped the same way
         images[0].save(path, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0)
         plt.close(self.fig)
         return path
