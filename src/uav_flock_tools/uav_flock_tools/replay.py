@@ -171,17 +171,12 @@ def checked_overrides(overrides: dict[str, object], recorded: dict[str, object])
 
 def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
            agent_exit: Callable[[], Optional[str]]) -> None:
+    """Play the world and the neighbours to the agent step by step, comparing each command as it comes."""
     import rclpy
-    from rclpy.node import Node
-    from rclpy.serialization import deserialize_message
     from rclpy.signals import SignalHandlerOptions
-    from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
 
-    from uav_flock_ros import convert
     from uav_flock_ros.executors import signals_deferred
-    from uav_flock_ros.qos import LATCHED_QOS, STATE_QOS, STEP_QOS
 
-    i = inputs.agent
     context = rclpy.Context()
     # rclpy's signal handlers would turn Ctrl-C into a shutdown of the context and a traceback; without them
     # it is a KeyboardInterrupt, and replay's clean-up stops the agent before the CLI says "interrupted".
@@ -189,61 +184,87 @@ def _drive(inputs: bag.ReplayInputs, outcome: Outcome, timeout: float,
         rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
     try:
         with signals_deferred():
-            node = Node('replay', context=context)
-            executor = rclpy.executors.SingleThreadedExecutor(context=context)
-            executor.add_node(node)
-        answers: dict[int, convert.CommandData] = {}
-
-        def answered(msg: Command) -> None:
-            got = convert.CommandData.from_msg(msg)
-            answers[got.step] = got
-
-        node.create_subscription(Command, f'/map_{i}/cmd', answered, STEP_QOS)
-        clusters = node.create_publisher(Clusters, '/clusters', LATCHED_QOS)
-        sensing = node.create_publisher(Sensing, f'/map_{i}/sensing', STEP_QOS)
-        failures = node.create_publisher(FailureEvent, '/events/failure', STEP_QOS)
-        states = {j: node.create_publisher(AgentState, f'/map_{j}/state', STATE_QOS)
-                  for j in inputs.states if j != i}
-        first = min(inputs.clusters)
-        clusters.publish(inputs.clusters[first])
-        told_version = first
-
-        deadline = time.monotonic() + READY_TIMEOUT_S
-        while sensing.get_subscription_count() == 0 or node.count_publishers(f'/map_{i}/cmd') == 0:
-            _still_starting(i, deadline, agent_exit)
-            executor.spin_once(timeout_sec=0.05)
-
-        pending_failures = list(inputs.failures)
+            player = Player(inputs, context)
+        player.wait_ready(agent_exit)
         for k in sorted(inputs.sensing):
             if k not in inputs.commands:
                 break  # the MAP answered nothing more in the recording (killed, or the run ended)
-            while pending_failures and (pending_failures[0][0].step < k or
-                                        (pending_failures[0][0].step == k and pending_failures[0][0].cause == 'scheduled')):
-                failures.publish(pending_failures.pop(0)[1])
-            raw, sensed = inputs.sensing[k]
-            neighbours, version = sensed.neighbour_ids.tolist(), sensed.clusters_version
-            if version != told_version and version in inputs.clusters:
-                clusters.publish(inputs.clusters[version])  # the survey's new picture, as world_sim sent it
-                told_version = version
-            sensing.publish(raw)
-            for j in neighbours:
-                if k in inputs.states.get(j, {}):
-                    states[j].publish(inputs.states[j][k])
-            while pending_failures and pending_failures[0][0].step == k:
-                failures.publish(pending_failures.pop(0)[1])
-            until = time.monotonic() + timeout
-            while k not in answers and time.monotonic() < until:
-                executor.spin_once(timeout_sec=0.01)
-                if k not in answers and (why := agent_exit()) is not None:
-                    raise ReplayError(f'at step {k}, {why}')
-            if k not in answers:
+            t = player.play(k)
+            got = player.answer(k, timeout, agent_exit)
+            if got is None:
                 outcome.stuck_at = k
                 return
-            stamp = deserialize_message(raw, Sensing).header.stamp  # the simulated time of step k
-            _compare(outcome, answers.pop(k), inputs.commands[k], stamp.sec + stamp.nanosec * 1e-9)
-        node.destroy_node()
+            _compare(outcome, got, inputs.commands[k], t)
+        player.node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
+
+
+class Player:
+    """The replay's node: the world's and the neighbours' recorded messages out, the agent's commands in."""
+
+    def __init__(self, inputs: bag.ReplayInputs, context: object) -> None:
+        import rclpy
+        from rclpy.node import Node
+        from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
+
+        from uav_flock_ros import convert
+        from uav_flock_ros.qos import LATCHED_QOS, STATE_QOS, STEP_QOS
+
+        self.inputs, i = inputs, inputs.agent
+        self.node = Node('replay', context=context)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.answers: dict[int, convert.CommandData] = {}
+        self.node.create_subscription(Command, f'/map_{i}/cmd',
+                                      lambda m: self.answers.__setitem__(int(m.step), convert.CommandData.from_msg(m)),
+                                      STEP_QOS)
+        self.clusters = self.node.create_publisher(Clusters, '/clusters', LATCHED_QOS)
+        self.sensing = self.node.create_publisher(Sensing, f'/map_{i}/sensing', STEP_QOS)
+        self.failures = self.node.create_publisher(FailureEvent, '/events/failure', STEP_QOS)
+        self.states = {j: self.node.create_publisher(AgentState, f'/map_{j}/state', STATE_QOS)
+                       for j in inputs.states if j != i}
+        self.told_version = min(inputs.clusters)
+        self.clusters.publish(inputs.clusters[self.told_version])
+        self.pending_failures = list(inputs.failures)
+
+    def wait_ready(self, agent_exit: Callable[[], Optional[str]]) -> None:
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        i = self.inputs.agent
+        while self.sensing.get_subscription_count() == 0 or self.node.count_publishers(f'/map_{i}/cmd') == 0:
+            _still_starting(i, deadline, agent_exit)
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def play(self, k: int) -> float:
+        """Step k as world_sim sent it: scheduled failures, the survey, the sensing, the neighbours' states,
+        then failures noticed during the step. Returns the step's simulated time."""
+        from rclpy.serialization import deserialize_message
+        from uav_flock_msgs.msg import Sensing
+        inputs, pending = self.inputs, self.pending_failures
+        while pending and (pending[0][0].step < k or (pending[0][0].step == k and pending[0][0].cause == 'scheduled')):
+            self.failures.publish(pending.pop(0)[1])
+        raw, sensed = inputs.sensing[k]
+        version = sensed.clusters_version
+        if version != self.told_version and version in inputs.clusters:
+            self.clusters.publish(inputs.clusters[version])  # the survey's new picture, as world_sim sent it
+            self.told_version = version
+        self.sensing.publish(raw)
+        for j in sensed.neighbour_ids.tolist():
+            if k in inputs.states.get(j, {}):
+                self.states[j].publish(inputs.states[j][k])
+        while pending and pending[0][0].step == k:
+            self.failures.publish(pending.pop(0)[1])
+        stamp = deserialize_message(raw, Sensing).header.stamp
+        return stamp.sec + stamp.nanosec * 1e-9
+
+    def answer(self, k: int, timeout: float, agent_exit: Callable[[], Optional[str]]) -> Optional['convert.CommandData']:
+        """The agent's command of step k, or None if none came within timeout."""
+        until = time.monotonic() + timeout
+        while k not in self.answers and time.monotonic() < until:
+            self.executor.spin_once(timeout_sec=0.01)
+            if k not in self.answers and (why := agent_exit()) is not None:
+                raise ReplayError(f'at step {k}, {why}')
+        return self.answers.pop(k, None)
 
 
 def _still_starting(agent: int, deadline: float, agent_exit: Callable[[], Optional[str]]) -> None:

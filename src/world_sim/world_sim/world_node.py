@@ -41,7 +41,7 @@ from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, RECORDER_MAX_LAG_STEPS, S
 from .core.model import Sensed, World
 from .markers import world_markers
 from .core import records
-from .core.scenario import ScenarioError, WorldNodeParams
+from .core.scenario import Scenario, ScenarioError, WorldNodeParams
 from .shipped import DEFAULT, load_scenario
 
 LIVENESS_PERIOD_S = 0.2  # how often the processes of MAPs we wait for are checked
@@ -72,17 +72,7 @@ class WorldNode(Node):
         # Told to stop (Ctrl-C on `up`, which stops the agents too): their deaths are not failures, and a
         # lockstep run must not go on to its end without them.
         self.stopping = stopping
-        own = WorldNodeParams()
-        for name, default in (*((f.name, getattr(own, f.name)) for f in fields(WorldNodeParams)),
-                              *SCENARIO_OVERRIDES.items()):
-            self.declare_parameter(name, default)
-        get = lambda n: self.get_parameter(n).value  # noqa: E731
-        params = WorldNodeParams(**{f.name: get(f.name) for f in fields(WorldNodeParams)})
-        check_fields(params, lambda name: f'parameter {name}')
-        scenario = load_scenario(params.scenario or DEFAULT)
-        # A parameter left at its default keeps the scenario's value; any other value is checked as the file's.
-        scenario = scenario.with_overrides(**{name: None if get(name) == unset else get(name)
-                                              for name, unset in SCENARIO_OVERRIDES.items()})
+        params, scenario = self.declared()
         self.scenario = scenario
         self.realtime = is_realtime(str(params.sync))
         self.rate = float(params.rate)  # realtime: simulated seconds per wall second
@@ -102,8 +92,39 @@ class WorldNode(Node):
         self.step_resends = 0  # repeats of the current step's sensing
         if self.record:
             self.create_subscription(Int64, '/recorder/progress', self.on_recorder, LATCHED_QOS)
-        n = scenario.maps
+        self.make_endpoints(params)
 
+        self.sensed: Optional[Sensed] = None
+        self.commands: dict[int, convert.CommandData] = {}  # lockstep: this step's; realtime: each MAP's latest
+        self.fresh = self.applied = 0  # realtime: commands applied in the step they were computed for, of all
+        self.last_mode: dict[int, int] = {}
+        self.rejected = 0
+        self.late = 0  # lockstep: commands of steps already past, ignored
+        self.started = False
+        self.finished = False
+        self.advancing = False  # lockstep: inside maybe_advance's loop
+        self.slow_said = False  # realtime: told the user once that the pace asked for is not kept
+        self.wall_start = time.monotonic()
+        self.last_report = time.monotonic()  # of the start-up: a line every START_REPORT_S while we wait
+        self.create_timer(LIVENESS_PERIOD_S, self.tick)
+
+    def declared(self) -> tuple[WorldNodeParams, Scenario]:
+        """The node's parameters, checked, and the scenario they name with the overrides they set."""
+        own = WorldNodeParams()
+        for name, default in (*((f.name, getattr(own, f.name)) for f in fields(WorldNodeParams)),
+                              *SCENARIO_OVERRIDES.items()):
+            self.declare_parameter(name, default)
+        get = lambda n: self.get_parameter(n).value  # noqa: E731
+        params = WorldNodeParams(**{f.name: get(f.name) for f in fields(WorldNodeParams)})
+        check_fields(params, lambda name: f'parameter {name}')
+        scenario = load_scenario(params.scenario or DEFAULT)
+        # A parameter left at its default keeps the scenario's value; any other value is checked as the file's.
+        return params, scenario.with_overrides(**{name: None if get(name) == unset else get(name)
+                                                  for name, unset in SCENARIO_OVERRIDES.items()})
+
+    def make_endpoints(self, params: WorldNodeParams) -> None:
+        """The world's publishers (the fixed topics published once) and a reader of each MAP's commands."""
+        n = self.scenario.maps
         self.clock_pub = self.create_publisher(Clock, '/clock', QoSProfile(depth=10))
         # The run's normal end (data: steps simulated): agents started by hand end with it, not with an error.
         self.finished_pub = self.create_publisher(Int64, '/events/finished', LATCHED_QOS)
@@ -122,20 +143,6 @@ class WorldNode(Node):
             self.run_info_pub = self.create_publisher(String, '/run_info', LATCHED_QOS)
             self.run_info_pub.publish(String(data=Path(params.run_info).read_text()))
         self.publish_fixed()
-
-        self.sensed: Optional[Sensed] = None
-        self.commands: dict[int, convert.CommandData] = {}  # lockstep: this step's; realtime: each MAP's latest
-        self.fresh = self.applied = 0  # realtime: commands applied in the step they were computed for, of all
-        self.last_mode: dict[int, int] = {}
-        self.rejected = 0
-        self.late = 0  # lockstep: commands of steps already past, ignored
-        self.started = False
-        self.finished = False
-        self.advancing = False  # lockstep: inside maybe_advance's loop
-        self.slow_said = False  # realtime: told the user once that the pace asked for is not kept
-        self.wall_start = time.monotonic()
-        self.last_report = time.monotonic()  # of the start-up: a line every START_REPORT_S while we wait
-        self.create_timer(LIVENESS_PERIOD_S, self.tick)
 
     # ------------------------------------------------------------------ fixed topics
     def header(self) -> Header:

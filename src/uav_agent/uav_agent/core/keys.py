@@ -55,8 +55,15 @@ def carry(old: Sequence[Piece], shares: dict[RoleId, float], heirs: Optional[Map
     held = totals(old)
     spare = {role: held[role] - shares.get(role, 0.0) for role in held}
     need = {role: share - held.get(role, 0.0) for role, share in shares.items()}
-    pieces = [list(p) for p in old]
-    for a, b in zip(pieces, pieces[1:]):  # 1.
+    pieces = _traded([list(p) for p in old], spare, need)
+    pieces = _given_up(pieces, spare)
+    pieces = _taken(pieces, need)
+    return _tidied(pieces)
+
+
+def _traded(pieces: list[list], spare: dict[RoleId, float], need: dict[RoleId, float]) -> list[list]:
+    """Step 1 of carry: neighbours trade at their common boundary (spare and need are updated)."""
+    for a, b in zip(pieces, pieces[1:]):
         if spare.get(a[2], 0.0) > _EPS and need.get(b[2], 0.0) > _EPS:
             t = min(spare[a[2]], need[b[2]], a[1] - a[0])
             a[1] -= t
@@ -69,8 +76,12 @@ def carry(old: Sequence[Piece], shares: dict[RoleId, float], heirs: Optional[Map
             b[0] += t
             need[a[2]] -= t
             spare[b[2]] -= t
-    pieces = [p for p in pieces if p[1] - p[0] > _EPS]
-    for role, extra in spare.items():  # 2.
+    return [p for p in pieces if p[1] - p[0] > _EPS]
+
+
+def _given_up(pieces: list[list], spare: dict[RoleId, float]) -> list[list]:
+    """Step 2 of carry: a role still holding too much frees its smallest pieces, then its largest's high end."""
+    for role, extra in spare.items():
         mine = sorted((p for p in pieces if p[2] == role), key=lambda p: (p[1] - p[0], p[0]))
         for p in mine[:-1]:
             if extra > _EPS and p[1] - p[0] <= extra + _EPS:
@@ -82,7 +93,12 @@ def carry(old: Sequence[Piece], shares: dict[RoleId, float], heirs: Optional[Map
             pieces.append([largest[1] - cut, largest[1], _FREE])
             largest[1] -= cut
         pieces = _merged([p for p in pieces if p[1] - p[0] > _EPS])
-    for role, short in need.items():  # 3.
+    return pieces
+
+
+def _taken(pieces: list[list], need: dict[RoleId, float]) -> list[list]:
+    """Step 3 of carry: a role still short takes a free piece next to one of its own, else the largest free one."""
+    for role, short in need.items():
         while short > _EPS:
             free = [i for i, p in enumerate(pieces) if p[2] is _FREE]
             if not free:
@@ -99,11 +115,16 @@ def carry(old: Sequence[Piece], shares: dict[RoleId, float], heirs: Optional[Map
             pieces[i:i + 1] = [p for p in parts if p[1] - p[0] > _EPS]
             pieces = _merged(pieces)
             short -= t
+    return pieces
+
+
+def _tidied(pieces: list[list]) -> tuple[Piece, ...]:
+    """Step 4 of carry: free keys left by rounding, and slivers, join the piece before them."""
     largest: dict[RoleId, float] = {}
     for lo, hi, role in pieces:
         largest[role] = max(largest.get(role, 0.0), hi - lo)
     out: list[list] = []
-    for p in pieces:  # 4.
+    for p in pieces:
         fragment = p[2] is _FREE or (p[1] - p[0] < SLIVER and p[1] - p[0] < largest[p[2]])
         if fragment and out:
             out[-1][1] = p[1]

@@ -165,13 +165,8 @@ def _cluster(where: str, c: dict[str, Any]) -> Cluster:
                    walk=_num(f'{where}.walk', c.get('walk', 0.0), allow_zero=True))
 
 
-def parse(doc: Any) -> Scenario:
-    """Check a scenario document and build the Scenario; raise ScenarioError naming the bad key."""
-    if not isinstance(doc, dict):
-        raise ScenarioError('scenario: expected a mapping at the top level')
-    unknown = sorted(set(doc) - _TOP)
-    if unknown:
-        raise ScenarioError(f'{unknown[0]}: unknown key')
+def _flock(doc: dict[str, Any]) -> FlockParams:
+    """The flock: section's numbers and the policies: section's choices, as one FlockParams."""
     flock_doc = _section(doc, 'flock', {f.name for f in fields(FlockParams)} - set(POLICY_VALUES))
     flock_vals: dict[str, Any] = {}
     for f in fields(FlockParams):
@@ -181,12 +176,11 @@ def parse(doc: Any) -> Scenario:
         flock_vals[f.name] = (_int(f'flock.{f.name}', raw, minimum=0) if f.type in ('int', int)
                               else _num(f'flock.{f.name}', raw, positive=False))
     flock_vals.update(_section(doc, 'policies', set(POLICY_VALUES), required=False))
-    flock = FlockParams(**flock_vals)
+    return FlockParams(**flock_vals)
 
-    radio = _section(doc, 'radio', _RADIO)
-    release = _section(doc, 'release', _RELEASE)
-    users = _section(doc, 'users', _USERS)
-    clusters_doc = _need(users, 'users', 'clusters')
+
+def _clusters(clusters_doc: Any) -> tuple[Cluster, ...]:
+    """users.clusters: one to 63 mappings, each checked key by key."""
     if not isinstance(clusters_doc, list) or not clusters_doc:
         raise ScenarioError('users.clusters: at least one cluster is needed')
     if len(clusters_doc) > 63:
@@ -200,6 +194,21 @@ def parse(doc: Any) -> Scenario:
         if bad:
             raise ScenarioError(f'{where}.{bad[0]}: unknown key')
         clusters.append(_cluster(where, c))
+    return tuple(clusters)
+
+
+def parse(doc: Any) -> Scenario:
+    """Check a scenario document and build the Scenario; raise ScenarioError naming the bad key."""
+    if not isinstance(doc, dict):
+        raise ScenarioError('scenario: expected a mapping at the top level')
+    unknown = sorted(set(doc) - _TOP)
+    if unknown:
+        raise ScenarioError(f'{unknown[0]}: unknown key')
+    flock = _flock(doc)
+    radio = _section(doc, 'radio', _RADIO)
+    release = _section(doc, 'release', _RELEASE)
+    users = _section(doc, 'users', _USERS)
+    clusters = _clusters(_need(users, 'users', 'clusters'))
     failure = _section(doc, 'failure', _FAILURE, required=False)
     survey = users.get('survey', Scenario.survey)
     if survey not in ('given', 'online'):
@@ -214,7 +223,7 @@ def parse(doc: Any) -> Scenario:
         duration=_OVERRIDABLE['duration'](_need(doc, '', 'duration')),
         dt=_num('dt', _need(doc, '', 'dt')),
         flock=flock,
-        clusters=tuple(clusters),
+        clusters=clusters,
         release_center=_pair('release.center', _need(release, 'release', 'center')),
         release_half_width=_num('release.half_width', _need(release, 'release', 'half_width')),
         initial_speed=_num('release.initial_speed', _need(release, 'release', 'initial_speed'), allow_zero=True),
