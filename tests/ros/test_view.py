@@ -116,6 +116,7 @@ def test_view_plays_a_recorded_run_into_the_same_server(tmp_path: Path) -> None:
         time.sleep(3.0)  # a user who connects a while after starting it still sees the run from its start
         channels, got = asyncio.run(watch(port, 10))
         seen = wait_for_line(proc, 'left', 30)
+        seen += wait_for_line(proc, 'holding the last frame', 30)
         assert proc.poll() is None, 'it serves on until Ctrl-C'
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=60)

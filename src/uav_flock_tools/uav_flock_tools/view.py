@@ -6,6 +6,7 @@ the run, then holds the last frame for clients that come later (or plays the run
 """
 from __future__ import annotations
 
+import signal
 import threading
 import time
 from pathlib import Path
@@ -75,26 +76,58 @@ def play(path: Path, port: int, rate: float = 1.0, loop: bool = False, said: Cal
     said(f'view: serving {path} on ws://localhost:{server.port}: in Foxglove (or Lichtblick), Open connection, '
          'Foxglove WebSocket, that URL; docs/foxglove_layout.json lays out the 3-D scene and the plots. Waiting '
          'for a client before playing; Ctrl-C ends')
-    try:
-        while not clients.first.wait(timeout=0.5):
-            pass
-        while True:
-            said(f'view: playing {run.metrics[-1, 1]:.1f} s of the run at x{rate:g}')
-            began = time.monotonic()
-            for t, update, figures, logs in report.scene_frames(run, traj):
-                time.sleep(max(began + t / rate - time.monotonic(), 0.0))
+    with Interrupt() as stop:
+        try:
+            while not clients.first.is_set() and not stop.pause(0.5):
+                pass
+            while not stop.asked:
+                said(f'view: playing {run.metrics[-1, 1]:.1f} s of the run at x{rate:g}')
+                began = time.monotonic()
+                for t, update, figures, logs in report.scene_frames(run, traj):
+                    if stop.pause(began + t / rate - time.monotonic()):
+                        break
+                    server.broadcast_time(scene.nanoseconds(t))
+                    channels.frame(t, update, figures, logs)
+                    sent += 1
+                if not loop:
+                    break
+            if not stop.asked:
+                said('view: played to the end; holding the last frame (Ctrl-C ends)')
+            while not stop.pause(HOLD_PERIOD_S):
                 server.broadcast_time(scene.nanoseconds(t))
-                channels.frame(t, update, figures, logs)
-                sent += 1
-            if not loop:
-                break
-        said('view: played to the end; holding the last frame (Ctrl-C ends)')
-        while True:
-            time.sleep(HOLD_PERIOD_S)
-            server.broadcast_time(scene.nanoseconds(t))
-            if update is not None:
-                channels.frame(t, update, figures, [])
-    except KeyboardInterrupt:  # Ctrl-C is how a served view ends
-        return sent
-    finally:
-        server.stop()
+                if update is not None:
+                    channels.frame(t, update, figures, [])
+        finally:
+            server.stop()
+    return sent
+
+
+class Interrupt:
+    """Ctrl-C (or SIGTERM) as a flag that the serving loops read, how a served view ends.
+
+    A KeyboardInterrupt raised by Python's own handler can land inside the Foxglove server's native code,
+    which swallows it: a view once went on holding its last frame after Ctrl-C. A flag cannot be lost.
+    """
+
+    def __init__(self) -> None:
+        self.asked = False
+        self.before: dict[int, Any] = {}
+
+    def __enter__(self) -> 'Interrupt':
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self.before[sig] = signal.signal(sig, self._on_signal)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self.before.items():
+            signal.signal(sig, handler)
+
+    def _on_signal(self, signum: int, frame: object) -> None:
+        self.asked = True
+
+    def pause(self, seconds: float) -> bool:
+        """Sleep up to seconds (in short naps, so that a Ctrl-C is acted on at once); True if one came."""
+        end = time.monotonic() + max(seconds, 0.0)
+        while not self.asked and time.monotonic() < end:
+            time.sleep(min(0.05, end - time.monotonic()))
+        return self.asked
