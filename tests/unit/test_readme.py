@@ -45,3 +45,29 @@ def test_every_run_the_readme_shows_flies_above_its_floor(words: list[str]) -> N
     for n in counts:
         assert n * left >= MARGIN * lb, (f'{shlex.join(words)}: {n} MAPs ({n * left:.0f} after the failure) is below '
                                          f'{MARGIN} x LB = {MARGIN * lb:.1f} for {scenario.name}')
+
+
+def settles(words: list[str]) -> bool:
+    """Runs of 30 s or more, long enough to have converged (the paper layout connects by about 20 s)."""
+    scenario = load_scenario(COPIES.get(str(readme_check.option(words, '--scenario')),
+                                        readme_check.option(words, '--scenario') or 'paper'))
+    return float(readme_check.option(words, '--duration') or scenario.duration) >= 30.0
+
+
+@pytest.mark.parametrize('words', [w for w in runs_of_the_readme() if settles(w)], ids=shlex.join)
+def test_every_run_the_readme_shows_ends_connected_and_covered(words: list[str]) -> None:
+    """What the README shows is a network that works: the batch simulator's twin of each run (the same
+    scenario, MAPs, seed, duration and failure) ends with one component and R_c >= 95 %. The floor alone
+    does not say it: the paper's own Algorithm 2 at 70 MAPs (1.55 x LB) ends in two pieces."""
+    from uav_flock_tools.simrun import simulate
+    name = readme_check.option(words, '--scenario')
+    base = load_scenario(COPIES.get(str(name), name or 'paper'))
+    number = lambda key, cast: None if readme_check.option(words, key) is None else cast(readme_check.option(words, key))  # noqa: E731
+    for maps in (readme_check.option(words, '--maps') or str(base.maps)).split(','):
+        for seed in (readme_check.option(words, '--seed') or str(base.seed)).split(','):
+            s = base.with_overrides(maps=int(maps), seed=int(seed), duration=number('--duration', float),
+                                    fail_at=number('--fail-at', float), fail_fraction=number('--fail-fraction', float))
+            result, _ = simulate(s)
+            end = result.metrics[-1]
+            assert end[5] == 1 and end[2] >= 0.95, (f'{shlex.join(words)} (maps {maps}, seed {seed}) ends in '
+                                                    f'{int(end[5])} components, R_c {100 * end[2]:.1f} %')
