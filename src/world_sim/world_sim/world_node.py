@@ -355,7 +355,7 @@ class WorldNode(Node):
                 self.slow_said = True
                 print(f'realtime x{self.rate:g} asks for {asked:g} steps/s and this machine keeps {pace:.0f} '
                       f'({pace / asked:.2f} of it): the run goes slower than asked; fewer processes '
-                      f'(--agents-per-process 10) or a lower --rate keep the pace', flush=True)
+                      f'(a larger --agents-per-process K) or a lower --rate keep the pace', flush=True)
 
     # ------------------------------------------------------------------ failures
     def drop(self, ids: np.ndarray, cause: str) -> None:
