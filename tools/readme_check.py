@@ -13,6 +13,7 @@ Takes about half an hour on two cores (`paper` alone about ten minutes).
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import shlex
 import signal
@@ -77,16 +78,24 @@ def run_line(line: str, cwd: Path) -> Outcome:
     start = time.monotonic()
     proc = subprocess.Popen(line, shell=True, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             start_new_session=True)
+    why = ''
     if serves_until_interrupted(words):
         try:
             out, _ = proc.communicate(timeout=SERVE_S)
         except subprocess.TimeoutExpired:
-            proc.send_signal(signal.SIGINT)
-            out, _ = proc.communicate(timeout=60)
+            os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C: the terminal signals the whole foreground group
+            try:
+                out, _ = proc.communicate(timeout=60)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                out, _ = proc.communicate()
+                why = 'still running 60 s after Ctrl-C'
     else:
         out, _ = proc.communicate()
     print(out, end='', flush=True)
-    return judge(line, proc.returncode, out, time.monotonic() - start)
+    outcome = judge(line, proc.returncode, out, time.monotonic() - start)
+    outcome.why = ', '.join(w for w in (outcome.why, why) if w)
+    return outcome
 
 
 class LiveRun:
