@@ -76,7 +76,8 @@ def judge(line: str, code: Optional[int], out: str, seconds: float) -> Outcome:
 def run_line(line: str, cwd: Path) -> Outcome:
     words = shlex.split(line)
     start = time.monotonic()
-    proc = subprocess.Popen(line, shell=True, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    # No shell in front, as a user types it: Ctrl-C and the exit code are the command's own.
+    proc = subprocess.Popen(words, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             start_new_session=True)
     why = ''
     if serves_until_interrupted(words):
@@ -105,7 +106,7 @@ class LiveRun:
         self.line, self.start = line, time.monotonic()
         self.log = cwd / f'.readme-check-{abs(hash(line))}.log'
         self.file = open(self.log, 'w+')
-        self.proc = subprocess.Popen(line, shell=True, cwd=cwd, stdout=self.file, stderr=subprocess.STDOUT, text=True)
+        self.proc = subprocess.Popen(shlex.split(line), cwd=cwd, stdout=self.file, stderr=subprocess.STDOUT, text=True)
         deadline = time.monotonic() + LIVE_RUN_WAIT_S
         while time.monotonic() < deadline and self.proc.poll() is None and 't = ' not in self.log.read_text():
             time.sleep(0.5)
