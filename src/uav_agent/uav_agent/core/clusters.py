@@ -15,6 +15,7 @@ import numpy as np
 from scipy.sparse.csgraph import minimum_spanning_tree
 
 from . import keys
+from .ablation import on
 
 NO_GOAL = -1
 Edge = tuple[int, int]
@@ -176,7 +177,7 @@ class ClusterMap:
         tree = self.mst(self.live)
         previous, self._previous = self._previous, None
         was = previous.roles(d) if previous is not None else None
-        stand = standing(was, tree, self) if was is not None else ()
+        stand = standing(was, tree, self) if was is not None and on('standing') else ()
         edges = tree + tuple(e for e, _ in stand)
         cell = math.sqrt(3.0) / 2.0 * d * d  # area per MAP of a hexagonal lattice of spacing d
         demand = [max(math.pi * r * r / cell, 1.0) if self.live >> k & 1 else 0.0  # every cluster at least one
@@ -205,8 +206,9 @@ class ClusterMap:
                 fixed = {e for e, _ in stand}
                 share = tuple(held.get(r, 0.0) if r in fixed else s for r, s in zip(ids, share))
                 lenders = by_hops(tree, [k for e in tree if e not in was.edges for k in e])
-            share = kept(share, ids, held, SLACK, lenders)
-            pieces = keys.carry(before, dict(zip(ids, share)), *lineage(previous, self, tree))
+            share = kept(share, ids, held, SLACK if on('kept') else 1e-9, lenders)
+            pieces = keys.carry(before, dict(zip(ids, share)),
+                                *(lineage(previous, self, tree) if on('lineage') else ({}, {})))
         else:
             pieces = keys.fresh(zip(ids, starts.tolist(), bounds.tolist()))
         return Roles(edges, tuple(demand), share, pieces, stand)

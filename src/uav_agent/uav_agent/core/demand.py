@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Optional, Sequence
 import numpy as np
 
 from . import keys
+from .ablation import on
 from .clusters import NO_GOAL, ClusterMap, Edge, Roles
 from .state import M0, M1, M2, NOBODY, Memory, Near, Reference, Told, aim, hold
 from .vacancy import code, role_of, vacate
@@ -33,7 +34,7 @@ def served(mem: Memory, r_g: float, arrived: bool, fp: FlockParams) -> Memory:
         mem = mem._replace(best=r_g, flat=0)
     elif arrived and r_g > 0:
         mem = mem._replace(flat=mem.flat + 1)
-    if (r_g > fp.r0 or mem.flat >= STALL_STEPS) and not mem.achieved >> mem.goal & 1:
+    if (r_g > fp.r0 or mem.flat >= STALL_STEPS and on('stall')) and not mem.achieved >> mem.goal & 1:
         mem = mem._replace(achieved=mem.achieved | 1 << mem.goal)
     return mem
 
@@ -60,7 +61,7 @@ def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, cluster
     if role < clusters.count:
         if mem.goal != role or mem.mode == M1:
             old = mem.bridge if mem.mode == M1 else None
-            straight = old is not None and role in old and old not in roles.edges and clusters.ends_live(old)
+            straight = on('straight') and old is not None and role in old and old not in roles.edges and clusters.ends_live(old)
             mem = _anew(mem, mode=M0, goal=role, transit=mem.settled, straight=straight)
             r_g = 0.0
         arrived = float(np.hypot(*(np.asarray(q, dtype=float)[:2] - clusters.xy[role]))) <= clusters.radii[role]
@@ -102,7 +103,7 @@ def pivot(mem: Memory, q: np.ndarray, edge: Edge, clusters: ClusterMap, fp: Floc
     at a time (docs/dynamics.md, "Swinging chains").
     """
     old = mem.bridge
-    if mem.mode != M1 or old is None or not mem.settled or not clusters.ends_live(old):
+    if not on('swing') or mem.mode != M1 or old is None or not mem.settled or not clusters.ends_live(old):
         return None
     shared = set(old) & set(edge)
     if len(shared) != 1:
@@ -140,7 +141,7 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
     length = clusters.axis(edge)[2]
     if math.isfinite(below) and math.isfinite(above):
         mid = (below + above) / 2.0
-        if reach_b <= reach_a:  # both ends within reach: stay where both hold
+        if reach_b <= reach_a and on('reach'):  # both ends within reach: stay where both hold
             return min(max(mid, reach_b), reach_a)
         return mid
     if math.isfinite(below):
@@ -200,7 +201,7 @@ def tally(mem: Memory, taut_now: bool, roles: Roles) -> Memory:
     """Count the steps a relay has found its chain taut since it took its role; each TAUT_STEPS of them find
     the chain one MAP short (up to its demand, rounded up), told to all by gossip (Memory.short, merged by
     the larger count), so every MAP grows the edge's share alike (vacancy.view)."""
-    if not taut_now:
+    if not taut_now or not on('short'):
         return mem
     assert mem.bridge is not None
     steps = mem.taut + 1
@@ -259,7 +260,7 @@ def en_route(mem: Memory, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) 
     tree it passes clusters and relay chains. Roles never change while the clusters stand still, so then
     nothing is ever in transit.
     """
-    if not mem.transit or mem.goal == NO_GOAL or mem.swing is not None or mem.straight:
+    if not on('tree') or not mem.transit or mem.goal == NO_GOAL or mem.swing is not None or mem.straight:
         return NO_GOAL
     if mem.mode == M1 and mem.bridge is not None:
         if clusters.segment_distance(q, mem.bridge) <= fp.d:
@@ -285,7 +286,7 @@ def leg_aim(q: np.ndarray, hop: int, clusters: ClusterMap, fp: FlockParams, achi
     straight."""
     aim_at = clusters.targets[hop]
     at = clusters.nearest(q, 0)
-    if at == NO_GOAL or at == hop or not (achieved >> at & 1 and achieved >> hop & 1):
+    if not on('chain') or at == NO_GOAL or at == hop or not (achieved >> at & 1 and achieved >> hop & 1):
         return aim_at
     edge = (min(at, hop), max(at, hop))
     a, u, length = clusters.axis(edge)

@@ -11,6 +11,7 @@ from typing import Callable, Iterable, Optional, Protocol, Sequence
 
 import numpy as np
 
+from .ablation import on
 from .algorithm2 import Algorithm2
 from .clusters import NO_GOAL, ClusterMap, merge_achieved
 from .demand import Demand
@@ -79,5 +80,5 @@ def apart_links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[int
     RELATED roles, APART (unrelated), or PASSING (unrelated, and one of the two on its way to a new role)."""
     own = Told.of(mem)
     allocation = ALLOCATIONS[fp.allocation]
-    return [RELATED if allocation.related(own, t) else PASSING if own.transit or t.transit else APART
+    return [RELATED if allocation.related(own, t) else PASSING if (own.transit or t.transit) and on('passing') else APART
             for t in heard]

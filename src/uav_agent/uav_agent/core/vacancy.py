@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Iterable, Optional, Sequence
 import numpy as np
 
 from . import keys
+from .ablation import on
 from .clusters import NO_GOAL, ClusterMap, Roles, key_of
 from .state import M1, Memory, Told
 
@@ -119,7 +120,7 @@ def vacate(mem: Memory, step: int, q: np.ndarray, clusters: ClusterMap, fp: Floc
     stale = [r for r in current if code(r) not in seen or step - seen[code(r)] > VACANT_STEPS]
     lost = mem.lost
     fresh = len(current) - len(stale)
-    if mem.since >= 0 and not mem.transit and stale and fresh >= 2 and len(stale) <= 2 * fresh:
+    if on('vacate') and mem.since >= 0 and not mem.transit and stale and fresh >= 2 and len(stale) <= 2 * fresh:
         for r in stale:
             if seen.get(code(r), -1) > mem.since and _at(q, r, clusters, fp):
                 mine = [(keys.expand(lo, lost), keys.expand(hi, lost)) for lo, hi, role in roles.pieces if role == r]

@@ -1,0 +1,158 @@
+"""What each rule of the demand allocation adds: every rule switched off alone, paired against all rules on.
+
+Run: ./uav-flock exec python benchmarks/bench_ablation.py [--layouts 30] [--rules kept,swing,...]
+     [--csv ablation.csv]  (one row per run; the same command again runs only the rows missing from it)
+Layouts, kinds and draws are bench_motion's (layout n of `./uav-flock layouts --seed 0`, seed 0), plus
+static12: the layout standing still, N = ceil(1.2 x LB), 60 s. Each rule is switched off on the kinds it
+was made for and, when it acts on a still layout, static12 (KINDS_OF). Per rule and kind, paired by layout:
+the share of time connected after convergence (0 for a run that never converges), R_c at the end, and the
+runs that end covered and connected, with the change off - on and its bootstrap 95 % interval
+(scipy.stats.bootstrap over the paired differences).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import math
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+import numpy as np
+from scipy.stats import bootstrap
+
+import bench_motion
+from uav_agent.core import ablation
+from uav_flock_tools.layouts import draw, policy_sets
+from world_sim.core import layouts
+from world_sim.core.scenario import Scenario
+from world_sim.shipped import load_scenario
+
+KINDS_OF = {  # the kinds each rule was made for, then static12 where it acts on a still layout
+    'kept': ('drift2', 'arrival'), 'standing': ('drift2', 'crossing'), 'lineage': ('crossing',),
+    'swing': ('drift2',), 'tree': ('drift2', 'arrival'), 'chain': ('drift2',), 'passing': ('drift2', 'static12'),
+    'straight': ('drift2',), 'vacate': ('wipeout', 'static12'), 'short': ('loss', 'static12'),
+    'stall': ('arrival', 'static12'), 'reach': ('loss', 'static12'),
+}
+FIELDS = ('connected', 'end_rc', 'ends_ok', 'converged')
+
+
+def static12(lay: Scenario) -> Scenario:
+    s = dataclasses.replace(lay, seed=0, survey='online', duration=60.0)
+    return dataclasses.replace(s, maps=math.ceil(1.2 * layouts.floor(s).total))
+
+
+def scenario_of(kind: str, n: int, lay: Scenario) -> tuple[Scenario, int]:
+    """The run of a kind on layout n and the seed of its own draws, as bench_motion draws them."""
+    if kind == 'static12':
+        return static12(lay), n * 1000 + len(bench_motion.KINDS) + 7
+    draw_seed = n * 1000 + bench_motion.KINDS.index(kind)
+    return bench_motion.case(kind, lay, 0, np.random.default_rng(draw_seed)), draw_seed + 7
+
+
+def run(job: tuple[str, str, int, Scenario, int]) -> dict[str, object]:
+    rule, kind, n, s, draw_seed = job
+    ablation.OFF.clear()
+    if rule != 'none':
+        ablation.OFF.add(rule)
+    r = bench_motion.run((kind, s, draw_seed))
+    return {'rule': rule, 'kind': kind, 'layout': n, 'connected': r['connected'] or 0.0, 'end_rc': r['end_rc'],
+            'ends_ok': r['ends_ok'], 'converged': r['converged']}
+
+
+def interval(d: np.ndarray) -> tuple[float, float]:
+    if len(d) < 2 or np.all(d == d[0]):
+        return float(d.mean()), float(d.mean())
+    ci = bootstrap((d,), np.mean, confidence_level=0.95, n_resamples=4000, random_state=0).confidence_interval
+    return float(ci.low), float(ci.high)
+
+
+def table(rows: list[dict[str, str]], rules: list[str]) -> str:
+    by = {(r['rule'], r['kind'], int(r['layout'])): r for r in rows}
+    out = ['| rule off | kind | runs | connected after convergence, all on | change off - on [95 % interval] | '
+           'R_c at end, all on | change [95 %] | end covered and connected: on, off | verdict |',
+           '|---|---|---|---|---|---|---|---|---|']
+    for rule in rules:
+        for kind in KINDS_OF[rule]:
+            pairs = [(by[('none', kind, n)], by[(rule, kind, n)]) for (r, k, n) in by
+                     if r == rule and k == kind and ('none', kind, n) in by]
+            if not pairs:
+                continue
+            con = np.array([[float(a['connected']), float(b['connected'])] for a, b in pairs])
+            rc = np.array([[float(a['end_rc']), float(b['end_rc'])] for a, b in pairs])
+            ok = np.array([[float(a['ends_ok']), float(b['ends_ok'])] for a, b in pairs])
+            dc, dr = con[:, 1] - con[:, 0], rc[:, 1] - rc[:, 0]
+            (cl, ch), (rl, rh) = interval(dc), interval(dr)
+            pays = ch < 0 or rh < 0  # switching it off costs, beyond the interval
+            harms = cl > 0 or rl > 0
+            same = not np.any(dc) and not np.any(dr)
+            verdict = 'pays' if pays else 'costs' if harms else 'identical runs' if same else 'within noise'
+            out.append(f'| {rule} | {kind} | {len(pairs)} | {100 * con[:, 0].mean():.1f} % | '
+                       f'{100 * dc.mean():+.2f} [{100 * cl:+.2f}, {100 * ch:+.2f}] | {100 * rc[:, 0].mean():.1f} % | '
+                       f'{100 * dr.mean():+.2f} [{100 * rl:+.2f}, {100 * rh:+.2f}] | '
+                       f'{int(ok[:, 0].sum())}, {int(ok[:, 1].sum())} | {verdict} |')
+    return '\n'.join(out)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
+    ap.add_argument('--layouts', type=int, default=30, help='random layouts (default: 30)')
+    ap.add_argument('--rules', default=','.join(KINDS_OF), help='comma-separated (default: every rule)')
+    ap.add_argument('--workers', type=int, default=os.cpu_count() or 1, help='processes (default: one a core)')
+    ap.add_argument('--csv', default='ablation.csv', help='one row per run, kept across calls (default: ablation.csv)')
+    ap.add_argument('--table', action='store_true', help='only print the table of what --csv holds')
+    args = ap.parse_args()
+    rules = [r.strip() for r in args.rules.split(',') if r.strip()]
+    if not rules or any(r not in KINDS_OF for r in rules):
+        ap.error(f'--rules: choose from {", ".join(KINDS_OF)}')
+    if args.layouts < 1 or args.workers < 1:
+        ap.error('--layouts and --workers must be at least 1')
+    done: list[dict[str, str]] = []
+    if os.path.exists(args.csv):
+        with open(args.csv, newline='') as f:
+            done = list(csv.DictReader(f))
+    if not args.table:
+        done = sweep(args, rules, done)
+    print(table(done, rules))
+    return 0
+
+
+def sweep(args: argparse.Namespace, rules: list[str], done: list[dict[str, str]]) -> list[dict[str, str]]:
+    have = {(r['rule'], r['kind'], int(r['layout'])) for r in done}
+    kinds = sorted({k for rule in rules for k in KINDS_OF[rule]})
+    flock = policy_sets(load_scenario('paper'))['default']
+    jobs = []
+    for n, lay in enumerate(draw('paper', args.layouts, (3, 6), 0)):
+        lay = dataclasses.replace(lay, flock=flock)
+        for kind in kinds:
+            s, draw_seed = scenario_of(kind, n, lay)
+            jobs += [(rule, kind, n, s, draw_seed) for rule in ('none', *rules)
+                     if (rule == 'none' or kind in KINDS_OF[rule]) and (rule, kind, n) not in have]
+    print(f'{len(jobs)} runs to go ({len(have)} in {args.csv}), {args.workers} processes', flush=True)
+    t0 = time.perf_counter()
+    new = not os.path.exists(args.csv) or not done
+    with open(args.csv, 'a', newline='') as f, ProcessPoolExecutor(max_workers=args.workers) as pool:
+        out = csv.DictWriter(f, fieldnames=['rule', 'kind', 'layout', *FIELDS])
+        if new:
+            out.writeheader()
+        futures = [pool.submit(run, job) for job in jobs]
+        try:
+            for i, fut in enumerate(as_completed(futures), 1):
+                row = {k: ('' if v is None else v) for k, v in fut.result().items()}
+                out.writerow(row)
+                f.flush()
+                done.append({k: str(v) for k, v in row.items()})
+                if i % 10 == 0 or i == len(jobs):
+                    left = (time.perf_counter() - t0) / i * (len(jobs) - i)
+                    print(f'  {i}/{len(jobs)} runs, {time.perf_counter() - t0:.0f} s, about {left / 60:.0f} min left',
+                          flush=True)
+        except KeyboardInterrupt:
+            for fut in futures:
+                fut.cancel()
+            print(f'interrupted: {len(done)} rows kept in {args.csv}; the same command goes on from there')
+            raise SystemExit(130)
+    return done
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

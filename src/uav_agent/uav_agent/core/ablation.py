@@ -1,0 +1,25 @@
+"""The demand allocation's rules by name, so that an ablation can switch one off (benchmarks/bench_ablation.py).
+
+Nothing a user starts sets OFF: every rule is on. Each name is the rule's section in docs/dynamics.md.
+"""
+from __future__ import annotations
+
+RULES = {
+    'kept': 'kept shares: a role keeps its MAPs down to its share / (1 + SLACK) (clusters.kept)',
+    'standing': 'make before break: an edge that left the tree keeps its relays (clusters.standing)',
+    'lineage': 'merges and splits: a continuing cluster inherits an ended one\'s keys (clusters.lineage)',
+    'swing': 'swinging chains: relays of a swapped edge swing about the shared cluster (demand.pivot)',
+    'tree': 'along the tree: a MAP in transit flies cluster to cluster (demand.en_route)',
+    'chain': 'leaving by the chain: a MAP in transit leaves its disc along the relay chain (demand.leg_aim)',
+    'passing': 'passing at d/2: unrelated MAPs in transit repel within d/2 only (policies.apart_links)',
+    'straight': 'released relays of a standing chain fly straight along it (demand.demand_switch)',
+    'vacate': 'vacated roles: a role heard of by nobody for VACANT_STEPS is declared lost (vacancy.vacate)',
+    'short': 'short roles: a relay that finds its chain taut asks for more MAPs (demand.tally)',
+    'stall': 'a goal whose coverage stopped growing counts as served (demand.served)',
+    'reach': 'a relay stays where both clusters\' servers reach it (demand.relay_place)',
+}
+OFF: set[str] = set()
+
+
+def on(rule: str) -> bool:
+    return rule not in OFF
