@@ -22,13 +22,14 @@ import numpy as np
 from scipy.stats import bootstrap
 
 import bench_motion
-from uav_agent.core import ablation
+from uav_agent.core.allocations.demand import ablation
 from uav_flock_tools.layouts import draw, policy_sets
 from world_sim.core import layouts
 from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario
 
 KINDS_OF = {  # the kinds each rule was made for, then static12 where it acts on a still layout
+    'carry': ('drift2', 'arrival'),
     'kept': ('drift2', 'arrival'), 'standing': ('drift2', 'crossing'), 'lineage': ('crossing',),
     'swing': ('drift2',), 'tree': ('drift2', 'arrival'), 'chain': ('drift2',), 'passing': ('drift2', 'static12'),
     'straight': ('drift2',), 'vacate': ('wipeout', 'static12'), 'short': ('loss', 'static12'),

@@ -37,7 +37,7 @@ from typing import Optional
 import numpy as np
 
 from uav_agent.core.clusters import mst_edges
-from uav_agent.core.state import M1
+from uav_agent.core.state import M1, Told
 from uav_flock_tools.layouts import draw, policy_sets
 from uav_flock_tools.batch import BatchSimulator
 from world_sim.core import layouts, physics
@@ -134,7 +134,7 @@ def cut_off(sim: BatchSimulator) -> np.ndarray:
         return share
     for i in cut:
         m = sim.memory[i]
-        share[CUT.index('transit' if m.transit else 'relay' if m.mode == M1 else 'server')] += 1.0 / len(cut)
+        share[CUT.index('transit' if Told.of(m).block.transit else 'relay' if m.mode == M1 else 'server')] += 1.0 / len(cut)
     return share
 
 

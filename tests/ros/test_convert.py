@@ -48,10 +48,12 @@ VALUES = {
         convert.AgentStateData, U32, st.integers(0, 2**63), VEC, VEC, U32, st.integers(0, 2), st.integers(-1, 99),
         st.one_of(st.none(), st.tuples(st.integers(0, 99), st.integers(0, 99))),
         st.lists(st.integers(0, 99), unique=True).map(lambda v: tuple(sorted(v))),
-        st.dictionaries(st.integers(0, 4095), st.integers(0, 2**63), max_size=12).map(lambda d: tuple(sorted(d.items()))),
-        st.lists(st.tuples(st.floats(0, 1), st.floats(0, 1)), max_size=6).map(tuple),
-        st.dictionaries(st.integers(0, 4095), st.integers(0, 2**32 - 1), max_size=12).map(lambda d: tuple(sorted(d.items()))),
-        st.booleans()),
+        st.one_of(st.none(), st.builds(
+            convert.RoleGossipData, st.booleans(),
+            st.dictionaries(st.integers(0, 4095), st.integers(0, 2**63), max_size=12).map(lambda d: tuple(sorted(d.items()))),
+            st.lists(st.tuples(st.floats(0, 1), st.floats(0, 1)), max_size=6).map(tuple),
+            st.dictionaries(st.integers(0, 4095), st.integers(0, 2**32 - 1), max_size=12).map(
+                lambda d: tuple(sorted(d.items())))))),
     convert.CommandData: st.builds(convert.CommandData, U32, st.integers(0, 2**63), VEC, st.integers(0, 2),
                                    st.integers(-1, 99)),
     convert.SensingData: ids().flatmap(lambda n: st.builds(
@@ -76,8 +78,8 @@ VALUES = {
 
 def same(a: NamedTuple, b: NamedTuple) -> bool:
     return type(a) is type(b) and all(
-        (x is None and y is None) or (x is not None and y is not None and np.array_equal(x, y))
-        for x, y in zip(a, b))
+        (x is None and y is None) or (hasattr(x, '_fields') and same(x, y))
+        or (x is not None and y is not None and np.array_equal(x, y)) for x, y in zip(a, b))
 
 
 def expected(v: NamedTuple) -> NamedTuple:

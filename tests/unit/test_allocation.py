@@ -11,7 +11,9 @@ from hypothesis import strategies as st
 
 from uav_agent.core.agent import Neighbourhood, agent_step
 from uav_agent.core.clusters import ClusterMap, key_of, mst_edges
-from uav_agent.core.demand import STALL_STEPS, relay_place
+from uav_agent.core.allocations.demand import layout
+from uav_agent.core.allocations.demand.allocation import STALL_STEPS, relay_place
+from uav_agent.core.allocations.demand.memory import Gossip, Mine
 from uav_agent.core import policies, state
 from uav_agent.core.policies import decide
 from uav_agent.core.state import M0, M1, M2, Memory, Told
@@ -25,7 +27,7 @@ R = 30.0  # every cluster's 95 % radius in the hand-made layouts
 
 
 def role_counts(clusters: ClusterMap, n: int) -> np.ndarray:
-    roles = clusters.roles(P.d)
+    roles = layout.roles(clusters, P.d)
     return np.bincount([roles.of(key_of(i)) for i in range(n)], minlength=len(roles.demand))
 
 
@@ -42,7 +44,7 @@ def test_the_default_policies_are_the_demand_allocation() -> None:
 
 def test_relays_go_to_edges_in_proportion_to_their_gaps() -> None:
     clusters = line([100.0, 200.0])
-    roles = clusters.roles(P.d)
+    roles = layout.roles(clusters, P.d)
     assert roles.edges == ((0, 1), (1, 2))
     assert math.isclose(roles.demand[3], 100.0 / P.d) and math.isclose(roles.demand[4], 200.0 / P.d)
     counts = role_counts(clusters, 120)
@@ -52,7 +54,7 @@ def test_relays_go_to_edges_in_proportion_to_their_gaps() -> None:
 
 def test_every_map_of_an_edge_role_bridges_that_edge_in_connectivity_mode() -> None:
     clusters = line([100.0, 200.0])
-    roles = clusters.roles(P.d)
+    roles = layout.roles(clusters, P.d)
     for i in range(40):
         mem = decide(Memory(), i, 0, np.zeros(3), np.array([0.0, 0.0, 20.0]), [], clusters, P)
         role = roles.of(key_of(i))
@@ -63,7 +65,7 @@ def test_every_map_of_an_edge_role_bridges_that_edge_in_connectivity_mode() -> N
 
 
 def server_of(clusters: ClusterMap, cluster: int) -> int:
-    roles = clusters.roles(P.d)
+    roles = layout.roles(clusters, P.d)
     return next(i for i in range(1000) if roles.of(key_of(i)) == cluster)
 
 
@@ -110,7 +112,7 @@ def test_a_map_in_transit_neither_attracts_a_relay_nor_drags_it_along() -> None:
     drifting cluster came apart so): a neighbour in transit only repels, and beyond d not even that."""
     clusters = line([100.0])
     edge = (0, 1)
-    relay = Memory(mode=M1, goal=0, bridge=edge, settled=True, since=0)
+    relay = Mine(mode=M1, goal=0, bridge=edge, settled=True, since=0).memory()
     q = np.array([clusters.axis(edge)[2] / 2, 0.0, P.height])
     past = np.array([[q[0], P.d + 2.0, P.height]])  # between d and r: in range, not too close
     fast = np.array([[40.0, 0.0, 0.0]])
@@ -120,7 +122,7 @@ def test_a_map_in_transit_neither_attracts_a_relay_nor_drags_it_along() -> None:
         return agent_step(relay, 3, q, np.zeros(3), 0, np.zeros(2), hood, clusters, P, 1)[0]
 
     alone = u([])
-    assert np.array_equal(u([Told(M0, 1, None, transit=True)]), alone), 'a server of the edge in transit is no pull'
+    assert np.array_equal(u([Told(M0, 1, None, Gossip(transit=True))]), alone), 'a server of the edge in transit is no pull'
     assert u([Told(M0, 1, None)])[0] > alone[0] + 1.0, 'a settled server of the edge at that speed would drag it'
 
 
@@ -129,7 +131,7 @@ def test_a_map_in_transit_passes_others_at_half_d_where_unrelated_settled_maps_k
     left it off the relay chain: between d/2 and d of a MAP it passes it feels no push either way, while two
     settled MAPs of unrelated roles at that distance still push apart; closer than d/2 both repel."""
     clusters = line([100.0])
-    server_of_1 = Memory(mode=M2, goal=1, settled=True, since=0)
+    server_of_1 = Mine(mode=M2, goal=1, settled=True, since=0).memory()
     q = np.array([0.0, 0.0, P.height])
     still = np.zeros((1, 3))
 
@@ -140,7 +142,7 @@ def test_a_map_in_transit_passes_others_at_half_d_where_unrelated_settled_maps_k
     def alone(mem: Memory) -> np.ndarray:
         return agent_step(mem, 1, q, np.zeros(3), 0, np.zeros(2), Neighbourhood.empty(), clusters, P, 1)[0]
 
-    passing = Told(M0, 0, None, transit=True)   # on its way through cluster 1 to cluster 0
+    passing = Told(M0, 0, None, Gossip(transit=True))   # on its way through cluster 1 to cluster 0
     settled = Told(M0, 0, None)                 # a server of cluster 0, unrelated to one of cluster 1
     gap = 0.75 * P.d
     assert np.array_equal(u(server_of_1, gap, passing), alone(server_of_1)), 'no push from one passing at 3d/4'
@@ -154,7 +156,7 @@ def test_every_role_gets_its_share_of_any_id_range(k: int, seed: int, scale: flo
     """Golden-ratio keys of ids 0..N-1 fill each share within rounding: never more than 2.5 MAPs off."""
     rng = np.random.default_rng(seed)
     clusters = ClusterMap(rng.uniform(0, 400, size=(k, 2)), P.height, rng.uniform(20, 45, size=k))
-    roles = clusters.roles(P.d)
+    roles = layout.roles(clusters, P.d)
     n = max(1, math.ceil(scale * sum(roles.demand)))
     counts = role_counts(clusters, n)
     shares = n * np.array(roles.share)
@@ -167,7 +169,7 @@ def test_with_maps_for_every_demand_no_edge_is_left_without_its_relays(k: int, s
     rng = np.random.default_rng(seed)
     xy = rng.uniform(0, 400, size=(k, 2))
     clusters = ClusterMap(xy, P.height, rng.uniform(20, 45, size=k))
-    roles = clusters.roles(P.d)
+    roles = layout.roles(clusters, P.d)
     n = math.ceil(1.25 * sum(roles.demand)) + 2 * len(roles.demand)  # every demand, a quarter more, and slack
     counts = role_counts(clusters, n)
     for j, edge in enumerate(roles.edges):
@@ -208,8 +210,8 @@ class Nearest:
                   clusters: ClusterMap, fp: FlockParams) -> 'state.Reference':
         return state.hold(mem, *state.aim(mem, q, clusters))
 
-    def related(self, a: Told, b: Told) -> bool:
-        return a.goal == b.goal
+    def link(self, a: Told, b: Told) -> int:
+        return state.RELATED if a.goal == b.goal else state.APART
 
 
 def test_a_new_allocation_is_a_class_and_one_registry_line(paper_scenario_path: str,

@@ -12,10 +12,11 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from uav_agent.core import clusters, keys
-from uav_agent.core.algorithm2 import mode_switch
+from uav_agent.core.allocations.algorithm2 import mode_switch
 from uav_agent.core.clusters import NO_GOAL, ClusterMap, key_of
-from uav_agent.core.demand import demand_switch, en_route, pivot, swing_place
+from uav_agent.core.allocations.demand import keys, layout
+from uav_agent.core.allocations.demand.allocation import demand_switch, en_route, pivot, swing_place
+from uav_agent.core.allocations.demand.memory import Mine
 from uav_agent.core.policies import reference
 from uav_agent.core.state import M0, M1, M2, Memory
 from uav_agent.core.params import FlockParams
@@ -106,8 +107,8 @@ def test_a_map_whose_cluster_left_takes_another_role() -> None:
     fp = FlockParams()
     xy, radii = np.array([[0.0, 0.0], [150.0, 0.0], [0.0, 150.0]]), np.array([30.0, 30.0, 30.0])
     everyone = ClusterMap(xy, fp.height, radii)
-    mine = next(i for i in range(200) if everyone.roles(fp.d).of(key_of(i)) == 1)
-    mem = demand_switch(Memory(), mine, 0.0, np.array([150.0, 0.0, 20.0]), everyone, fp)
+    mine = next(i for i in range(200) if layout.roles(everyone, fp.d).of(key_of(i)) == 1)
+    mem = demand_switch(Mine(), mine, 0.0, np.array([150.0, 0.0, 20.0]), everyone, fp)
     assert mem.goal == 1 and mem.mode == M0
     left = ClusterMap(xy, fp.height, radii, active=np.array([True, False, True]))
     after = demand_switch(mem._replace(mode=M2, achieved=0b010), mine, 0.0, np.array([150.0, 0.0, 20.0]), left, fp)
@@ -157,10 +158,10 @@ def test_a_map_in_transit_to_a_new_role_flies_along_the_tree() -> None:
     xy = np.array([[0.0, 0.0], [100.0, 0.0], [200.0, 0.0], [100.0, 120.0]])  # tree: 0-1, 1-2, 1-3
     clusters = ClusterMap(xy, fp.height, np.full(4, 25.0))
     at_0 = np.array([5.0, 3.0, 20.0])
-    moving = Memory(mode=M0, goal=2, settled=True, transit=True)
+    moving = Mine(mode=M0, goal=2, settled=True, transit=True).memory()
     ref = reference(moving, 7, at_0, np.zeros((0, 3)), [], clusters, fp)
     assert np.allclose(ref.target[:2], xy[1]), 'from cluster 0 to 2 it heads for cluster 1 first'
-    first_flight = reference(moving._replace(settled=False, transit=False), 7, at_0, np.zeros((0, 3)), [],
+    first_flight = reference(Mine(mode=M0, goal=2).memory(), 7, at_0, np.zeros((0, 3)), [],
                              clusters, fp)
     assert np.allclose(first_flight.target[:2], xy[2]), 'before it ever settled it flies straight, as always'
     near_2 = reference(moving, 7, np.array([160.0, 0.0, 20.0]), np.zeros((0, 3)), [], clusters, fp)
@@ -174,7 +175,7 @@ def test_a_map_in_transit_leaves_its_cluster_by_the_start_of_the_relay_chain() -
     fp = FlockParams()
     xy = np.array([[0.0, 0.0], [100.0, 0.0], [200.0, 0.0], [100.0, 120.0]])  # tree: 0-1, 1-2, 1-3
     clusters = ClusterMap(xy, fp.height, np.full(4, 25.0))
-    moving = Memory(mode=M0, goal=2, settled=True, transit=True, achieved=0b1111)
+    moving = Mine(mode=M0, goal=2, settled=True, transit=True, achieved=0b1111).memory()
 
     def aim(x: float, y: float, mem: Memory = moving) -> np.ndarray:
         return reference(mem, 7, np.array([x, y, 20.0]), np.zeros((0, 3)), [], clusters, fp).target[:2]
@@ -195,7 +196,7 @@ def test_relays_whose_edge_leaves_the_tree_swing_about_the_cluster_it_shares_wit
     radii = np.full(3, 25.0)
     before = ClusterMap(np.array([[0.0, 0.0], [150.0, 0.0], [200.0, 120.0]]), fp.height, radii)
     after = ClusterMap(np.array([[0.0, 0.0], [150.0, 0.0], [60.0, 140.0]]), fp.height, radii, previous=before)
-    assert before.roles(fp.d).edges == ((0, 1), (1, 2)) and after.roles(fp.d).edges == ((0, 1), (0, 2))
+    assert layout.roles(before, fp.d).edges == ((0, 1), (1, 2)) and layout.roles(after, fp.d).edges == ((0, 1), (0, 2))
     old, new = role_ids(before, n, fp), role_ids(after, n, fp)
     swung = [i for i in range(n) if old[i] == (1, 2) and new[i] == (0, 2)]
     assert len(swung) >= 3, 'the new edge takes the keys of the one that left'
@@ -207,7 +208,7 @@ def test_relays_whose_edge_leaves_the_tree_swing_about_the_cluster_it_shares_wit
     for i, f in zip(swung, np.linspace(0.0, 1.0, len(swung))):
         at = a + (rim + f * (length - 2 * rim)) * (b - a) / length  # f of the way along the old gap from 1
         q = np.array([*at, fp.height])
-        settled = Memory(mode=M1, goal=1, bridge=(1, 2), settled=True)
+        settled = Mine(mode=M1, goal=1, bridge=(1, 2), settled=True)
         p, g = pivot(settled, q, (0, 2), after, fp)
         assert p == 2 and abs(g - (1.0 - f)) < 1e-6, 'its place along the old gap, counted from cluster 2'
         place = swing_place((p, g), (0, 2), after, fp)
@@ -220,11 +221,11 @@ def test_relays_whose_edge_leaves_the_tree_swing_about_the_cluster_it_shares_wit
         far += 1
         assert mem.swing == (p, g)
         assert en_route(mem, q, after, fp) == NO_GOAL, 'a swinging relay flies straight to its new place'
-        ref = reference(mem, i, q, np.zeros((0, 3)), [], after, fp)
+        ref = reference(mem.memory(), i, q, np.zeros((0, 3)), [], after, fp)
         assert np.allclose((ref.q1[:2] + ref.q2[:2]) / 2, origin + u * place), 'it aims there'
     assert far >= 2
     there = after.xy[0] + (after.xy[2] - after.xy[0]) * 0.5
-    done = Memory(mode=M1, goal=0, bridge=(0, 2), settled=True, swing=(2, 0.5))
+    done = Mine(mode=M1, goal=0, bridge=(0, 2), settled=True, swing=(2, 0.5))
     assert demand_switch(done, swung[0], 0.0, np.array([*there, fp.height]), after, fp).swing is None, \
         'at its new place the swing ends and the chain rule takes over'
 
@@ -234,18 +235,18 @@ def test_only_a_settled_relay_whose_edges_share_one_cluster_swings() -> None:
     clusters = ClusterMap(np.array([[0.0, 0.0], [150.0, 0.0], [60.0, 140.0], [300.0, 50.0]]), fp.height,
                           np.full(4, 25.0))
     q = np.array([75.0, 0.0, fp.height])
-    settled = Memory(mode=M1, goal=0, bridge=(0, 1), settled=True)
+    settled = Mine(mode=M1, goal=0, bridge=(0, 1), settled=True)
     assert pivot(settled, q, (0, 2), clusters, fp) == (0, pytest.approx(0.5))
     assert pivot(settled, q, (2, 3), clusters, fp) is None, 'no cluster in common: it flies along the tree'
     assert pivot(settled._replace(settled=False), q, (0, 2), clusters, fp) is None, 'first out: no chain yet'
-    assert pivot(Memory(mode=M0, goal=0, settled=True), q, (0, 2), clusters, fp) is None, 'a server'
+    assert pivot(Mine(mode=M0, goal=0, settled=True), q, (0, 2), clusters, fp) is None, 'a server'
     gone = ClusterMap(clusters.xy, fp.height, np.full(4, 25.0), active=np.array([True, False, True, True]))
     assert pivot(settled, q, (0, 2), gone, fp) is None, 'its old edge ended with its cluster: nothing to swing'
 
 
 def role_ids(clusters: ClusterMap, n: int, fp: FlockParams) -> list[Any]:
     """Each of MAPs 0..n-1's role as a cluster id or an edge: what stays the same across surveys."""
-    roles = clusters.roles(fp.d)
+    roles = layout.roles(clusters, fp.d)
     return [[*range(clusters.count), *roles.edges][roles.of(key_of(i))] for i in range(n)]
 
 
@@ -269,8 +270,8 @@ def test_when_a_cluster_leaves_only_its_own_maps_change_role() -> None:
 
 def without_lineage(before: ClusterMap, after: ClusterMap, n: int, fp: FlockParams) -> list[Any]:
     """Roles as keys.carry lays them out when nothing tells it which cluster continues which."""
-    new, ids = after.roles(fp.d), [*range(after.count), *after.roles(fp.d).edges]
-    pieces = keys.carry(before.roles(fp.d).pieces, dict(zip(ids, new.share)))
+    new, ids = layout.roles(after, fp.d), [*range(after.count), *layout.roles(after, fp.d).edges]
+    pieces = keys.carry(layout.roles(before, fp.d).pieces, dict(zip(ids, new.share)))
     return [r for i in range(n) for lo, hi, r in pieces if lo <= key_of(i) < hi]
 
 
@@ -326,7 +327,7 @@ def test_keys_carried_across_a_survey_move_few_maps_and_keep_every_share(k: int,
     else:
         radii[c] *= 1.4 if change == 'grow' else 0.7
     after = ClusterMap(xy, fp.height, radii, active=active, previous=before)
-    old, new = before.roles(fp.d), after.roles(fp.d)
+    old, new = layout.roles(before, fp.d), layout.roles(after, fp.d)
     pieces = new.pieces
     assert pieces[0][0] == 0.0 and abs(pieces[-1][1] - 1.0) < 1e-9
     assert all(abs(a[1] - b[0]) < 1e-12 for a, b in zip(pieces, pieces[1:])), 'the pieces tile [0, 1)'
@@ -345,7 +346,7 @@ def test_keys_carried_across_a_survey_move_few_maps_and_keep_every_share(k: int,
 def test_a_cluster_that_shrinks_keeps_its_servers_and_calls_nobody_back_when_it_grows_again(monkeypatch: Any) -> None:
     """A drifting cluster's surveyed extent shrinks and grows back. Shares in proportion to demand sent its
     servers across the field to the other clusters and called them back; kept shares let it hold them while
-    every other cluster holds its floor (clusters.kept): only the edges, which take their share at once, grow."""
+    every other cluster holds its floor (layout.kept): only the edges, which take their share at once, grow."""
     fp, n = FlockParams(), 150
     xy = np.array([[0.0, 0.0], [150.0, 0.0], [300.0, 0.0], [300.0, 150.0]])
     radii = np.full(4, 40.0)
@@ -364,7 +365,7 @@ def test_a_cluster_that_shrinks_keeps_its_servers_and_calls_nobody_back_when_it_
     left = [(a[i], b[i]) for i in range(n) if a[i] != b[i]]
     assert all(isinstance(new, tuple) for _, new in left), f'servers go to edges only, not to clusters: {left}'
     assert b == c, 'growing back, the cluster calls nobody back'
-    monkeypatch.setattr(clusters, 'SLACK', 0.0)
+    monkeypatch.setattr(layout, 'SLACK', 0.0)
     a0, b0, c0 = survey_by_survey()
     assert any(isinstance(new, int) for old, new in zip(a0, b0) if old != new), \
         'in proportion to demand, servers would go to the other clusters'
@@ -380,9 +381,9 @@ def test_an_arriving_cluster_takes_its_whole_share_from_the_roles_above_theirs()
     before = role_ids(first, n, fp)
     arrived = ClusterMap(np.r_[xy, [[300.0, 160.0]]], fp.height, np.r_[radii, 40.0], previous=first)
     after = role_ids(arrived, n, fp)
-    share = arrived.roles(fp.d).share
+    share = layout.roles(arrived, fp.d).share
     assert abs(sum(r == 3 for r in after) - n * share[3]) <= 2.5, 'the whole proportional share'
-    proportional = np.array(arrived.roles(fp.d).demand) / sum(arrived.roles(fp.d).demand)
+    proportional = np.array(layout.roles(arrived, fp.d).demand) / sum(layout.roles(arrived, fp.d).demand)
     assert math.isclose(share[3], proportional[3], rel_tol=1e-9)
     assert all(before[i] == after[i] or after[i] in (3, (2, 3)) for i in range(n)), 'only towards the arrival'
 
@@ -399,29 +400,29 @@ def test_an_edge_that_leaves_the_tree_keeps_its_chain_while_the_new_one_is_staff
     moved = xy.copy()
     moved[1] = [175.0, 0.0]
     maps = [first]
-    for _ in range(clusters.STANDING + 1):
+    for _ in range(layout.STANDING + 1):
         maps.append(ClusterMap(moved, fp.height, radii, previous=maps[-1]))
-        maps[-1].roles(fp.d)  # laid out before the next survey drops the one it carries from
-    assert first.roles(fp.d).edges == ((0, 1), (0, 2), (1, 3))
+        layout.roles(maps[-1], fp.d)  # laid out before the next survey drops the one it carries from
+    assert layout.roles(first, fp.d).edges == ((0, 1), (0, 2), (1, 3))
     assert maps[1].mst(maps[1].live) == ((0, 2), (1, 3), (2, 3)), 'the tree swapped (0, 1) for (2, 3)'
     ids = [[i for i in range(n) if role_ids(m, n, fp)[i] == r] for m in maps for r in [(0, 1)]]
     relays = ids[0]
     assert len(relays) >= 4
     before, during = role_ids(first, n, fp), role_ids(maps[1], n, fp)
-    assert maps[1].roles(fp.d).standing == (((0, 1), clusters.STANDING),)
+    assert layout.roles(maps[1], fp.d).standing == (((0, 1), layout.STANDING),)
     joined = [i for i in range(n) if during[i] == (2, 3)]
     assert len(joined) >= 4 and all(isinstance(before[i], int) for i in joined), \
         'the new edge is staffed by servers the clusters lend, not by the relays of the old one'
-    assert abs(len(joined) - n * maps[1].roles(fp.d).share[maps[1].roles(fp.d).index((2, 3))]) <= 2.5, \
+    assert abs(len(joined) - n * layout.roles(maps[1], fp.d).share[layout.roles(maps[1], fp.d).index((2, 3))]) <= 2.5, \
         'at its whole share at once'
     for m in maps[1:-1]:
         assert ids[maps.index(m)] == relays, 'the old chain stands'
     q = np.array([80.0, 0.0, fp.height])
-    mem = demand_switch(Memory(mode=M1, goal=0, bridge=(0, 1), settled=True), relays[0], 0.0, q, maps[-2], fp)
+    mem = demand_switch(Mine(mode=M1, goal=0, bridge=(0, 1), settled=True), relays[0], 0.0, q, maps[-2], fp)
     assert mem.mode == M1 and mem.bridge == (0, 1), 'its relay keeps bridging it'
     last_before, last = role_ids(maps[-2], n, fp), role_ids(maps[-1], n, fp)
-    assert maps[-1].roles(fp.d).edges == ((0, 2), (1, 3), (2, 3)), 'then the old edge is released'
-    old = maps[-2].roles(fp.d)
+    assert layout.roles(maps[-1], fp.d).edges == ((0, 2), (1, 3), (2, 3)), 'then the old edge is released'
+    old = layout.roles(maps[-2], fp.d)
     for i in relays:
         near = 0 if old.place(key_of(i), old.index((0, 1))) < 0.5 else 1
         assert last[i] == near, f'relay {i} joins the nearer end of its chain'
@@ -430,7 +431,7 @@ def test_an_edge_that_leaves_the_tree_keeps_its_chain_while_the_new_one_is_staff
     for i in relays:  # on its chain, beside the far cluster: straight along the chain, not round the tree
         at = b + (a - b) * 0.25 if last[i] == 0 else a + (b - a) * 0.25
         q = np.array([*at, fp.height])
-        mem = demand_switch(Memory(mode=M1, goal=0, bridge=(0, 1), settled=True), i, 0.0, q, maps[-1], fp)
+        mem = demand_switch(Mine(mode=M1, goal=0, bridge=(0, 1), settled=True), i, 0.0, q, maps[-1], fp)
         assert mem.goal == last[i] and mem.transit and mem.straight
         assert en_route(mem, q, maps[-1], fp) == NO_GOAL
         assert en_route(mem._replace(straight=False), q, maps[-1], fp) != NO_GOAL, 'the tree would go round'

@@ -11,6 +11,7 @@ from uav_agent.agent_node import said
 from uav_agent.core.agent import Neighbourhood, agent_step
 from uav_agent.core.clusters import ids_of
 from uav_agent.core.params import FlockParams
+from uav_agent.core.state import Told
 from uav_flock_ros import convert
 from uav_flock_tools.batch import BatchSimulator
 from world_sim.core import layouts, physics
@@ -39,8 +40,8 @@ def test_agent_step_reproduces_the_batch_step_bit_for_bit(paper_scenario_path: s
                 nbr = pairs[pairs[:, 0] == n, 1]
                 # what each neighbour's state message says, as the node converts it from the wire
                 heard = [convert.AgentStateData(int(j), k, q[j], p[j], int(n_u[j]), memory[j].mode, memory[j].goal,
-                                                memory[j].bridge, tuple(ids_of(memory[j].achieved)), memory[j].seen,
-                                                memory[j].lost, memory[j].short, memory[j].transit) for j in nbr]
+                                                memory[j].bridge, tuple(ids_of(memory[j].achieved)),
+                                                Told.of(memory[j]).block) for j in nbr]
                 hood = Neighbourhood.hearing(q[nbr], p[nbr], n_u[nbr], [said(m) for m in heard])
                 u, mem = agent_step(memory[i], int(i), q[n], p[n], int(n_u[n]), cover, hood, sim.clusters, s.flock, k)
                 q_next, p_next = physics.integrate(q[n][None], p[n][None], u[None], s.dt)

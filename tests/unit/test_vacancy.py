@@ -1,4 +1,4 @@
-"""Roles emptied by failures (core/vacancy.py): noticed from gossip alone, and re-staffed from the survivors."""
+"""Roles emptied by failures (core/allocations/demand/vacancy.py): noticed from gossip alone, and re-staffed from the survivors."""
 from __future__ import annotations
 
 import dataclasses
@@ -8,12 +8,13 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from uav_agent.core import keys
 from uav_agent.core.clusters import ClusterMap, key_of
 from uav_agent.core.params import FlockParams
-from uav_agent.core.demand import TAUT_STEPS, demand_switch, tally, taut
-from uav_agent.core.state import M1, M2, NOBODY, Memory, Near, Told
-from uav_agent.core.vacancy import VACANT_STEPS, code, gossip, vacate, view
+from uav_agent.core.allocations.demand import keys, layout
+from uav_agent.core.allocations.demand.allocation import TAUT_STEPS, demand_switch, tally, taut
+from uav_agent.core.allocations.demand.memory import Mine
+from uav_agent.core.state import M1, M2, NOBODY, Near, Told
+from uav_agent.core.allocations.demand.vacancy import VACANT_STEPS, code, gossip, vacate, view
 from uav_flock_tools.batch import BatchSimulator
 from world_sim.core import layouts
 from world_sim.core.scenario import load
@@ -21,7 +22,7 @@ from world_sim.core.scenario import load
 P = FlockParams()
 # Three clusters in a row, 100 m apart: roles 0, 1, 2 (servers) and the edges (0, 1), (1, 2) (relays).
 ROW = ClusterMap(np.array([[0.0, 0.0], [100.0, 0.0], [200.0, 0.0]]), P.height, radii=np.array([25.0, 25.0, 25.0]))
-ROLES = ROW.roles(P.d)
+ROLES = layout.roles(ROW, P.d)
 ALL = (0, 1, 2, (0, 1), (1, 2))
 NOW = 500
 
@@ -34,8 +35,8 @@ def near_cluster_2() -> np.ndarray:
     return np.array([180.0, 0.0, P.height])  # in cluster 2's disc, on the side of edge (1, 2)
 
 
-def relay_of_edge_12(**kw: object) -> Memory:
-    return Memory(mode=M1, goal=1, bridge=(1, 2), settled=True, since=100, **kw)  # type: ignore[arg-type]
+def relay_of_edge_12(**kw: object) -> Mine:
+    return Mine(mode=M1, goal=1, bridge=(1, 2), settled=True, since=100, **kw)  # type: ignore[arg-type]
 
 
 spans = st.lists(st.tuples(st.floats(0, 1), st.floats(0, 0.2)), max_size=4).map(
@@ -54,7 +55,7 @@ def test_squeezing_keeps_the_survivors_order_and_expand_undoes_it(lost: tuple[ke
 
 
 def test_gossip_keeps_the_latest_step_of_each_role_and_the_union_of_lost_keys() -> None:
-    mine = Memory(mode=M2, goal=0, seen=heard({0: 3, 1: 7}), lost=((0.1, 0.2),), short=((65, 1),))
+    mine = Mine(mode=M2, goal=0, seen=heard({0: 3, 1: 7}), lost=((0.1, 0.2),), short=((65, 1),))
     out = gossip(mine, 9, [heard({1: 5, 2: 8})], [((0.15, 0.3),), ((0.5, 0.6),)], [((65, 2), (130, 1))])
     assert dict(out.seen) == {0: 9, 1: 7, 2: 8}  # own role: heard now
     assert out.lost == ((0.1, 0.3), (0.5, 0.6))
@@ -113,8 +114,8 @@ def test_a_wiped_out_cluster_is_served_again_in_a_batch_run(paper_scenario_path:
         sim.step()
     live = np.flatnonzero(sim.alive).tolist()
     assert [i for i in live if sim.memory[i].mode != M1 and sim.memory[i].goal == 0], 'nobody serves cluster 0 again'
-    assert {sim.memory[i].lost for i in live} == {sim.memory[live[0]].lost} != (), 'every MAP squeezes the same keys'
-    assert all(any(lo <= key_of(i) < hi for lo, hi in sim.memory[live[0]].lost) for i in wiped)
+    assert {Mine.of(sim.memory[i]).lost for i in live} == {Mine.of(sim.memory[live[0]]).lost} != (), 'every MAP squeezes the same keys'
+    assert all(any(lo <= key_of(i) < hi for lo, hi in Mine.of(sim.memory[live[0]]).lost) for i in wiped)
 
 
 

@@ -247,9 +247,9 @@ class AgentNode(Node):
 
     def publish_state(self, s: convert.SensingData) -> None:
         mem = self.memory
+        told = Told.of(mem)
         msg = convert.AgentStateData(self.map_id, s.step, s.q, s.p, s.n_users, mem.mode, mem.goal, mem.bridge,
-                                     tuple(ids_of(mem.achieved)), mem.seen, mem.lost,
-                                     mem.short, mem.transit).to_msg(self.pending_header)
+                                     tuple(ids_of(mem.achieved)), told.block).to_msg(self.pending_header)
         self.state_pub.publish(msg)
         self.last_state = msg
 
@@ -354,7 +354,7 @@ class AgentNode(Node):
 
 def said(m: convert.AgentStateData) -> Said:
     """What a neighbour's state message says, as the step reads it (core.agent.Neighbourhood.hearing)."""
-    return Said(mask_of(m.achieved), Told(m.mode, m.goal, m.bridge, m.transit), m.seen, m.lost, m.short)
+    return Said(mask_of(m.achieved), Told(m.mode, m.goal, m.bridge, m.roles))
 
 
 def parse_ids(argv: list[str]) -> list[int]:

@@ -15,7 +15,7 @@ import numpy as np
 from geometry_msgs.msg import Point, Vector3
 from std_msgs.msg import Header
 from uav_flock_msgs.msg import (AgentState, Association, Clusters, Command, FailureEvent, Metrics, NeighborList,
-                                 Sensing, Users)
+                                 RoleGossip, Sensing, Users)
 
 
 def point(v: np.ndarray) -> Point:
@@ -44,6 +44,29 @@ def finite(*values: Point | Vector3 | float) -> bool:
     return True
 
 
+class RoleGossipData(NamedTuple):
+    """The `roles` block of /map_<id>/state (RoleGossip): what the demand allocation adds to a MAP's state. Field
+    for field the allocation's own Gossip, which it reads by attribute, from a message or a simulated MAP alike."""
+
+    transit: bool = False
+    seen: tuple[tuple[int, int], ...] = ()      # (role code, last step a member was heard of)
+    lost: tuple[tuple[float, float], ...] = ()  # key spans [lo, hi) known lost
+    short: tuple[tuple[int, int], ...] = ()     # (role code, MAPs it was found short of)
+
+    def to_msg(self) -> RoleGossip:
+        return RoleGossip(in_transit=bool(self.transit), roles_heard=[int(c) for c, _ in self.seen],
+                          roles_heard_step=[int(k) for _, k in self.seen],
+                          lost_keys=[float(x) for span in self.lost for x in span],
+                          roles_short=[int(c) for c, _ in self.short], roles_short_by=[int(n) for _, n in self.short])
+
+    @classmethod
+    def from_msg(cls, msg: Any) -> 'RoleGossipData':
+        lost = [float(x) for x in msg.lost_keys]
+        return cls(bool(msg.in_transit), tuple((int(c), int(k)) for c, k in zip(msg.roles_heard, msg.roles_heard_step)),
+                   tuple(zip(lost[::2], lost[1::2])),
+                   tuple((int(c), int(n)) for c, n in zip(msg.roles_short, msg.roles_short_by)))
+
+
 class AgentStateData(NamedTuple):
     """/map_<id>/state: what a MAP tells its neighbours at step k."""
 
@@ -56,31 +79,22 @@ class AgentStateData(NamedTuple):
     goal: int
     bridge: Optional[tuple[int, int]]  # the two clusters an M1 MAP connects, None otherwise
     achieved: tuple[int, ...]       # cluster indices known as achieved, ascending
-    seen: tuple[tuple[int, int], ...] = ()      # (role code, last step a member was heard of)
-    lost: tuple[tuple[float, float], ...] = ()  # key spans [lo, hi) known lost
-    short: tuple[tuple[int, int], ...] = ()     # (role code, MAPs it was found short of)
-    transit: bool = False                       # on its way to a new role
+    roles: Optional[RoleGossipData] = None  # what its allocation adds (the demand allocation's), if anything
 
     def to_msg(self, header: Header) -> AgentState:
         return AgentState(header=header, id=int(self.id), step=int(self.step), position=point(self.q),
                           velocity=vector(self.p), user_count=int(self.n_users), mode=int(self.mode),
                           goal=int(self.goal), bridge=list(self.bridge) if self.bridge else [],
                           achieved_goals=[int(k) for k in self.achieved],
-                          roles_heard=[int(c) for c, _ in self.seen], roles_heard_step=[int(k) for _, k in self.seen],
-                          lost_keys=[float(x) for span in self.lost for x in span],
-                          roles_short=[int(c) for c, _ in self.short], roles_short_by=[int(n) for _, n in self.short],
-                          in_transit=bool(self.transit))
+                          roles=[RoleGossipData(*self.roles).to_msg()] if self.roles is not None else [])
 
     @classmethod
     def from_msg(cls, msg: Any) -> 'AgentStateData':
         bridge = tuple(int(c) for c in msg.bridge)
-        lost = [float(x) for x in msg.lost_keys]
         return cls(int(msg.id), int(msg.step), xyz(msg.position), xyz(msg.velocity), int(msg.user_count),
                    int(msg.mode), int(msg.goal), (bridge[0], bridge[1]) if len(bridge) == 2 else None,
                    tuple(int(k) for k in msg.achieved_goals),
-                   tuple((int(c), int(k)) for c, k in zip(msg.roles_heard, msg.roles_heard_step)),
-                   tuple(zip(lost[::2], lost[1::2])),
-                   tuple((int(c), int(n)) for c, n in zip(msg.roles_short, msg.roles_short_by)), bool(msg.in_transit))
+                   RoleGossipData.from_msg(msg.roles[0]) if len(msg.roles) else None)
 
 
 class CommandData(NamedTuple):

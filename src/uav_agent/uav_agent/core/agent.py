@@ -6,7 +6,7 @@ into u_i. The batch simulator sums eq. 9 for all MAPs at once with the same func
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import NamedTuple, Sequence
 
 import numpy as np
@@ -14,24 +14,21 @@ import numpy as np
 from .clusters import ClusterMap
 from .control import control_input
 from .params import FlockParams
-from .policies import apart_links, decide, reference
+from .policies import decide, links, reference
 from .state import Memory, Near, Reference, Told
 
 
 class Said(NamedTuple):
     """What a MAP's state message of step k tells its neighbours besides q, p and N_u: the goals it knows
-    achieved (a mask), its role (Told) and what it gossips of the roles (vacancy.py: seen, lost, short)."""
+    achieved (a mask), and its role with what its allocation adds (Told)."""
 
     achieved: int
     told: Told
-    seen: tuple[tuple[int, int], ...] = ()
-    lost: tuple[tuple[float, float], ...] = ()
-    short: tuple[tuple[int, int], ...] = ()
 
     @classmethod
     def of(cls, mem: Memory) -> 'Said':
         """What a MAP with this memory says, as its state message carries it (agent_node.publish_state)."""
-        return cls(mem.achieved, Told.of(mem), mem.seen, mem.lost, mem.short)
+        return cls(mem.achieved, Told.of(mem))
 
 
 @dataclass
@@ -42,10 +39,7 @@ class Neighbourhood:
     p: np.ndarray          # (n, 3) velocities (m/s)
     n_users: np.ndarray    # (n,) N_u^j
     achieved: list[int]    # achieved-goal masks
-    told: list[Told]       # mode, goal and bridge each one stated
-    seen: list[tuple[tuple[int, int], ...]] = field(default_factory=list)    # roles each one heard of (vacancy.py)
-    lost: list[tuple[tuple[float, float], ...]] = field(default_factory=list)  # keys each one knows lost
-    short: list[tuple[tuple[int, int], ...]] = field(default_factory=list)     # roles each one found short
+    told: list[Told]       # what each one stated of its role, and its allocation's block
 
     @classmethod
     def empty(cls) -> 'Neighbourhood':
@@ -55,8 +49,7 @@ class Neighbourhood:
     def hearing(cls, q: np.ndarray, p: np.ndarray, n_users: np.ndarray, said: Sequence[Said]) -> 'Neighbourhood':
         """The neighbourhood of what each neighbour said, rows alike: the one place the gossip is gathered."""
         return cls(np.asarray(q, dtype=float).reshape(-1, 3), np.asarray(p, dtype=float).reshape(-1, 3),
-                   np.asarray(n_users, dtype=float), [s.achieved for s in said], [s.told for s in said],
-                   [s.seen for s in said], [s.lost for s in said], [s.short for s in said])
+                   np.asarray(n_users, dtype=float), [s.achieved for s in said], [s.told for s in said])
 
 
 class Plan(NamedTuple):
@@ -72,9 +65,8 @@ def plan(mem: Memory, agent_id: int, q: np.ndarray, n_users: int, cluster_covera
          clusters: ClusterMap, params: FlockParams, step: int = 0) -> Plan:
     """Algorithm 1 lines 3-5 for one MAP at step k: gossip, mode switch (Alg. 2), the goal term's reference."""
     mem = decide(mem, agent_id, n_users, cluster_coverage, q, nbrs.achieved, clusters, params, step,
-                 (nbrs.seen, nbrs.lost, nbrs.short), Near(nbrs.q, nbrs.told))
-    return Plan(mem, reference(mem, agent_id, q, nbrs.q, nbrs.told, clusters, params),
-                apart_links(mem, nbrs.told, params))
+                 Near(nbrs.q, nbrs.told))
+    return Plan(mem, reference(mem, agent_id, q, nbrs.q, nbrs.told, clusters, params), links(mem, nbrs.told, params))
 
 
 def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_users: int, cluster_coverage: np.ndarray,

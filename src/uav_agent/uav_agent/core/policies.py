@@ -7,18 +7,16 @@ Nothing else in uav-flock tests an allocation's name: a new one is a module and 
 """
 from __future__ import annotations
 
-from typing import Callable, Iterable, Optional, Protocol, Sequence
+from typing import Callable, Iterable, Protocol, Sequence
 
 import numpy as np
 
-from .ablation import on
-from .algorithm2 import Algorithm2
+from .allocations.algorithm2 import Algorithm2
+from .allocations.demand import Demand
 from .clusters import NO_GOAL, ClusterMap, merge_achieved
-from .demand import Demand
 from .params import OPEN_CHOICES, FlockParams
 from .params import check as check_values
-from .state import APART, NOBODY, PASSING, RELATED, Memory, Near, Reference, Told
-from .vacancy import Heard, gossip
+from .state import NOBODY, Memory, Near, Reference, Told
 
 
 class Allocation(Protocol):
@@ -33,12 +31,9 @@ class Allocation(Protocol):
                   clusters: ClusterMap, fp: FlockParams) -> Reference:
         """What eq. 9's goal term aims at."""
 
-    def related(self, a: Told, b: Told) -> bool:
-        """Whether two MAPs' roles belong together: only related MAPs attract (control.flocking_terms)."""
-
-    # Optional, False if absent: the allocation's MAPs gossip the roles they state and the keys known lost,
-    # and its decide may act on them (vacancy.py; Memory.seen, Memory.lost).
-    vacates: bool
+    def link(self, a: Told, b: Told) -> int:
+        """What the link between two MAPs that stated a and b is to the flocking terms: state.RELATED (all
+        of eq. 10), APART (repulsion within d only) or PASSING (repulsion within d/2 only)."""
 
 
 ALLOCATIONS: dict[str, Allocation] = {
@@ -57,17 +52,14 @@ def check(p: FlockParams, where: Callable[[str], str] = str) -> None:
 
 def decide(mem: Memory, agent_id: int, n_users: int, cluster_coverage: np.ndarray, q: np.ndarray,
            neighbour_achieved: Iterable[int], clusters: ClusterMap, fp: FlockParams, step: int = 0,
-           heard: Optional[Heard] = None, near: Near = NOBODY) -> Memory:
-    """One MAP's discrete update at step k: gossip (achieved goals; roles heard of and keys lost), then its
-    allocation."""
+           near: Near = NOBODY) -> Memory:
+    """One MAP's discrete update at step k: gossip of the achieved goals, then its allocation (which hears
+    what else its neighbours told: near.told)."""
     achieved = merge_achieved(mem.achieved, neighbour_achieved)
     if achieved != mem.achieved:
         mem = mem._replace(achieved=achieved)
-    allocation = ALLOCATIONS[fp.allocation]
-    if getattr(allocation, 'vacates', False):  # re-staffs roles emptied by failures (vacancy.py)
-        mem = gossip(mem, step, *(heard or ((), (), ())))
     r_g = float(cluster_coverage[mem.goal]) if mem.goal != NO_GOAL else 0.0
-    return allocation.decide(mem, agent_id, n_users, r_g, q, clusters, fp, step, near)
+    return ALLOCATIONS[fp.allocation].decide(mem, agent_id, n_users, r_g, q, clusters, fp, step, near)
 
 
 def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],
@@ -75,10 +67,7 @@ def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told
     return ALLOCATIONS[fp.allocation].reference(mem, agent_id, q, nbr_q, told, clusters, fp)
 
 
-def apart_links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[int]:
-    """For each neighbour heard, what its link to this MAP (as decided this step) is to the flocking terms:
-    RELATED roles, APART (unrelated), or PASSING (unrelated, and one of the two on its way to a new role)."""
-    own = Told.of(mem)
-    allocation = ALLOCATIONS[fp.allocation]
-    return [RELATED if allocation.related(own, t) else PASSING if (own.transit or t.transit) and on('passing') else APART
-            for t in heard]
+def links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[int]:
+    """For each neighbour heard, what its link to this MAP (as decided this step) is to the flocking terms."""
+    own, allocation = Told.of(mem), ALLOCATIONS[fp.allocation]
+    return [allocation.link(own, t) for t in heard]

@@ -2,7 +2,7 @@
 aims at (Algorithm 2's M_i, g_c^i and bridge; eqs. 12-13's references)."""
 from __future__ import annotations
 
-from typing import NamedTuple, Optional, Sequence
+from typing import Any, NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -15,47 +15,32 @@ RELATED, APART, PASSING = 0, 1, 2
 
 
 class Memory(NamedTuple):
-    """What a MAP carries from step to step: its mode M_i, goal g_c^i, known achieved goals and bridge,
-    and (demand allocation) the best coverage of its goal so far, the steps since it last grew, and
-    whether it has reached its role's place once, and whether it is on its way to a new role since
-    (transit: a role change after settling, flown along the tree); a relay whose edge left the tree for
-    one with a cluster in common swings about that cluster (swing: the pivot and its place along the gap).
-    What it gossips of the roles (vacancy.py): the last step a member of each role was heard of, as sorted
-    (role code, step) pairs; the spans of keys known lost; the roles found short, as (role code, MAPs); and
-    the step it last reached its role's place. A relay counts the steps it has found its chain taut (taut).
-    A relay released from a chain that stood out of the tree to one of its clusters flies straight there, along
-    its own chain (straight; clusters.standing), not along the tree."""
+    """What a MAP carries from step to step: its mode M_i, goal g_c^i, known achieved goals and bridge
+    (Algorithm 2), and what its allocation keeps of its own (own: None, or a record the allocation defines,
+    e.g. allocations.demand.memory.Own)."""
 
     mode: int = M0
     goal: int = NO_GOAL
     achieved: int = 0
     bridge: Optional[Edge] = None
-    best: float = 0.0
-    flat: int = 0
-    settled: bool = False
-    transit: bool = False
-    swing: Optional[tuple[int, float]] = None
-    seen: tuple[tuple[int, int], ...] = ()
-    lost: tuple[tuple[float, float], ...] = ()
-    short: tuple[tuple[int, int], ...] = ()
-    since: int = -1
-    taut: int = 0
-    straight: bool = False
+    own: Any = None
 
 
 class Told(NamedTuple):
     """What a neighbour's state message says of its role: mode, goal and bridge (as of its last step), and
-    whether it is on its way to a new role (Memory.transit)."""
+    what its allocation adds to the message (block: None, or what `own.said()` returns; read by the
+    allocation alone, by attribute, so the same values from a message or from a simulated MAP read alike)."""
 
     mode: int
     goal: int
     bridge: Optional[Edge]
-    transit: bool = False
+    block: Any = None
 
     @classmethod
     def of(cls, mem: Memory) -> 'Told':
         """What a MAP's own state message says of its role, as its neighbours read it."""
-        return cls(mem.mode, mem.goal, mem.bridge, mem.transit)
+        said = getattr(mem.own, 'said', None)
+        return cls(mem.mode, mem.goal, mem.bridge, said() if said is not None else None)
 
 
 class Near(NamedTuple):

@@ -22,13 +22,16 @@ from typing import TYPE_CHECKING, Iterable, Optional, Sequence
 
 import numpy as np
 
+from ...clusters import NO_GOAL, ClusterMap, key_of
+from ...state import M1, Told
 from . import keys
 from .ablation import on
-from .clusters import NO_GOAL, ClusterMap, Roles, key_of
-from .state import M1, Memory, Told
+from . import layout
+from .layout import Roles
+from .memory import Mine
 
 if TYPE_CHECKING:
-    from .params import FlockParams
+    from ...params import FlockParams
 
 VACANT_STEPS = 100  # 10 s at Δt = 0.1 s: longer than the outages of a formation that merely moves
 EDGE_CODE = 64      # role codes: cluster k is k (< 63 ids a run may use), edge (a, b) is 64 + 64 a + b
@@ -61,12 +64,12 @@ def _latest(mine: Iterable[tuple[int, int]], heard: Iterable[Iterable[tuple[int,
     return out
 
 
-def gossip(mem: Memory, step: int, heard_seen: Iterable[Seen], heard_lost: Iterable[Sequence[keys.Span]],
-           heard_short: Iterable[Short] = ()) -> Memory:
+def gossip(mem: Mine, step: int, heard_seen: Iterable[Seen], heard_lost: Iterable[Sequence[keys.Span]],
+           heard_short: Iterable[Short] = ()) -> Mine:
     """Merge what the neighbours told of roles, lost keys and short roles, and state this MAP's own role as
     heard now."""
     seen = _latest(mem.seen, heard_seen)
-    own = stated_role(Told.of(mem))
+    own = stated_role(Told(mem.mode, mem.goal, mem.bridge))
     if own is not None:
         seen[own] = step
     lost = keys.united(mem.lost, *heard_lost)
@@ -85,7 +88,7 @@ def view(roles: Roles, lost: tuple[keys.Span, ...], short: tuple[tuple[int, int]
 def role_of(agent_id: int, lost: tuple[keys.Span, ...], clusters: ClusterMap, fp: FlockParams,
             short: tuple[tuple[int, int], ...] = ()) -> tuple[Roles, float]:
     """The roles as this MAP lays them out, and where its key lies among the survivors' keys."""
-    return view(clusters.roles(fp.d), lost, short), keys.squeeze(key_of(agent_id), lost)
+    return view(layout.roles(clusters, fp.d), lost, short), keys.squeeze(key_of(agent_id), lost)
 
 
 @lru_cache(maxsize=256)
@@ -102,7 +105,7 @@ def _squeezed_view(roles: Roles, lost: tuple[keys.Span, ...], short: tuple[tuple
     return roles._replace(share=share, pieces=keys.carry(keys.squeezed(roles.pieces, lost), dict(zip(ids, share))))
 
 
-def vacate(mem: Memory, step: int, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) -> Memory:
+def vacate(mem: Mine, step: int, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) -> Mine:
     """Declare lost the keys of each role this MAP is at and has heard no member of for VACANT_STEPS.
 
     Only a role heard of since this MAP last reached its place can be declared: one whose MAPs are still on
@@ -112,7 +115,7 @@ def vacate(mem: Memory, step: int, q: np.ndarray, clusters: ClusterMap, fp: Floc
     declared role counts as heard VACANT_STEPS from now, so its new members, who may fly in from a part of the
     formation not yet joined to this one, have twice that to arrive before it can be declared again.
     """
-    roles = view(clusters.roles(fp.d), mem.lost, mem.short)
+    roles = view(layout.roles(clusters, fp.d), mem.lost, mem.short)
     current = [r for r in (*range(clusters.count), *roles.edges) if roles.share[roles.index(r)] > 0]
     codes = {code(r) for r in current}
     seen = {c: k for c, k in mem.seen if c in codes}  # roles that left the layout are forgotten

@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from uav_agent.core.algorithm2 import choose_bridge, mode_switch
+from uav_agent.core.allocations.algorithm2 import choose_bridge, mode_switch
 from uav_agent.core.clusters import NO_GOAL, ClusterMap, ids_of, mask_of, merge_achieved
 from uav_agent.core.policies import decide
 from uav_agent.core.state import M0, M1, M2, Memory

@@ -9,21 +9,23 @@ from typing import TYPE_CHECKING, Optional, Sequence
 
 import numpy as np
 
+from ...clusters import NO_GOAL, ClusterMap, Edge
+from ...state import APART, M0, M1, M2, NOBODY, PASSING, RELATED, Memory, Near, Reference, Told, aim, hold
 from . import keys
 from .ablation import on
-from .clusters import NO_GOAL, ClusterMap, Edge, Roles
-from .state import M0, M1, M2, NOBODY, Memory, Near, Reference, Told, aim, hold
-from .vacancy import code, role_of, vacate
+from .layout import Roles
+from .memory import Mine, gossip_of
+from .vacancy import code, gossip, role_of, vacate
 
 if TYPE_CHECKING:
-    from .params import FlockParams
+    from ...params import FlockParams
 
 STALL_STEPS = 50             # steps without a 1 % gain after which a goal's coverage counts as stalled
 STALL_GAIN = 0.01
 TAUT_STEPS = 100             # 10 s of a relay's chain found taut (demand.taut) find it one MAP short
 
 
-def served(mem: Memory, r_g: float, arrived: bool, fp: FlockParams) -> Memory:
+def served(mem: Mine, r_g: float, arrived: bool, fp: FlockParams) -> Mine:
     """Track the goal's coverage: achieved above r0, or once it has stopped growing (a stall).
 
     A cluster whose MAPs are all in place but that stays just under r0 would otherwise never count as
@@ -39,14 +41,14 @@ def served(mem: Memory, r_g: float, arrived: bool, fp: FlockParams) -> Memory:
     return mem
 
 
-def _anew(mem: Memory, **role: object) -> Memory:
+def _anew(mem: Mine, **role: object) -> Mine:
     """A MAP's memory for a new role: what it knows of the clusters and the roles stays."""
-    return Memory(achieved=mem.achieved, settled=mem.settled, seen=mem.seen, lost=mem.lost, short=mem.short,
+    return Mine(achieved=mem.achieved, settled=mem.settled, seen=mem.seen, lost=mem.lost, short=mem.short,
                   since=mem.since, **role)  # type: ignore[arg-type]
 
 
-def demand_switch(mem: Memory, agent_id: int, r_g: float, q: np.ndarray, clusters: ClusterMap, fp: FlockParams,
-                  step: int = 0, near: Near = NOBODY) -> Memory:
+def demand_switch(mem: Mine, agent_id: int, r_g: float, q: np.ndarray, clusters: ClusterMap, fp: FlockParams,
+                  step: int = 0, near: Near = NOBODY) -> Mine:
     """The demand allocation for one MAP at one step: its role from its key, then its mode.
 
     A server flies to its cluster in M0 and holds it in M2 once the cluster is served; a relay bridges
@@ -92,7 +94,7 @@ def _gap_from(end: int, edge: Edge, clusters: ClusterMap, fp: FlockParams) -> tu
     return (length, start, stop) if edge[0] == end else (length, length - stop, length - start)
 
 
-def pivot(mem: Memory, q: np.ndarray, edge: Edge, clusters: ClusterMap, fp: FlockParams) -> Optional[tuple[int, float]]:
+def pivot(mem: Mine, q: np.ndarray, edge: Edge, clusters: ClusterMap, fp: FlockParams) -> Optional[tuple[int, float]]:
     """The swing a relay takes to edge: the cluster its old edge shares with it, and the relay's place along
     the old gap from that cluster (0..1); None if it was not settled on an edge that shares exactly one.
 
@@ -183,7 +185,7 @@ def _chain(q: np.ndarray, edge: Edge, nbr_q: np.ndarray, told: Sequence[Told], c
     return here, below, above, reach_a, reach_b
 
 
-def taut(mem: Memory, q: np.ndarray, near: Near, clusters: ClusterMap, fp: FlockParams) -> bool:
+def taut(mem: Mine, q: np.ndarray, near: Near, clusters: ClusterMap, fp: FlockParams) -> bool:
     """Whether a settled relay's chain is stretched past what holds: the members it hears on either side are
     more than d + r apart (links longer than (d + r) / 2 break as the MAPs sway), or one side is silent
     though its cluster was heard of since the relay settled (the chain was whole and no longer reaches)."""
@@ -197,7 +199,7 @@ def taut(mem: Memory, q: np.ndarray, near: Near, clusters: ClusterMap, fp: Flock
     return dict(mem.seen).get(silent, -1) > mem.since
 
 
-def tally(mem: Memory, taut_now: bool, roles: Roles) -> Memory:
+def tally(mem: Mine, taut_now: bool, roles: Roles) -> Mine:
     """Count the steps a relay has found its chain taut since it took its role; each TAUT_STEPS of them find
     the chain one MAP short (up to its demand, rounded up), told to all by gossip (Memory.short, merged by
     the larger count), so every MAP grows the edge's share alike (vacancy.view)."""
@@ -240,7 +242,7 @@ def related(a: Told, b: Told) -> bool:
     or fellow relays, neither on its way to a new role. Under the demand allocation only related MAPs
     attract and match velocities (control.flocking_terms): a MAP in transit flies at tens of m/s, and a relay
     that matched its velocity as it passed would be dragged off its chain."""
-    if a.transit or b.transit:
+    if gossip_of(a).transit or gossip_of(b).transit:
         return False
     if a.mode == M1 and b.mode == M1:
         return a.bridge == b.bridge
@@ -251,7 +253,7 @@ def related(a: Told, b: Told) -> bool:
     return a.goal == b.goal
 
 
-def en_route(mem: Memory, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) -> int:
+def en_route(mem: Mine, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) -> int:
     """The cluster a MAP in transit heads for first: the next one along the tree from the cluster it is at,
     or NO_GOAL to go straight to its role.
 
@@ -307,32 +309,37 @@ def leg_aim(q: np.ndarray, hop: int, clusters: ClusterMap, fp: FlockParams, achi
 class Demand:
     """The demand allocation as an allocation (policies.Allocation)."""
 
-    vacates = True  # roles emptied by failures are re-staffed (vacancy.py)
-
     def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
                fp: FlockParams, step: int = 0, near: Near = NOBODY) -> Memory:
-        return demand_switch(mem, agent_id, r_g, q, clusters, fp, step, near)
+        """Gossip first (the roles heard of, keys lost, roles short: vacancy.py), then the role and mode."""
+        heard = [gossip_of(t) for t in near.told]
+        mine = gossip(Mine.of(mem), step, [g.seen for g in heard], [g.lost for g in heard], [g.short for g in heard])
+        return demand_switch(mine, agent_id, r_g, q, clusters, fp, step, near).memory()
 
     def reference(self, mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],
                   clusters: ClusterMap, fp: FlockParams) -> Reference:
         """A MAP in transit aims at the next cluster along the tree; a relay bridges its own piece of the
         edge, where its chain needs it (eq. 13), moving with the edge."""
-        here, v = aim(mem, q, clusters)
-        hop = en_route(mem, q, clusters, fp)
+        mine = Mine.of(mem)
+        here, v = aim(mine, q, clusters)
+        hop = en_route(mine, q, clusters, fp)
         if hop != NO_GOAL:
-            at, v = leg_aim(q, hop, clusters, fp, mem.achieved), clusters.velocities[hop]
+            at, v = leg_aim(q, hop, clusters, fp, mine.achieved), clusters.velocities[hop]
             return Reference(at, at, at, M0, np.array([v, v, v]))
-        if mem.mode == M1 and mem.bridge is not None:
-            va, vb = clusters.velocities[mem.bridge[0]], clusters.velocities[mem.bridge[1]]
-            place = swing_place(mem.swing, mem.bridge, clusters, fp) if mem.swing is not None else \
-                relay_place(agent_id, q, mem.bridge, nbr_q, told, clusters, fp, mem.lost, mem.short)
-            q1, q2 = relay_slot(place, mem.bridge, clusters, fp)
+        if mine.mode == M1 and mine.bridge is not None:
+            va, vb = clusters.velocities[mine.bridge[0]], clusters.velocities[mine.bridge[1]]
+            place = swing_place(mine.swing, mine.bridge, clusters, fp) if mine.swing is not None else \
+                relay_place(agent_id, q, mine.bridge, nbr_q, told, clusters, fp, mine.lost, mine.short)
+            q1, q2 = relay_slot(place, mine.bridge, clusters, fp)
             # The slot moves as its point of the edge does: at the velocity interpolated between the ends.
-            length = clusters.axis(mem.bridge)[2]
+            length = clusters.axis(mine.bridge)[2]
             vs = va + (min(max(place / length, 0.0), 1.0) if length > 0 else 0.5) * (vb - va)
             return Reference(here, q1, q2, M1, np.array([v, vs, vs]))
-        return hold(mem, here, v)
+        return hold(mine, here, v)
 
-    def related(self, a: Told, b: Told) -> bool:
-        """Only related MAPs attract (control.flocking_terms)."""
-        return related(a, b)
+    def link(self, a: Told, b: Told) -> int:
+        """Only related MAPs attract (control.flocking_terms); unrelated ones of which one is on its way to a
+        new role pass each other at d/2 (docs/dynamics.md, "Passing at d/2")."""
+        if related(a, b):
+            return RELATED
+        return PASSING if (gossip_of(a).transit or gossip_of(b).transit) and on('passing') else APART

@@ -8,11 +8,11 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from .clusters import NO_GOAL, ClusterMap
-from .state import M0, M1, M2, NOBODY, Memory, Near, Reference, Told, aim, hold
+from ..clusters import NO_GOAL, ClusterMap
+from ..state import M0, M1, M2, NOBODY, RELATED, Memory, Near, Reference, Told, aim, hold
 
 if TYPE_CHECKING:
-    from .params import FlockParams
+    from ..params import FlockParams
 
 
 def mode_switch(mem: Memory, n_users: int, goal_coverage: float, q: np.ndarray,
@@ -84,6 +84,6 @@ class Algorithm2:
                              np.array([v, va, vb]))
         return hold(mem, here, v)
 
-    def related(self, a: Told, b: Told) -> bool:
+    def link(self, a: Told, b: Told) -> int:
         """Every neighbour alike: the paper's flocking terms take them all."""
-        return True
+        return RELATED

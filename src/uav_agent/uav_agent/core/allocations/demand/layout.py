@@ -1,0 +1,225 @@
+"""The demand allocation's roles: every cluster and every edge of the tree, each with its demand in MAPs and
+its pieces of the key line [0, 1), laid out afresh at the first survey and carried across later ones.
+
+A MAP's role is the one whose pieces hold its key (clusters.key_of). Every MAP lays the roles out itself,
+from the surveys it has heard; MAPs that heard the same surveys hold the same roles, with no message
+exchanged.
+"""
+from __future__ import annotations
+
+import bisect
+import math
+from typing import Iterable, NamedTuple, Optional, Sequence
+
+import numpy as np
+
+from ...clusters import ClusterMap, Edge, ids_of, tree_links
+from . import keys
+from .ablation import on
+
+LINEAGE_MARGIN = 10.0  # m beyond two clusters' radii within which one continues the other (lineage)
+SLACK = 0.3  # a cluster keeps servers down to its proportional share / (1 + SLACK) (kept)
+STANDING = 10  # surveys an edge that left the tree keeps its relays while its replacement forms (standing)
+
+
+def roles(clusters: ClusterMap, d: float) -> 'Roles':
+    """Every cluster and every edge of the MST over all clusters, with its demand in MAPs and its keys; laid
+    out once per survey (ClusterMap.derived), from the roles of the survey before (ClusterMap.previous)."""
+    key = ('demand.roles', float(d))
+    if key not in clusters.derived:
+        clusters.derived[key] = _laid_out(clusters, float(d))
+    return clusters.derived[key]
+
+
+def _laid_out(now: ClusterMap, d: float) -> 'Roles':
+    """roles(), uncached."""
+    tree = now.mst(now.live)
+    previous, now.previous = now.previous, None
+    was = roles(previous, d) if previous is not None else None
+    stand = standing(was, tree, now) if was is not None and on('standing') else ()
+    edges = tree + tuple(e for e, _ in stand)
+    cell = math.sqrt(3.0) / 2.0 * d * d  # area per MAP of a hexagonal lattice of spacing d
+    demand = [max(math.pi * r * r / cell, 1.0) if now.live >> k & 1 else 0.0  # every cluster at least one
+              for k, r in enumerate(now.radii)]
+    for e in edges:
+        start, stop = now.gap(e, d / 2)
+        demand.append((stop - start) / d)
+    weights = np.array(demand)
+    weights[len(weights) - len(stand):] = 0.0  # a standing chain keeps what it holds (below)
+    if not np.any(now.radii > 0):  # nothing known of the clusters' extent: an equal share each, no relays
+        weights = np.r_[[float(now.live >> k & 1) for k in range(now.count)], np.zeros(len(edges))]
+    ids: list[keys.RoleId] = [*range(now.count), *edges]
+    before = was.pieces if was is not None else ()
+    if not weights.sum() > 0:  # no cluster exists (none has arrived yet, or all have left): keep the keys
+        return Roles(edges, tuple(demand), (0.0,) * len(weights), before, stand)
+    bounds = np.cumsum(weights) / weights.sum()
+    starts = np.r_[0.0, bounds[:-1]]
+    share = tuple(float(b - a) for a, b in zip(starts, bounds))
+    if was is not None and before:
+        for e, n in was.standing:  # an edge whose replacement stands: its relays join its two clusters
+            if n == 1 and e not in edges and now.ends_live(e):
+                before = keys.halved(before, e, e[0], e[1])
+        held = keys.totals(before)
+        lenders: list[int] = []
+        if stand:  # a standing chain keeps what it holds, lent by the clusters above their floor (kept)
+            fixed = {e for e, _ in stand}
+            share = tuple(held.get(r, 0.0) if r in fixed else s for r, s in zip(ids, share))
+            lenders = by_hops(tree, [k for e in tree if e not in was.edges for k in e])
+        share = kept(share, ids, held, SLACK if on('kept') else 1e-9, lenders)
+        pieces = keys.carry(before, dict(zip(ids, share)),
+                            *(lineage(previous, now, tree) if on('lineage') else ({}, {}))) if on('carry') else \
+            keys.fresh(keys.end_to_end(dict(zip(ids, share))))
+    else:
+        pieces = keys.fresh(zip(ids, starts.tolist(), bounds.tolist()))
+    return Roles(edges, tuple(demand), share, pieces, stand)
+
+
+def standing(was: 'Roles', tree: tuple[Edge, ...], now: ClusterMap) -> tuple[tuple[Edge, int], ...]:
+    """Edges that left the tree but keep their relays, each with the surveys it has left (make before break).
+
+    When a drifting cluster changes the tree and the edge that leaves shares no cluster with any edge that
+    joins, no relay can swing (demand.pivot): its relays flew along the tree to the new edge and the two
+    halves of the formation were apart until the new chain stood, 8-12 s for 150-200 m (docs/dynamics.md,
+    "Make before break"). Such an edge now keeps its relays for STANDING surveys, while the new edge takes
+    its share from the roles above theirs and the clusters lend it their slack (kept); then its relays join
+    its two clusters (keys.halved).
+    """
+    old = was.edges[:len(was.edges) - len(was.standing)]
+    joined = [e for e in tree if e not in old]
+    ends = {k for e in joined for k in e}
+    left = [(e, STANDING) for e in old if e not in tree and not ends & set(e)]
+    going = [(e, n - 1) for e, n in was.standing if n > 1 and e not in tree]
+    return tuple((e, n) for e, n in sorted(left + going) if now.ends_live(e))
+
+
+def by_hops(tree: tuple[Edge, ...], start: list[int]) -> list[int]:
+    """The clusters of the tree in order of hops from the nearest of start (breadth first, ties by id)."""
+    links = tree_links(tree)
+    order = sorted(set(start))
+    for c in order:
+        order += [n for n in links.get(c, []) if n not in order]
+    return order
+
+
+def kept(share: tuple[float, ...], ids: list[keys.RoleId], held: dict[keys.RoleId, float],
+         slack: float, lenders: Sequence[int] = ()) -> tuple[float, ...]:
+    """The shares to lay out, given the proportional ones (share) and what each role held before (held).
+
+    Proportional shares follow every change of surveyed demand: a drifting cluster whose 95 % disc shrank
+    and grew back sent its servers across the field to the other clusters and called them back, each a MAP
+    in transit alone (docs/dynamics.md, "Kept shares"). Here a role keeps what it holds down to a floor, its
+    proportional share / (1 + slack) for a cluster it served before, the whole share for an edge (a chain
+    short of relays breaks) and for a new cluster (an arrival must be covered); a role below its floor takes
+    what it lacks from the roles most above their proportional share. A standing chain (layout.standing)
+    comes with its share on top: the clusters lend it their slack above their floors, those nearest the new
+    edge on the tree first (lenders), so that its servers step out into the new chain from its ends.
+    """
+    if slack <= 0 or all(abs(held.get(r, 0.0) - s) < 1e-9 for r, s in zip(ids, share)):
+        return share  # proportional; or nothing changed: the layout as it was, to the bit
+    floor = [s / (1.0 + slack) if isinstance(r, int) and held.get(r, 0.0) > 0 else s for r, s in zip(ids, share)]
+    out = [max(held.get(r, 0.0), f) if s > 0 else 0.0 for r, s, f in zip(ids, share, floor)]
+    total = sum(out)
+    for i in lenders:  # a standing chain's share comes first from the clusters nearest the new edge, to their floor
+        if total <= 1.0 + 1e-12:
+            break
+        give = min(total - 1.0, max(out[i] - floor[i], 0.0))
+        out[i] -= give
+        total -= give
+    if total > 1.0:
+        over = sorted(range(len(out)), key=lambda i: share[i] - out[i])
+        for i in over:
+            give = min(total - 1.0, max(out[i] - share[i], 0.0))
+            out[i] -= give
+            total -= give
+            if total <= 1.0 + 1e-12:
+                break
+        if total > 1.0 + 1e-12:  # shares summing to more than 1 (a standing chain's): clusters lend their slack
+            slack_of = [max(o - f, 0.0) if isinstance(r, int) else 0.0 for r, o, f in zip(ids, out, floor)]
+            spare = sum(slack_of)
+            lend = min(total - 1.0, spare)
+            if lend > 0:
+                out = [o - lend * w / spare for o, w in zip(out, slack_of)]
+                total -= lend
+            if total > 1.0 + 1e-12:  # not slack enough: every role gives alike
+                out = [o / total for o in out]
+    elif total < 1.0:  # keys of roles that ended: to the roles below their share, as far as each lacks
+        short = [max(s - o, 0.0) for s, o in zip(share, out)]
+        lack = sum(short)  # >= 1 - total, since the shares sum to 1
+        out = [o + (1.0 - total) * w / lack for o, w in zip(out, short)]
+    return tuple(out)
+
+
+def lineage(before: ClusterMap, now: ClusterMap, edges: tuple[Edge, ...]
+            ) -> tuple[dict[keys.RoleId, keys.RoleId], dict[keys.RoleId, keys.RoleId]]:
+    """Which roles of survey `now` continue which of survey `before` (heirs: ended -> continuing role;
+    parents: new -> the role it splits from), read from where the clusters are: keys.carry step 0.
+
+    The survey tracks each cluster by its centroid, so when two clusters merge one id goes on and the other
+    ends, and when one splits the part that moves off takes a new id. Without lineage the ended cluster's
+    servers, already over the merged users, were sent to whatever role their keys fell in, while the grown
+    cluster drew new servers from its neighbours on the key line, wherever they were; a split did the same
+    the other way round (docs/dynamics.md, "Merges and splits").
+    - An ended cluster's heir is the live cluster nearest its last centroid within the two radii plus
+      LINEAGE_MARGIN; an ended edge's heir is the tree edge between its ends' heirs (or ends), if any.
+    - A new cluster's parent is the cluster live in both surveys nearest it, within the same reach.
+    """
+    heirs: dict[keys.RoleId, keys.RoleId] = {}
+    parents: dict[keys.RoleId, keys.RoleId] = {}
+    was = [k for k in range(before.count) if before.live >> k & 1]
+    stays = [k for k in was if k < now.count and now.live >> k & 1]
+    for k in was:
+        if k not in stays:
+            heir = _within_reach(before.xy[k], before.radii[k], now, ids_of(now.live))
+            if heir is not None:
+                heirs[k] = heir
+    for k in ids_of(now.live):
+        if not (k < before.count and before.live >> k & 1):
+            parent = _within_reach(now.xy[k], now.radii[k], before, stays)
+            if parent is not None:
+                parents[k] = parent
+    if heirs:
+        tree = set(edges)
+        for a, b in before.mst(before.live):
+            ha, hb = heirs.get(a, a), heirs.get(b, b)
+            edge = (min(ha, hb), max(ha, hb))
+            if (a, b) not in tree and (a in heirs or b in heirs) and ha != hb and edge in tree:
+                heirs[(a, b)] = edge
+    return heirs, parents
+
+
+def _within_reach(xy: np.ndarray, radius: float, other: ClusterMap, among: Iterable[int]) -> Optional[int]:
+    """The cluster of `among` in survey `other` nearest xy, if within the two radii plus LINEAGE_MARGIN."""
+    near = [(float(np.linalg.norm(other.xy[j] - xy)), j) for j in among]
+    near = [(dist, j) for dist, j in near if dist <= radius + other.radii[j] + LINEAGE_MARGIN]
+    return min(near)[1] if near else None
+
+
+class Roles(NamedTuple):
+    """Roles 0..K-1 serve cluster k; role K + j relays on edges[j]. Role i owns the keys of its pieces of
+    [0, 1), share[i] in all: end to end at the first survey, carried across later ones (keys.carry)."""
+
+    edges: tuple[Edge, ...]
+    demand: tuple[float, ...]   # MAPs each role needs (a lattice of spacing d over the disc, a chain over the gap)
+    share: tuple[float, ...]
+    pieces: tuple[keys.Piece, ...]
+    # Edges out of the tree kept while their replacement forms, with the surveys each has left (last in edges).
+    standing: tuple[tuple[Edge, int], ...] = ()
+
+    def index(self, role: keys.RoleId) -> int:
+        """Role number of a cluster id or an edge."""
+        return role if isinstance(role, int) else len(self.demand) - len(self.edges) + self.edges.index(role)
+
+    def of(self, key: float) -> int:
+        """The role whose piece holds key."""
+        i = bisect.bisect_right(self.pieces, key, key=lambda p: p[0])
+        return self.index(self.pieces[max(i - 1, 0)][2])
+
+    def place(self, key: float, role: int) -> float:
+        """Where among its role's keys key lies, 0..1: a relay's position along its gap."""
+        mine = [(lo, hi) for lo, hi, r in self.pieces if self.index(r) == role]
+        if len(mine) == 1:
+            lo, hi = mine[0]
+            return float(np.clip((key - lo) / (hi - lo), 0.0, 1.0))
+        total = sum(hi - lo for lo, hi in mine)
+        below = sum(min(max(key - lo, 0.0), hi - lo) for lo, hi in mine)
+        return float(np.clip(below / total, 0.0, 1.0)) if total > 0 else 0.5

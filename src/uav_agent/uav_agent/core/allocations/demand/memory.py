@@ -1,0 +1,90 @@
+"""What the demand allocation keeps of its own from step to step, and what it adds to a MAP's state message.
+
+A MAP's common memory (state.Memory) holds its mode, goal, achieved goals and bridge; the demand
+allocation keeps the rest in `Own` (Memory.own) and tells its neighbours `Gossip` (Told.block, the
+`roles` block of /map_<id>/state). Its rules read and write one record, `Mine`: the two joined.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple, Optional
+
+from ...clusters import NO_GOAL, Edge
+from ...state import M0, Memory, Told
+from .keys import Span
+
+
+class Gossip(NamedTuple):
+    """What a MAP under the demand allocation tells its neighbours besides its role, O(roles) numbers: whether it
+    is on its way to a new role, and what it gossips of the roles (vacancy.py)."""
+
+    transit: bool = False
+    seen: tuple[tuple[int, int], ...] = ()   # (role code, last step a member was heard of)
+    lost: tuple[Span, ...] = ()              # spans of keys known lost
+    short: tuple[tuple[int, int], ...] = ()  # (role code, MAPs it was found short of)
+
+
+SILENT = Gossip()  # what a neighbour that said nothing of its own (step 0, or another allocation) counts as
+
+
+def gossip_of(told: Told) -> Gossip:
+    return told.block if told.block is not None else SILENT
+
+
+class Own(NamedTuple):
+    """The demand allocation's memory: the best coverage of its goal so far and the steps since it last grew;
+    whether it has reached its role's place once, and whether it is on its way to a new role since (transit:
+    a role change after settling, flown along the tree); a relay whose edge left the tree for one with a
+    cluster in common swings about that cluster (swing: the pivot and its place along the gap). What it
+    gossips of the roles (vacancy.py): the last step a member of each role was heard of, as sorted (role code,
+    step) pairs; the spans of keys known lost; the roles found short, as (role code, MAPs); and the step it last
+    reached its role's place. A relay counts the steps it has found its chain taut (taut). A relay released
+    from a chain that stood out of the tree to one of its clusters flies straight there, along its own chain
+    (straight; layout.standing), not along the tree."""
+
+    best: float = 0.0
+    flat: int = 0
+    settled: bool = False
+    transit: bool = False
+    swing: Optional[tuple[int, float]] = None
+    seen: tuple[tuple[int, int], ...] = ()
+    lost: tuple[Span, ...] = ()
+    short: tuple[tuple[int, int], ...] = ()
+    since: int = -1
+    taut: int = 0
+    straight: bool = False
+
+    def said(self) -> Gossip:
+        """What the MAP's state message carries of it (Told.block)."""
+        return Gossip(self.transit, self.seen, self.lost, self.short)
+
+
+class Mine(NamedTuple):
+    """A MAP's memory as the demand allocation's rules read and write it: the common fields, then its own."""
+
+    mode: int = M0
+    goal: int = NO_GOAL
+    achieved: int = 0
+    bridge: Optional[Edge] = None
+    best: float = 0.0
+    flat: int = 0
+    settled: bool = False
+    transit: bool = False
+    swing: Optional[tuple[int, float]] = None
+    seen: tuple[tuple[int, int], ...] = ()
+    lost: tuple[Span, ...] = ()
+    short: tuple[tuple[int, int], ...] = ()
+    since: int = -1
+    taut: int = 0
+    straight: bool = False
+
+    @classmethod
+    def of(cls, mem: Memory) -> 'Mine':
+        own = mem.own if isinstance(mem.own, Own) else Own()
+        return cls(mem.mode, mem.goal, mem.achieved, mem.bridge, *own)
+
+    def memory(self) -> Memory:
+        return Memory(self.mode, self.goal, self.achieved, self.bridge, Own(*self[4:]))
+
+    def told(self) -> Told:
+        """What its state message says of its role."""
+        return Told(self.mode, self.goal, self.bridge, Gossip(self.transit, self.seen, self.lost, self.short))
