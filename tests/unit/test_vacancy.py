@@ -5,8 +5,6 @@ import dataclasses
 import math
 
 import numpy as np
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from uav_agent.core.clusters import ClusterMap, key_of
 from uav_agent.core.params import FlockParams
@@ -37,21 +35,6 @@ def near_cluster_2() -> np.ndarray:
 
 def relay_of_edge_12(**kw: object) -> Mine:
     return Mine(mode=M1, goal=1, bridge=(1, 2), settled=True, since=100, **kw)  # type: ignore[arg-type]
-
-
-spans = st.lists(st.tuples(st.floats(0, 1), st.floats(0, 0.2)), max_size=4).map(
-    lambda pairs: keys.united([(lo, min(lo + w, 1.0)) for lo, w in pairs]))
-
-
-@settings(max_examples=200, deadline=None)
-@given(spans, st.floats(0, 1, exclude_max=True))
-def test_squeezing_keeps_the_survivors_order_and_expand_undoes_it(lost: tuple[keys.Span, ...], key: float) -> None:
-    if sum(hi - lo for lo, hi in lost) > 0.9 or any(lo - 1e-9 <= key < hi + 1e-9 for lo, hi in lost):
-        return
-    at = keys.squeeze(key, lost)
-    assert 0.0 <= at <= 1.0
-    assert math.isclose(keys.expand(at, lost), key, abs_tol=1e-9)
-    assert keys.squeeze(min(key + 1e-6, 1.0), lost) >= at
 
 
 def test_gossip_keeps_the_latest_step_of_each_role_and_the_union_of_lost_keys() -> None:
@@ -116,7 +99,6 @@ def test_a_wiped_out_cluster_is_served_again_in_a_batch_run(paper_scenario_path:
     assert [i for i in live if sim.memory[i].mode != M1 and sim.memory[i].goal == 0], 'nobody serves cluster 0 again'
     assert {Mine.of(sim.memory[i]).lost for i in live} == {Mine.of(sim.memory[live[0]]).lost} != (), 'every MAP squeezes the same keys'
     assert all(any(lo <= key_of(i) < hi for lo, hi in Mine.of(sim.memory[live[0]]).lost) for i in wiped)
-
 
 
 def chain_heard(*xs: tuple[float, int]) -> Near:

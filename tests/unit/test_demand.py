@@ -1,6 +1,7 @@
 """The demand allocation: roles by key, relays by gap, stalled clusters, chains, and one random layout end to end."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import replace
 
@@ -10,17 +11,18 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from uav_agent.core.agent import Neighbourhood, agent_step
-from uav_agent.core.clusters import ClusterMap, key_of, mst_edges
+from uav_agent.core.allocations.algorithm2 import mode_switch
 from uav_agent.core.allocations.demand import layout
-from uav_agent.core.allocations.demand.allocation import STALL_STEPS, relay_place
+from uav_agent.core.allocations.demand.allocation import STALL_STEPS, demand_switch, en_route, pivot, relay_place, swing_place
 from uav_agent.core.allocations.demand.memory import Gossip, Mine
-from uav_agent.core import policies, state
-from uav_agent.core.policies import decide
-from uav_agent.core.state import M0, M1, M2, Memory, Told
+from uav_agent.core.clusters import NO_GOAL, ClusterMap, key_of, mst_edges
 from uav_agent.core.params import FlockParams
+from uav_agent.core.policies import decide, reference
+from uav_agent.core.state import M0, M1, M2, Memory, Told
 from uav_flock_tools.batch import BatchSimulator
 from world_sim.core import layouts, outcome
 from world_sim.core.scenario import load
+from helpers.roles import role_ids
 
 P = FlockParams()  # the default policies: allocation 'demand'
 R = 30.0  # every cluster's 95 % radius in the hand-made layouts
@@ -197,37 +199,111 @@ def test_without_the_clusters_extent_every_map_serves_a_cluster() -> None:
     assert counts[3:].sum() == 0 and max(counts[:3]) - min(counts[:3]) <= 2, counts
 
 
-class Nearest:
-    """The allocation of docs/design.md's example: serve the nearest cluster, attract only its other servers."""
-
-    def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
-               fp: FlockParams, step: int, near: 'state.Near') -> Memory:
-        from uav_agent.core.clusters import NO_GOAL
-        goal = clusters.nearest(q, 0)
-        return mem._replace(goal=goal, mode=M2 if goal != NO_GOAL and r_g > fp.r0 else M0)
-
-    def reference(self, mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: list[Told],
-                  clusters: ClusterMap, fp: FlockParams) -> 'state.Reference':
-        return state.hold(mem, *state.aim(mem, q, clusters))
-
-    def link(self, a: Told, b: Told) -> int:
-        return state.RELATED if a.goal == b.goal else state.APART
-
-
-def test_a_new_allocation_is_a_class_and_one_registry_line(paper_scenario_path: str,
-                                                            monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setitem(policies.ALLOCATIONS, 'nearest', Nearest())
-    s = load(paper_scenario_path).with_overrides(maps=30, duration=20.0)
-    s = replace(s, flock=replace(s.flock, allocation='nearest'))
-    sim = BatchSimulator(s)
-    result = sim.run()
-    assert set(result.trajectory[:, 9].astype(int).tolist()) <= {M0, M2}, 'it never bridges'
-    assert all(m.goal == sim.clusters.nearest(q, 0) for m, q in zip(sim.memory, sim.q)), \
-        'every MAP ends serving its nearest cluster'
+def test_a_map_whose_cluster_left_takes_another_role() -> None:
+    fp = FlockParams()
+    xy, radii = np.array([[0.0, 0.0], [150.0, 0.0], [0.0, 150.0]]), np.array([30.0, 30.0, 30.0])
+    everyone = ClusterMap(xy, fp.height, radii)
+    mine = next(i for i in range(200) if layout.roles(everyone, fp.d).of(key_of(i)) == 1)
+    mem = demand_switch(Mine(), mine, 0.0, np.array([150.0, 0.0, 20.0]), everyone, fp)
+    assert mem.goal == 1 and mem.mode == M0
+    left = ClusterMap(xy, fp.height, radii, active=np.array([True, False, True]))
+    after = demand_switch(mem._replace(mode=M2, achieved=0b010), mine, 0.0, np.array([150.0, 0.0, 20.0]), left, fp)
+    assert after.goal != 1 and (after.mode == M1 and 1 not in after.bridge or after.mode == M0 and after.goal in (0, 2))
+    paper = dataclasses.replace(fp, allocation='algorithm2')
+    stranded = mode_switch(Memory(mode=M2, goal=1, achieved=0b010), 0, 0.0, np.array([150.0, 0.0, 20.0]), left, paper)
+    assert stranded.mode == M0 and stranded.goal in (0, 2), 'Algorithm 2 sends it to the nearest cluster left'
+    nothing = ClusterMap(xy, fp.height, radii, active=np.zeros(3, dtype=bool))
+    idle = demand_switch(after, mine, 0.0, np.array([150.0, 0.0, 20.0]), nothing, fp)
+    assert idle.goal == NO_GOAL and idle.mode == M2, 'with no cluster at all it holds where it is'
 
 
-def test_the_95_percent_radius_constant_is_scipys_quantile_to_the_last_bit() -> None:
-    from scipy.stats import chi2
+def test_a_map_in_transit_to_a_new_role_flies_along_the_tree() -> None:
+    """A MAP that leaves a settled place for a new role passes the clusters between, where relays are."""
+    fp = FlockParams()
+    xy = np.array([[0.0, 0.0], [100.0, 0.0], [200.0, 0.0], [100.0, 120.0]])  # tree: 0-1, 1-2, 1-3
+    clusters = ClusterMap(xy, fp.height, np.full(4, 25.0))
+    at_0 = np.array([5.0, 3.0, 20.0])
+    moving = Mine(mode=M0, goal=2, settled=True, transit=True).memory()
+    ref = reference(moving, 7, at_0, np.zeros((0, 3)), [], clusters, fp)
+    assert np.allclose(ref.target[:2], xy[1]), 'from cluster 0 to 2 it heads for cluster 1 first'
+    first_flight = reference(Mine(mode=M0, goal=2).memory(), 7, at_0, np.zeros((0, 3)), [],
+                             clusters, fp)
+    assert np.allclose(first_flight.target[:2], xy[2]), 'before it ever settled it flies straight, as always'
+    near_2 = reference(moving, 7, np.array([160.0, 0.0, 20.0]), np.zeros((0, 3)), [], clusters, fp)
+    assert np.allclose(near_2.target[:2], xy[2]), 'once its goal is the nearest cluster it flies to it'
 
-    from world_sim.core.layouts import CHI2_2DOF_95
-    assert CHI2_2DOF_95 == chi2.ppf(0.95, 2)
+
+def test_a_map_in_transit_leaves_its_cluster_by_the_start_of_the_relay_chain() -> None:
+    """From the far side of its disc, a MAP in transit first joins the chain's line where the chain starts,
+    then flies along it to the next cluster; past that point it never turns back. Towards a cluster not yet
+    served there is no chain to join: it flies straight."""
+    fp = FlockParams()
+    xy = np.array([[0.0, 0.0], [100.0, 0.0], [200.0, 0.0], [100.0, 120.0]])  # tree: 0-1, 1-2, 1-3
+    clusters = ClusterMap(xy, fp.height, np.full(4, 25.0))
+    moving = Mine(mode=M0, goal=2, settled=True, transit=True, achieved=0b1111).memory()
+
+    def aim(x: float, y: float, mem: Memory = moving) -> np.ndarray:
+        return reference(mem, 7, np.array([x, y, 20.0]), np.zeros((0, 3)), [], clusters, fp).target[:2]
+
+    assert np.allclose(aim(-15.0, -18.0, moving._replace(achieved=0b1101)), xy[1]), 'cluster 1 not served yet'
+
+    assert np.allclose(aim(-15.0, -18.0), [25.0, 0.0]), 'far side of the disc: to where chain (0, 1) starts'
+    assert np.allclose(aim(10.0, 20.0), [25.0, 0.0]), 'beside the line, short of the chain: to its start'
+    assert np.allclose(aim(20.0, 4.0), xy[1]), 'on the line: along it to cluster 1'
+    assert np.allclose(aim(40.0, 20.0), xy[1]), 'past the start of the chain: on, not back'
+    assert np.allclose(aim(110.0, 30.0), [125.0, 0.0]), 'at cluster 1, beside chain (1, 2): to its start'
+
+
+def test_relays_whose_edge_leaves_the_tree_swing_about_the_cluster_it_shares_with_the_new_one() -> None:
+    """Cluster 2 drifts until the tree swaps edge (1, 2) for (0, 2): each relay of (1, 2) that is given
+    (0, 2) keeps its place from cluster 2, so the chain swings about 2 and its far end slides along (0, 1)."""
+    fp, n = FlockParams(), 150
+    radii = np.full(3, 25.0)
+    before = ClusterMap(np.array([[0.0, 0.0], [150.0, 0.0], [200.0, 120.0]]), fp.height, radii)
+    after = ClusterMap(np.array([[0.0, 0.0], [150.0, 0.0], [60.0, 140.0]]), fp.height, radii, previous=before)
+    assert layout.roles(before, fp.d).edges == ((0, 1), (1, 2)) and layout.roles(after, fp.d).edges == ((0, 1), (0, 2))
+    old, new = role_ids(before, n, fp), role_ids(after, n, fp)
+    swung = [i for i in range(n) if old[i] == (1, 2) and new[i] == (0, 2)]
+    assert len(swung) >= 3, 'the new edge takes the keys of the one that left'
+    a, b = after.xy[1], after.xy[2]  # where the old edge runs now: cluster 2 has moved
+    length, rim = float(np.linalg.norm(b - a)), 25.0 - fp.d / 2
+    origin, u, _ = after.axis((0, 2))
+    start, stop = after.gap((0, 2), fp.d / 2)
+    far = 0
+    for i, f in zip(swung, np.linspace(0.0, 1.0, len(swung))):
+        at = a + (rim + f * (length - 2 * rim)) * (b - a) / length  # f of the way along the old gap from 1
+        q = np.array([*at, fp.height])
+        settled = Mine(mode=M1, goal=1, bridge=(1, 2), settled=True)
+        p, g = pivot(settled, q, (0, 2), after, fp)
+        assert p == 2 and abs(g - (1.0 - f)) < 1e-6, 'its place along the old gap, counted from cluster 2'
+        place = swing_place((p, g), (0, 2), after, fp)
+        assert abs(place - (stop - g * (stop - start))) < 1e-6, 'the same place along the new gap from 2'
+        mem = demand_switch(settled, i, 0.0, q, after, fp)
+        assert mem.mode == M1 and mem.bridge == (0, 2)
+        if np.linalg.norm(origin + u * place - at) <= fp.d:
+            assert mem.swing is None, 'already at its new place: nothing to swing'
+            continue
+        far += 1
+        assert mem.swing == (p, g)
+        assert en_route(mem, q, after, fp) == NO_GOAL, 'a swinging relay flies straight to its new place'
+        ref = reference(mem.memory(), i, q, np.zeros((0, 3)), [], after, fp)
+        assert np.allclose((ref.q1[:2] + ref.q2[:2]) / 2, origin + u * place), 'it aims there'
+    assert far >= 2
+    there = after.xy[0] + (after.xy[2] - after.xy[0]) * 0.5
+    done = Mine(mode=M1, goal=0, bridge=(0, 2), settled=True, swing=(2, 0.5))
+    assert demand_switch(done, swung[0], 0.0, np.array([*there, fp.height]), after, fp).swing is None, \
+        'at its new place the swing ends and the chain rule takes over'
+
+
+def test_only_a_settled_relay_whose_edges_share_one_cluster_swings() -> None:
+    fp = FlockParams()
+    clusters = ClusterMap(np.array([[0.0, 0.0], [150.0, 0.0], [60.0, 140.0], [300.0, 50.0]]), fp.height,
+                          np.full(4, 25.0))
+    q = np.array([75.0, 0.0, fp.height])
+    settled = Mine(mode=M1, goal=0, bridge=(0, 1), settled=True)
+    assert pivot(settled, q, (0, 2), clusters, fp) == (0, pytest.approx(0.5))
+    assert pivot(settled, q, (2, 3), clusters, fp) is None, 'no cluster in common: it flies along the tree'
+    assert pivot(settled._replace(settled=False), q, (0, 2), clusters, fp) is None, 'first out: no chain yet'
+    assert pivot(Mine(mode=M0, goal=0, settled=True), q, (0, 2), clusters, fp) is None, 'a server'
+    gone = ClusterMap(clusters.xy, fp.height, np.full(4, 25.0), active=np.array([True, False, True, True]))
+    assert pivot(settled, q, (0, 2), gone, fp) is None, 'its old edge ended with its cluster: nothing to swing'

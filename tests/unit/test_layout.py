@@ -1,0 +1,204 @@
+"""The demand allocation's roles (core/allocations/demand/layout.py): shares by demand, keys carried across surveys, lineage, kept shares, standing chains."""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from uav_agent.core.allocations.demand import keys, layout
+from uav_agent.core.allocations.demand.allocation import demand_switch, en_route
+from uav_agent.core.allocations.demand.memory import Mine
+from uav_agent.core.clusters import NO_GOAL, ClusterMap, key_of
+from uav_agent.core.params import FlockParams
+from uav_agent.core.state import M1
+from helpers.roles import role_ids
+
+
+def test_when_a_cluster_leaves_only_its_own_maps_change_role() -> None:
+    """Laid out end to end afresh, the first cluster leaving would shift every share and move most MAPs;
+    carried across the survey, the keys of its servers and its edge's relays go to the roles left, and no
+    other MAP changes role."""
+    fp, n = FlockParams(), 120
+    xy, radii = np.array([[0.0, 0.0], [150.0, 0.0], [300.0, 0.0], [450.0, 0.0]]), np.full(4, 30.0)
+    before = ClusterMap(xy, fp.height, radii)
+    gone = np.array([False, True, True, True])
+    carried = role_ids(ClusterMap(xy, fp.height, radii, active=gone, previous=before), n, fp)
+    afresh = role_ids(ClusterMap(xy, fp.height, radii, active=gone), n, fp)
+    old = role_ids(before, n, fp)
+    own = {i for i in range(n) if old[i] in (0, (0, 1))}
+    assert {i for i in range(n) if carried[i] != old[i]} == own, 'exactly the MAPs of the roles that ended'
+    others = sum(afresh[i] != old[i] for i in range(n) if i not in own)
+    assert others >= 10, f'end to end, MAPs of the roles that stayed would have moved too (here {others})'
+    assert 0 not in carried and (0, 1) not in carried
+
+
+def without_lineage(before: ClusterMap, after: ClusterMap, n: int, fp: FlockParams) -> list[Any]:
+    """Roles as keys.carry lays them out when nothing tells it which cluster continues which."""
+    new, ids = layout.roles(after, fp.d), [*range(after.count), *layout.roles(after, fp.d).edges]
+    pieces = keys.carry(layout.roles(before, fp.d).pieces, dict(zip(ids, new.share)))
+    return [r for i in range(n) for lo, hi, r in pieces if lo <= key_of(i) < hi]
+
+
+def test_when_two_clusters_merge_the_servers_over_them_keep_serving_them() -> None:
+    """The survey keeps one id of two clusters that merge and ends the other. The ended cluster's servers
+    are over the merged users: they serve the cluster that goes on, which draws nobody from elsewhere
+    while they cover its growth."""
+    fp, n = FlockParams(), 150
+    xy = np.array([[0.0, 0.0], [300.0, 0.0], [50.0, 0.0], [300.0, 200.0]])  # 0 and 2 apart on the key line
+    before = ClusterMap(xy, fp.height, np.array([30.0, 30.0, 30.0, 30.0]))
+    merged = xy.copy()
+    merged[0] = [25.0, 0.0]
+    after = ClusterMap(merged, fp.height, np.array([42.0, 30.0, 30.0, 30.0]), active=np.array([True, True, False, True]),
+                       previous=before)
+    old, new = role_ids(before, n, fp), role_ids(after, n, fp)
+    over = {i for i in range(n) if old[i] in (0, 2, (0, 2))}
+    assert {i for i in range(n) if new[i] == 0} <= over, 'nobody flies in from another role'
+    assert {i for i in range(n) if old[i] == 0} <= {i for i in range(n) if new[i] == 0}, 'its own servers stay'
+    assert sum(new[i] == 0 for i in range(n)) > sum(old[i] == 0 for i in range(n)), 'it grew by servers of 2'
+    blind = without_lineage(before, after, n, fp)
+    assert any(blind[i] == 0 for i in range(n) if i not in over), 'without lineage, others would fly in'
+
+
+def test_when_a_cluster_splits_the_part_that_moves_off_is_served_by_the_servers_of_the_whole() -> None:
+    """The part of a split cluster that takes a new id is staffed from the cluster it split from, whose
+    servers are over it, not from the other roles' keys wherever those MAPs are."""
+    fp, n = FlockParams(), 150
+    xy = np.array([[0.0, 0.0], [300.0, 0.0], [300.0, 200.0]])
+    before = ClusterMap(xy, fp.height, np.array([45.0, 30.0, 30.0]))
+    split = np.array([[-25.0, 0.0], [300.0, 0.0], [300.0, 200.0], [25.0, 0.0]])
+    after = ClusterMap(split, fp.height, np.array([30.0, 30.0, 30.0, 30.0]), previous=before)
+    old, new = role_ids(before, n, fp), role_ids(after, n, fp)
+    part = {i for i in range(n) if new[i] == 3}
+    assert part and all(old[i] == 0 for i in part), 'the new part is served by servers of the whole'
+    blind = without_lineage(before, after, n, fp)
+    assert any(old[i] != 0 for i in range(n) if blind[i] == 3), 'without lineage, others would fly in'
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(2, 6), st.integers(0, 2**32 - 1), st.sampled_from(['leave', 'grow', 'shrink', 'move']))
+def test_keys_carried_across_a_survey_move_few_maps_and_keep_every_share(k: int, seed: int, change: str) -> None:
+    """Whatever the survey changes, the carried keys tile [0, 1), each role holds its new share (to a
+    fragment), and the MAPs that change role are about those the change of shares forces to move."""
+    fp, n = FlockParams(), 150
+    rng = np.random.default_rng(seed)
+    xy, radii = rng.uniform(0, 400, size=(k, 2)), rng.uniform(20, 45, size=k)
+    before = ClusterMap(xy, fp.height, radii)
+    xy, radii, active, c = xy.copy(), radii.copy(), np.ones(k, dtype=bool), int(rng.integers(k))
+    if change == 'leave':
+        active[c] = False
+    elif change == 'move':
+        xy[c] += rng.uniform(-60, 60, size=2)  # may change the tree
+    else:
+        radii[c] *= 1.4 if change == 'grow' else 0.7
+    after = ClusterMap(xy, fp.height, radii, active=active, previous=before)
+    old, new = layout.roles(before, fp.d), layout.roles(after, fp.d)
+    pieces = new.pieces
+    assert pieces[0][0] == 0.0 and abs(pieces[-1][1] - 1.0) < 1e-9
+    assert all(abs(a[1] - b[0]) < 1e-12 for a, b in zip(pieces, pieces[1:])), 'the pieces tile [0, 1)'
+    ids = [*range(after.count), *new.edges]
+    for role, share in zip(ids, new.share):
+        held = sum(hi - lo for lo, hi, r in pieces if r == role)
+        assert abs(held - share) < 0.01, (role, held, share)
+    old_ids = [*range(before.count), *old.edges]
+    old_share = dict(zip(old_ids, old.share))
+    forced = sum(max(old_share.get(r, 0.0) - s, 0.0) for r, s in zip(ids, new.share)) + \
+        sum(v for r, v in old_share.items() if r not in ids)
+    moved = sum(a != b for a, b in zip(role_ids(before, n, fp), role_ids(after, n, fp)))
+    assert moved <= n * forced + 2 * len(ids), (moved, n * forced)
+
+
+def test_a_cluster_that_shrinks_keeps_its_servers_and_calls_nobody_back_when_it_grows_again(monkeypatch: Any) -> None:
+    """A drifting cluster's surveyed extent shrinks and grows back. Shares in proportion to demand sent its
+    servers across the field to the other clusters and called them back; kept shares let it hold them while
+    every other cluster holds its floor (layout.kept): only the edges, which take their share at once, grow."""
+    fp, n = FlockParams(), 150
+    xy = np.array([[0.0, 0.0], [150.0, 0.0], [300.0, 0.0], [300.0, 150.0]])
+    radii = np.full(4, 40.0)
+    small = radii.copy()
+    small[0] = 32.0
+
+    def survey_by_survey() -> tuple[list[Any], list[Any], list[Any]]:
+        first = ClusterMap(xy, fp.height, radii)
+        out = [role_ids(first, n, fp)]
+        shrunk = ClusterMap(xy, fp.height, small, previous=first)
+        out.append(role_ids(shrunk, n, fp))  # laid out before the next survey drops the one it carries from
+        out.append(role_ids(ClusterMap(xy, fp.height, radii, previous=shrunk), n, fp))
+        return out[0], out[1], out[2]
+
+    a, b, c = survey_by_survey()
+    left = [(a[i], b[i]) for i in range(n) if a[i] != b[i]]
+    assert all(isinstance(new, tuple) for _, new in left), f'servers go to edges only, not to clusters: {left}'
+    assert b == c, 'growing back, the cluster calls nobody back'
+    monkeypatch.setattr(layout, 'SLACK', 0.0)
+    a0, b0, c0 = survey_by_survey()
+    assert any(isinstance(new, int) for old, new in zip(a0, b0) if old != new), \
+        'in proportion to demand, servers would go to the other clusters'
+    assert sum(x != y for x, y in zip(b0, c0)) > 0, 'and be called back'
+
+
+def test_an_arriving_cluster_takes_its_whole_share_from_the_roles_above_theirs() -> None:
+    """Kept shares let a cluster sit at its floor; a cluster with no servers yet is not one of them: it takes
+    its whole proportional share at once, or it would never be covered."""
+    fp, n = FlockParams(), 150
+    xy, radii = np.array([[0.0, 0.0], [150.0, 0.0], [300.0, 0.0]]), np.full(3, 40.0)
+    first = ClusterMap(xy, fp.height, radii)
+    before = role_ids(first, n, fp)
+    arrived = ClusterMap(np.r_[xy, [[300.0, 160.0]]], fp.height, np.r_[radii, 40.0], previous=first)
+    after = role_ids(arrived, n, fp)
+    share = layout.roles(arrived, fp.d).share
+    assert abs(sum(r == 3 for r in after) - n * share[3]) <= 2.5, 'the whole proportional share'
+    proportional = np.array(layout.roles(arrived, fp.d).demand) / sum(layout.roles(arrived, fp.d).demand)
+    assert math.isclose(share[3], proportional[3], rel_tol=1e-9)
+    assert all(before[i] == after[i] or after[i] in (3, (2, 3)) for i in range(n)), 'only towards the arrival'
+
+
+def test_an_edge_that_leaves_the_tree_keeps_its_chain_while_the_new_one_is_staffed_from_the_surplus() -> None:
+    """Cluster 1 drifts until the tree swaps edge (0, 1) for (2, 3), which shares no cluster with it: no
+    relay can swing. The old chain stands for STANDING surveys while servers with keys to spare staff the new
+    one, so the two halves stay joined; then its relays join clusters 0 and 1, each the nearer end, flying
+    straight along their chain."""
+    fp, n = FlockParams(), 160
+    radii = np.full(4, 30.0)
+    xy = np.array([[0.0, 0.0], [160.0, 0.0], [0.0, 150.0], [170.0, 150.0]])
+    first = ClusterMap(xy, fp.height, radii)
+    moved = xy.copy()
+    moved[1] = [175.0, 0.0]
+    maps = [first]
+    for _ in range(layout.STANDING + 1):
+        maps.append(ClusterMap(moved, fp.height, radii, previous=maps[-1]))
+        layout.roles(maps[-1], fp.d)  # laid out before the next survey drops the one it carries from
+    assert layout.roles(first, fp.d).edges == ((0, 1), (0, 2), (1, 3))
+    assert maps[1].mst(maps[1].live) == ((0, 2), (1, 3), (2, 3)), 'the tree swapped (0, 1) for (2, 3)'
+    ids = [[i for i in range(n) if role_ids(m, n, fp)[i] == r] for m in maps for r in [(0, 1)]]
+    relays = ids[0]
+    assert len(relays) >= 4
+    before, during = role_ids(first, n, fp), role_ids(maps[1], n, fp)
+    assert layout.roles(maps[1], fp.d).standing == (((0, 1), layout.STANDING),)
+    joined = [i for i in range(n) if during[i] == (2, 3)]
+    assert len(joined) >= 4 and all(isinstance(before[i], int) for i in joined), \
+        'the new edge is staffed by servers the clusters lend, not by the relays of the old one'
+    assert abs(len(joined) - n * layout.roles(maps[1], fp.d).share[layout.roles(maps[1], fp.d).index((2, 3))]) <= 2.5, \
+        'at its whole share at once'
+    for m in maps[1:-1]:
+        assert ids[maps.index(m)] == relays, 'the old chain stands'
+    q = np.array([80.0, 0.0, fp.height])
+    mem = demand_switch(Mine(mode=M1, goal=0, bridge=(0, 1), settled=True), relays[0], 0.0, q, maps[-2], fp)
+    assert mem.mode == M1 and mem.bridge == (0, 1), 'its relay keeps bridging it'
+    last_before, last = role_ids(maps[-2], n, fp), role_ids(maps[-1], n, fp)
+    assert layout.roles(maps[-1], fp.d).edges == ((0, 2), (1, 3), (2, 3)), 'then the old edge is released'
+    old = layout.roles(maps[-2], fp.d)
+    for i in relays:
+        near = 0 if old.place(key_of(i), old.index((0, 1))) < 0.5 else 1
+        assert last[i] == near, f'relay {i} joins the nearer end of its chain'
+    assert [i for i in range(n) if last[i] != last_before[i]] == relays, 'and nobody else changes role'
+    a, b = maps[-1].xy[0], maps[-1].xy[1]
+    for i in relays:  # on its chain, beside the far cluster: straight along the chain, not round the tree
+        at = b + (a - b) * 0.25 if last[i] == 0 else a + (b - a) * 0.25
+        q = np.array([*at, fp.height])
+        mem = demand_switch(Mine(mode=M1, goal=0, bridge=(0, 1), settled=True), i, 0.0, q, maps[-1], fp)
+        assert mem.goal == last[i] and mem.transit and mem.straight
+        assert en_route(mem, q, maps[-1], fp) == NO_GOAL
+        assert en_route(mem._replace(straight=False), q, maps[-1], fp) != NO_GOAL, 'the tree would go round'

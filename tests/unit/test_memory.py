@@ -1,0 +1,34 @@
+"""The demand allocation's memory and gossip (core/allocations/demand/memory.py): the common memory keeps
+five fields, the allocation's own round-trips through it, and a MAP tells its neighbours what it holds."""
+from __future__ import annotations
+
+from hypothesis import given
+from hypothesis import strategies as st
+
+from uav_agent.core.allocations.demand.memory import SILENT, Gossip, Mine, Own, gossip_of
+from uav_agent.core.state import M1, Memory, Told
+
+PAIRS = st.lists(st.tuples(st.integers(0, 4095), st.integers(0, 10**6)), max_size=5).map(lambda v: tuple(sorted(v)))
+MINE = st.builds(Mine, st.integers(0, 2), st.integers(-1, 9), st.integers(0, 511),
+                 st.one_of(st.none(), st.tuples(st.integers(0, 4), st.integers(5, 9))), st.floats(0, 1),
+                 st.integers(0, 99), st.booleans(), st.booleans(),
+                 st.one_of(st.none(), st.tuples(st.integers(0, 9), st.floats(0, 1))), PAIRS,
+                 st.lists(st.tuples(st.floats(0, 0.5), st.floats(0.5, 1)), max_size=3).map(tuple), PAIRS,
+                 st.integers(-1, 999), st.integers(0, 999), st.booleans())
+
+
+def test_the_common_memory_holds_five_fields() -> None:
+    assert len(Memory._fields) <= 5
+
+
+@given(MINE)
+def test_the_allocations_record_round_trips_through_the_common_memory(mine: Mine) -> None:
+    mem = mine.memory()
+    assert isinstance(mem.own, Own) and Mine.of(mem) == mine
+    assert Told.of(mem) == mine.told(), 'what the MAP says is what its rules hold'
+    assert Told.of(mem).block == Gossip(mine.transit, mine.seen, mine.lost, mine.short)
+
+
+def test_a_neighbour_that_said_nothing_of_its_own_counts_as_silent() -> None:
+    assert Mine.of(Memory()) == Mine(), 'a MAP starts with the allocation\'s defaults'
+    assert Told.of(Memory()).block is None and gossip_of(Told(M1, 0, (0, 1))) == SILENT
