@@ -179,10 +179,10 @@ def write_results(docs: Path, out: Path, base: Scenario, seeds: int, metrics: di
     if ended:
         lines += _layout_lines(ended)
     docs.parent.mkdir(parents=True, exist_ok=True)
-    kept = ''  # the section benchmarks/bench_dynamics.py measures is not this command's to regenerate
+    dynamics_section = ''  # the section benchmarks/bench_dynamics.py measures is not this command's to regenerate
     if docs.exists() and DYNAMICS_HEADING in docs.read_text():
-        kept = '\n' + DYNAMICS_HEADING + docs.read_text().split(DYNAMICS_HEADING, 1)[1]
-    docs.write_text('\n'.join(lines) + '\n' + kept)
+        dynamics_section = '\n' + DYNAMICS_HEADING + docs.read_text().split(DYNAMICS_HEADING, 1)[1]
+    docs.write_text('\n'.join(lines) + '\n' + dynamics_section)
 
 
 def _paper_lines(base: Scenario, command: str, seed_ids: list[int], elapsed: float, runs: Runs,
