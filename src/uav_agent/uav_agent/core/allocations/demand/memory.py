@@ -58,24 +58,17 @@ class Own(NamedTuple):
         return Gossip(self.transit, self.seen, self.lost, self.short)
 
 
-class Mine(NamedTuple):
-    """A MAP's memory as the demand allocation's rules read and write it: the common fields, then its own."""
+COMMON = ('mode', 'goal', 'achieved', 'bridge')  # Memory's fields every allocation has
+# The fields of Mine: the common ones, then the allocation's own, each with its default.
+_Joined = NamedTuple('_Joined', [*((f, Memory.__annotations__[f]) for f in COMMON), *Own.__annotations__.items()])
+_Joined.__new__.__defaults__ = (*(Memory._field_defaults[f] for f in COMMON), *Own._field_defaults.values())
 
-    mode: int = M0
-    goal: int = NO_GOAL
-    achieved: int = 0
-    bridge: Optional[Edge] = None
-    best: float = 0.0
-    flat: int = 0
-    settled: bool = False
-    transit: bool = False
-    swing: Optional[tuple[int, float]] = None
-    seen: tuple[tuple[int, int], ...] = ()
-    lost: tuple[Span, ...] = ()
-    short: tuple[tuple[int, int], ...] = ()
-    since: int = -1
-    taut: int = 0
-    straight: bool = False
+
+class Mine(_Joined):
+    """A MAP's memory as the demand allocation's rules read and write it: the common fields, then its own
+    (`Mine._fields`: mode, goal, achieved, bridge, then Own's)."""
+
+    __slots__ = ()
 
     @classmethod
     def of(cls, mem: Memory) -> 'Mine':
@@ -83,7 +76,7 @@ class Mine(NamedTuple):
         return cls(mem.mode, mem.goal, mem.achieved, mem.bridge, *own)
 
     def memory(self) -> Memory:
-        return Memory(self.mode, self.goal, self.achieved, self.bridge, Own(*self[4:]))
+        return Memory(self.mode, self.goal, self.achieved, self.bridge, Own(*self[len(COMMON):]))
 
     def told(self) -> Told:
         """What its state message says of its role."""
