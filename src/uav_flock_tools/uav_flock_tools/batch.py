@@ -6,10 +6,11 @@ The world half of that step is `core.model.World`, which the world node shares.
 """
 from __future__ import annotations
 
-from typing import Callable, Optional
+from typing import Callable, NamedTuple, Optional
 
 import numpy as np
 
+from uav_agent.core import links
 from uav_agent.core.agent import Neighbourhood, Said, plan
 from uav_agent.core.control import control_input
 from uav_agent.core.state import Memory
@@ -25,6 +26,9 @@ class BatchSimulator:
         self.scenario = scenario
         self.world = World(scenario)
         self.memory = [Memory() for _ in range(scenario.maps)]
+        # What each MAP holds of its neighbours' states, under a channel that is not the paper's (links.py).
+        self.inboxes: Optional[list[links.Inbox[Heard]]] = \
+            None if scenario.links.perfect else [links.Inbox(scenario.links) for _ in range(scenario.maps)]
 
     # Views kept for callers that inspect the run as it goes.
     users = property(lambda self: self.world.users)
@@ -43,27 +47,50 @@ class BatchSimulator:
         sensed = w.sense()
         rows = sensed.ids
         said = [Said.of(self.memory[i]) for i in rows]  # what each MAP's state message of step k carries
-        nbr, counts, bounds = sensed.pairs[:, 1].tolist(), sensed.n_users.tolist(), sensed.bounds
+        hoods, owner, nbr = self.hear(sensed, said) if self.inboxes is not None else self.hear_all(sensed, said)
         refs, apart = [], []
         for n, i in enumerate(rows.tolist()):
-            near = nbr[bounds[n]:bounds[n + 1]]
-            hood = Neighbourhood.hearing(sensed.q[near], sensed.p[near], sensed.n_users[near],
-                                         [said[j] for j in near])
-            self.memory[i], ref, links = plan(self.memory[i], i, sensed.q[n], counts[n], sensed.cluster_coverage,
-                                              hood, w.clusters, fp, sensed.k)
+            self.memory[i], ref, kinds = plan(self.memory[i], i, sensed.q[n], int(sensed.n_users[n]),
+                                              sensed.cluster_coverage, hoods[n], w.clusters, fp, sensed.k)
             refs.append(ref)
-            apart += links
+            apart += kinds
         target, qa, qb = (np.array([ref[c] for ref in refs]).reshape(-1, 3) for c in range(3))
         mode = np.array([ref.mode for ref in refs], dtype=np.intp)
         ref_vel = np.array([ref.velocity for ref in refs]).reshape(-1, 3, 3)
-        pairs = sensed.pairs
-        u = control_input(sensed.q, sensed.p, sensed.n_users.astype(float), mode, target, qa, qb, pairs[:, 0],
-                          sensed.q[pairs[:, 1]], sensed.p[pairs[:, 1]], sensed.n_users[pairs[:, 1]].astype(float), fp,
-                          np.array(apart, dtype=np.intp), ref_vel)
+        u = control_input(sensed.q, sensed.p, sensed.n_users.astype(float), mode, target, qa, qb, owner, nbr.q,
+                          nbr.p, nbr.n_users, fp, np.array(apart, dtype=np.intp), ref_vel)
         modes = np.array([self.memory[i].mode for i in rows], dtype=np.intp)
         goals = np.array([self.memory[i].goal for i in rows], dtype=np.intp)
         w.advance(sensed, u, modes, goals, integrate)
         return sensed
+
+    def hear_all(self, sensed: Sensed, said: list[Said]) -> tuple[list[Neighbourhood], np.ndarray, Neighbourhood]:
+        """The paper's channel: each MAP hears every neighbour within r at once. Per MAP its neighbourhood;
+        for eq. 9 over all MAPs at once, the owner row of each link and the neighbours' rows."""
+        pairs, bounds = sensed.pairs, sensed.bounds
+        near = pairs[:, 1].tolist()
+        hoods = [Neighbourhood.hearing(sensed.q[js], sensed.p[js], sensed.n_users[js], [said[j] for j in js])
+                 for js in (near[bounds[n]:bounds[n + 1]] for n in range(len(sensed.ids)))]
+        return hoods, pairs[:, 0], Neighbourhood(sensed.q[pairs[:, 1]], sensed.p[pairs[:, 1]],
+                                                 sensed.n_users[pairs[:, 1]].astype(float), [], [])
+
+    def hear(self, sensed: Sensed, said: list[Said]) -> tuple[list[Neighbourhood], np.ndarray, Neighbourhood]:
+        """hear_all through the scenario's channel: each MAP decides which neighbour states of step k it hears
+        (links.heard, as its agent node does) and uses the latest one of each it may use now (links.Inbox)."""
+        assert self.inboxes is not None
+        s, pairs, rows = self.scenario, sensed.pairs, sensed.ids
+        ok = links.heard(s.links, s.seed, sensed.k, rows[pairs[:, 0]], rows[pairs[:, 1]], sensed.q[pairs[:, 0]],
+                         sensed.q[pairs[:, 1]], s.flock.r)
+        hoods, owner = [], []
+        for n, i in enumerate(rows.tolist()):
+            js = pairs[sensed.bounds[n]:sensed.bounds[n + 1], 1][ok[sensed.bounds[n]:sensed.bounds[n + 1]]]
+            self.inboxes[i].receive(sensed.k, rows[js].tolist(), [Heard(sensed.q[j].copy(), sensed.p[j].copy(),
+                                                                        float(sensed.n_users[j]), said[j]) for j in js])
+            hoods.append(heard_from([h for _, _, h in self.inboxes[i].usable(sensed.k)]))
+            owner += [n] * len(hoods[-1].q)
+        return hoods, np.array(owner, dtype=np.intp), Neighbourhood(
+            np.concatenate([np.zeros((0, 3)), *(h.q for h in hoods)]), np.concatenate([np.zeros((0, 3)), *(h.p for h in hoods)]),
+            np.concatenate([np.zeros(0), *(h.n_users for h in hoods)]), [], [])
 
     def run(self, progress: Optional[Callable[[int], None]] = None) -> RunResult:
         """Steps 0..N (N = duration / dt), inclusive, so the record ends at t = duration."""
@@ -76,3 +103,17 @@ class BatchSimulator:
 
     def result(self) -> RunResult:
         return self.world.result()
+
+
+class Heard(NamedTuple):
+    """One neighbour state as a MAP holds it: q, p and N_u of its step, and what it said."""
+
+    q: np.ndarray
+    p: np.ndarray
+    n_users: float
+    said: Said
+
+
+def heard_from(states: list[Heard]) -> Neighbourhood:
+    return Neighbourhood.hearing(np.array([h.q for h in states]), np.array([h.p for h in states]),
+                                 np.array([h.n_users for h in states]), [h.said for h in states])

@@ -7,7 +7,9 @@ from typing import Any, Callable
 
 import yaml
 
+from uav_agent.core import links as channel
 from uav_agent.core.checks import bound, number
+from uav_agent.core.links import Links
 from uav_agent.core.params import FlockParams
 from uav_agent.core.policies import POLICY_VALUES
 from uav_agent.core.policies import check as check_flock
@@ -60,6 +62,8 @@ class Scenario:
     # 'online' (re-estimated from where the MSDs are every survey_period s, world_sim/core/survey.py).
     survey: str = 'given'
     survey_period: float = 2.0
+    # The radio between MAPs (uav_agent/core/links.py): by default the paper's, every state within r heard at once.
+    links: Links = field(default_factory=Links)
 
     @property
     def users_move(self) -> bool:
@@ -83,7 +87,7 @@ class Scenario:
         return out
 
 
-_TOP = {'name', 'seed', 'maps', 'duration', 'dt', 'flock', 'policies', 'radio', 'release', 'users', 'failure'}
+_TOP = {'name', 'seed', 'maps', 'duration', 'dt', 'flock', 'policies', 'radio', 'links', 'release', 'users', 'failure'}
 _RADIO = {'rho', 'eta', 'association'}
 _RELEASE = {'center', 'half_width', 'initial_speed'}
 _CLUSTER = {'center', 'spread', 'size', 'velocity', 'waypoints', 'speed', 'start', 'end', 'walk'}
@@ -210,6 +214,10 @@ def parse(doc: Any) -> Scenario:
     users = _section(doc, 'users', _USERS)
     clusters = _clusters(_need(users, 'users', 'clusters'))
     failure = _section(doc, 'failure', _FAILURE, required=False)
+    try:
+        links = channel.check(Links(**_section(doc, 'links', {f.name for f in fields(Links)}, required=False)))
+    except ValueError as exc:
+        raise ScenarioError(str(exc)) from None
     survey = users.get('survey', Scenario.survey)
     if survey not in ('given', 'online'):
         raise ScenarioError(f"users.survey: must be 'given' or 'online', got {survey!r}")
@@ -234,6 +242,7 @@ def parse(doc: Any) -> Scenario:
         fail_fraction=_OVERRIDABLE['fail_fraction'](failure.get('fraction', 0.0)),
         survey=survey,
         survey_period=_num('users.survey_period', users.get('survey_period', Scenario.survey_period)),
+        links=links,
     )
     _check(scenario)
     return scenario
@@ -271,6 +280,8 @@ def to_doc(s: Scenario, policies: bool = True) -> dict[str, Any]:
         doc['users'].update(survey=s.survey, survey_period=s.survey_period)
     if s.fail_at is not None:
         doc['failure'] = {'at': s.fail_at, 'fraction': s.fail_fraction}
+    if s.links != Links():
+        doc['links'] = s.links.as_dict()
     return doc
 
 
