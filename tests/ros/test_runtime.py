@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 from helpers.runs import cli, dead, dropped_ids, helper, kill_during, shm_entries, up, wait_for_line
 from uav_flock_tools.domains import claim_domain
 from world_sim.core.records import read_csv
@@ -42,6 +43,26 @@ def test_lockstep_equals_the_batch_simulator_on_a_random_layout(tmp_path: Path, 
     assert (tmp_path / 'up' / 'trajectory.csv').read_bytes() == (tmp_path / 'sim' / 'trajectory.csv').read_bytes()
     modes = set(read_csv(tmp_path / 'sim' / 'trajectory.csv')['mode'].astype(int))
     assert 1 in modes, 'relays (M1) take part, so their placement is compared too'
+
+
+def test_lockstep_equals_the_batch_simulator_over_a_lossy_late_channel(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """Each MAP decides which neighbour states it hears, and when it may use them, as the batch simulator does
+    for it: losses by distance and in bursts, two steps of latency, a failure, MAPs packed in processes."""
+    drawn = cli('layouts', '--count', '1', '--clusters', '3', '--seed', '4', '--out', str(tmp_path / 'layouts'))
+    assert drawn.returncode == 0, drawn.stderr
+    doc = yaml.safe_load((tmp_path / 'layouts' / 'layout-000.yaml').read_text())
+    doc['links'] = {'delivery': 'alpha', 'z1': 0.8, 'loss': 0.3, 'burst': 5, 'latency': 2, 'ttl': 6}
+    (tmp_path / 'lossy.yaml').write_text(yaml.safe_dump(doc))
+    args = ('--maps', '24', '--duration', '8', '--fail-at', '4', '--fail-fraction', '0.2')
+    lossy = ('--scenario', str(tmp_path / 'lossy.yaml'), *args)
+    distributed = cli('up', *lossy, '--agents-per-process', '6', '--out', str(tmp_path / 'up'), env=ros_env)
+    assert distributed.returncode == 0, distributed.stdout + distributed.stderr
+    assert cli('sim', *lossy, '--out', str(tmp_path / 'sim')).returncode == 0
+    assert (tmp_path / 'up' / 'trajectory.csv').read_bytes() == (tmp_path / 'sim' / 'trajectory.csv').read_bytes()
+    perfect = ('--scenario', str(tmp_path / 'layouts' / 'layout-000.yaml'), *args)
+    assert cli('sim', *perfect, '--out', str(tmp_path / 'perfect')).returncode == 0
+    assert (tmp_path / 'perfect' / 'trajectory.csv').read_bytes() != (tmp_path / 'sim' / 'trajectory.csv').read_bytes(), \
+        'the channel changes the run'
 
 
 def test_packed_agents_give_the_same_run(tmp_path: Path, ros_env: dict[str, str]) -> None:

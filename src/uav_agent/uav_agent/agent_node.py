@@ -31,7 +31,8 @@ from uav_flock_ros import convert
 from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, make_executor, take_waiting
 from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STEP_QOS, is_realtime
 
-from .core.agent import Neighbourhood, Said, agent_step
+from .core import links
+from .core.agent import Heard, Neighbourhood, Said, agent_step, heard_from
 from .core.clusters import NO_GOAL, ClusterMap, ids_of, mask_of
 from .core.state import Memory, Told
 from .core.checks import check_fields
@@ -73,8 +74,16 @@ class AgentNode(Node):
         node_defaults = AgentNodeParams()
         for f in fields(AgentNodeParams):
             self.declare_parameter(f.name, getattr(node_defaults, f.name))
+        for f in fields(links.Links):
+            self.declare_parameter(f'links.{f.name}', getattr(links.Links(), f.name))
+        self.declare_parameter('seed', 0)
         self.params = FlockParams(**{f.name: self.get_parameter(f.name).value for f in fields(FlockParams)})
         check_params(self.params, lambda name: f'parameter {name}')
+        self.links = links.check(links.Links(**{f.name: self.get_parameter(f'links.{f.name}').value
+                                                for f in fields(links.Links)}), lambda name: f'parameter links.{name}')
+        self.seed = int(self.get_parameter('seed').value)  # the run's: every channel decision draws from it
+        # What this MAP holds of its neighbours' states, under a channel that is not the paper's.
+        self.inbox: Optional[links.Inbox[Heard]] = None if self.links.perfect else links.Inbox(self.links)
         node = AgentNodeParams(**{f.name: self.get_parameter(f.name).value for f in fields(AgentNodeParams)})
         check_fields(node, lambda name: f'parameter {name}')
         self.hysteresis = float(node.hysteresis)
@@ -265,8 +274,11 @@ class AgentNode(Node):
             return
         else:
             heard = [self.latest[j] for j in needed]  # ascending id, as the world lists them
-        hood = Neighbourhood.hearing(np.array([m.q for m in heard]), np.array([m.p for m in heard]),
-                                     np.array([float(m.n_users) for m in heard]), [said(m) for m in heard])
+        if self.inbox is not None:
+            hood = heard_from(self.through_channel(s, heard))
+        else:
+            hood = Neighbourhood.hearing(np.array([m.q for m in heard]), np.array([m.p for m in heard]),
+                                         np.array([float(m.n_users) for m in heard]), [said(m) for m in heard])
         coverage = np.zeros(self.clusters.count)
         if self.memory.goal != NO_GOAL:
             coverage[self.memory.goal] = s.goal_coverage  # r_g of the goal the world knows we hold
@@ -279,6 +291,18 @@ class AgentNode(Node):
         self.pending = None
         self.last_cmd = (s.step, convert.CommandData(self.map_id, s.step, u, mem.mode, mem.goal).to_msg(self.pending_header))
         self.cmd_pub.publish(self.last_cmd[1])
+
+    def through_channel(self, s: convert.SensingData, states: list[convert.AgentStateData]) -> list[Heard]:
+        """The neighbour states this MAP uses at step s under the scenario's channel: of the states of step s
+        that came in, those the channel delivers (links.heard, as the batch simulator decides them), then the
+        latest one of each neighbour it may use now."""
+        states = [m for m in states if m.step == s.step]  # realtime: the others were decided when they came
+        ok = links.heard(self.links, self.seed, s.step, np.full(len(states), self.map_id),
+                         np.array([m.id for m in states], dtype=np.int64), np.tile(s.q, (len(states), 1)),
+                         np.array([m.q for m in states]).reshape(-1, 3), self.params.r)
+        self.inbox.receive(s.step, [m.id for m, o in zip(states, ok) if o],  # type: ignore[union-attr]
+                           [Heard(m.q, m.p, float(m.n_users), said(m)) for m, o in zip(states, ok) if o])
+        return [h for _, _, h in self.inbox.usable(s.step)]  # type: ignore[union-attr]
 
     def unheard(self, s: convert.SensingData) -> list[int]:
         """The live neighbours listed for step s whose state of that step has not come in."""

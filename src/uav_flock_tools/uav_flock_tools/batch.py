@@ -6,12 +6,12 @@ The world half of that step is `core.model.World`, which the world node shares.
 """
 from __future__ import annotations
 
-from typing import Callable, NamedTuple, Optional
+from typing import Callable, Optional
 
 import numpy as np
 
 from uav_agent.core import links
-from uav_agent.core.agent import Neighbourhood, Said, plan
+from uav_agent.core.agent import Heard, Neighbourhood, Said, heard_from, plan
 from uav_agent.core.control import control_input
 from uav_agent.core.state import Memory
 
@@ -104,16 +104,3 @@ class BatchSimulator:
     def result(self) -> RunResult:
         return self.world.result()
 
-
-class Heard(NamedTuple):
-    """One neighbour state as a MAP holds it: q, p and N_u of its step, and what it said."""
-
-    q: np.ndarray
-    p: np.ndarray
-    n_users: float
-    said: Said
-
-
-def heard_from(states: list[Heard]) -> Neighbourhood:
-    return Neighbourhood.hearing(np.array([h.q for h in states]), np.array([h.p for h in states]),
-                                 np.array([h.n_users for h in states]), [h.said for h in states])

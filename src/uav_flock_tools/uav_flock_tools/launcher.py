@@ -118,7 +118,8 @@ class Run:
         """agent_params.yaml, run.json and logs/; returns the agents' parameter file."""
         p, s = self.p, self.p.scenario
         p.run.mkdir(parents=True, exist_ok=True)
-        agent_params = {**s.flock.as_dict(), 'sync': p.sync, 'world_start_timeout': 2 * p.start_timeout}
+        agent_params = {**s.flock.as_dict(), 'links': s.links.as_dict(), 'seed': s.seed, 'sync': p.sync,
+                        'world_start_timeout': 2 * p.start_timeout}
         params = write_params(p.run / 'agent_params.yaml', {**agent_params, 'crash_dir': str(p.run / CRASH_DIR)})
         self.info = {'domain_id': p.claim.domain, 'discovery_server': p.server_address,
                      'discovery_range': None if p.server_address else p.discovery_range,

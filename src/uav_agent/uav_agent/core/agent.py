@@ -52,6 +52,22 @@ class Neighbourhood:
                    np.asarray(n_users, dtype=float), [s.achieved for s in said], [s.told for s in said])
 
 
+class Heard(NamedTuple):
+    """One neighbour state as a MAP holds it under a channel (links.Inbox): q, p and N_u of its step, and what
+    it said then."""
+
+    q: np.ndarray
+    p: np.ndarray
+    n_users: float
+    said: Said
+
+
+def heard_from(states: Sequence[Heard]) -> Neighbourhood:
+    """The neighbourhood of the states a MAP holds, rows alike (ascending id, as Inbox.usable gives them)."""
+    return Neighbourhood.hearing(np.array([h.q for h in states]), np.array([h.p for h in states]),
+                                 np.array([h.n_users for h in states]), [h.said for h in states])
+
+
 class Plan(NamedTuple):
     """One MAP's decision of step k: its memory after it, what eq. 9's goal term aims at, and what each
     neighbour's link is to the flocking terms (state.RELATED, APART or PASSING), rows as the neighbours'."""
