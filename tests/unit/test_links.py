@@ -1,0 +1,98 @@
+"""The radio between MAPs (core/links.py): each decision a pure function of its inputs, the channel's
+statistics as the scenario states them, and what a MAP holds of its neighbours' states (Inbox)."""
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from uav_agent.core.links import Inbox, Links, heard, lost
+from uav_agent.core.potentials import bump
+from world_sim.core.scenario import to_doc
+from world_sim.shipped import load_scenario
+
+R = 24.0
+LINKS = st.builds(Links, st.sampled_from(['disc', 'alpha']), st.floats(0.0, 0.95), st.floats(0.0, 0.9),
+                  st.sampled_from([1.0, 10.0, 25.0]), st.integers(0, 3), st.integers(3, 12)).filter(
+    lambda c: c.burst == 1.0 or c.burst * (1 - c.loss) >= 1)
+
+
+def pairs(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    rx, tx = rng.integers(0, 500, n), rng.integers(0, 500, n)
+    q_rx = rng.uniform(-100, 100, (n, 3))
+    return rx, tx, q_rx, q_rx + rng.uniform(-R / 2, R / 2, (n, 3))
+
+
+@settings(max_examples=40, deadline=None)
+@given(LINKS, st.integers(0, 2**32), st.integers(0, 10**6))
+def test_a_decision_is_the_same_whoever_asks_with_whatever_else(links: Links, seed: int, k: int) -> None:
+    """The node decides for its own links, the batch simulator for all at once, in any order."""
+    rx, tx, q_rx, q_tx = pairs(40, k)
+    together = heard(links, seed, k, rx, tx, q_rx, q_tx, R)
+    alone = [heard(links, seed, k, rx[i:i + 1], tx[i:i + 1], q_rx[i:i + 1], q_tx[i:i + 1], R)[0] for i in range(40)[::-1]]
+    assert together.tolist() == alone[::-1]
+    assert heard(links, seed, k, rx, tx, q_rx, q_tx, R).tolist() == together.tolist()
+
+
+def test_the_papers_channel_hears_everything_in_range() -> None:
+    rx, tx, q_rx, q_tx = pairs(500, 1)
+    assert Links().perfect and heard(Links(), 3, 7, rx, tx, q_rx, q_tx, R).all()
+    assert not Links(loss=0.1).perfect and not Links(latency=1).perfect and not Links(delivery='alpha').perfect
+
+
+@pytest.mark.parametrize('loss, burst', [(0.3, 1.0), (0.3, 20.0), (0.5, 5.0)])
+def test_losses_have_the_stated_mean_and_burst_length(loss: float, burst: float) -> None:
+    """2000 links over 400 steps: the lossy share and the mean run of losses, within sampling error."""
+    links, n = Links(loss=loss, burst=burst), 2000
+    state = np.array([lost(links, 11, k, np.arange(n), np.arange(n) + 1) for k in range(400)])
+    runs = np.diff(np.flatnonzero(np.diff(np.r_[0, state[:, :500].T.ravel(), 0]) != 0))[::2]
+    assert abs(state.mean() - loss) < 0.01
+    expected = burst if burst > 1 else 1 / (1 - loss)
+    assert abs(runs.mean() - expected) < 0.1 * expected, (runs.mean(), expected)
+
+
+def test_alpha_delivers_with_the_papers_probability_at_each_distance() -> None:
+    links, n = Links(delivery='alpha', z1=0.8), 20000
+    for dist in (10.0, 0.85 * R, 0.95 * R, R + 1):
+        q_tx = np.zeros((n, 3))
+        q_tx[:, 0] = dist
+        share = heard(links, 5, 9, np.arange(n), np.arange(n) + 7, np.zeros((n, 3)), q_tx, R).mean()
+        assert abs(share - float(bump(dist, 0.8 * R, R))) < 0.015, (dist, share)
+
+
+def test_a_state_is_used_from_latency_until_ttl_steps_after_its_step() -> None:
+    box: Inbox[str] = Inbox(Links(loss=0.5, latency=2, ttl=5))
+    box.receive(10, [4, 7], ['4@10', '7@10'])
+    assert box.usable(11) == [], 'not before its latency'
+    assert box.usable(12) == [(4, 2, '4@10'), (7, 2, '7@10')]
+    box.receive(13, [7], ['7@13'])
+    assert box.usable(14) == [(4, 4, '4@10'), (7, 4, '7@10')], 'the newer state is not usable yet'
+    assert box.usable(15) == [(4, 5, '4@10'), (7, 2, '7@13')]
+    assert box.usable(16) == [(7, 3, '7@13')], 'past its ttl a state is forgotten'
+    assert 4 not in box.held
+
+
+@pytest.mark.parametrize('links, says', [
+    ({'loss': 1.0}, 'links.loss: must be below 1'),
+    ({'latency': -1}, 'links.latency: must be a non-negative integer'),
+    ({'delivery': 'cone'}, 'links.delivery: must be one of disc, alpha'),
+    ({'latency': 4, 'ttl': 2}, 'links.ttl: must be at least links.latency'),
+    ({'burst': 1.5, 'loss': 0.6}, 'links.burst: at loss 0.6'),
+    ({'jitter': 2}, 'links.jitter: unknown key'),
+])
+def test_a_bad_channel_is_one_line_and_exit_2(tmp_path: Path, links: dict, says: str) -> None:
+    doc = to_doc(dataclasses.replace(load_scenario('paper'), duration=1.0))
+    doc['links'] = links
+    (tmp_path / 'bad.yaml').write_text(yaml.safe_dump(doc))
+    proc = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'sim', '--scenario', str(tmp_path / 'bad.yaml'),
+                           '--out', str(tmp_path / 'run')], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and says in proc.stderr, proc.stderr
+    assert not (tmp_path / 'run').exists()
