@@ -77,10 +77,20 @@ def heard(links: Links, seed: int, k: int, rx: np.ndarray, tx: np.ndarray, q_rx:
     ok = np.ones(len(rx), dtype=bool)
     if links.delivery == 'alpha':
         dist = np.linalg.norm(np.asarray(q_tx, dtype=float) - np.asarray(q_rx, dtype=float), axis=-1)
-        ok &= draws(seed, _DELIVERY, np.full(len(rx), k), rx, tx) < bump(dist, links.z1 * r, r)
+        ok &= draws(seed, _DELIVERY, np.full(len(rx), k), rx, tx) < delivery(links, dist, r)
     if links.loss > 0.0:
         ok &= ~lost(links, seed, k, rx, tx)
     return ok
+
+
+def delivery(links: Links, dist: np.ndarray, r: float) -> np.ndarray:
+    """The probability that a state sent over each distance (m) is delivered, before `loss`: 1 within r
+    under disc, the paper's alpha_{z1 r, r} (eq. 3) under alpha."""
+    dist = np.asarray(dist, dtype=float)
+    return np.where(dist <= r, 1.0, 0.0) if links.delivery == 'disc' else bump(dist, links.z1 * r, r)
+
+
+USABLE = 0.5  # a link that delivers at least this share of the states sent over it is in the usable graph
 
 
 def lost(links: Links, seed: int, k: int, rx: np.ndarray, tx: np.ndarray) -> np.ndarray:
