@@ -1,14 +1,19 @@
 """Realtime sync: the world steps on a wall-clock timer and every MAP flies on the latest data it has."""
 from __future__ import annotations
 
+import dataclasses
 import re
 import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 from helpers.runs import cli, dropped_ids, kill_during, up, wait_for_line
+from uav_agent.core.links import Links, heard
 from world_sim.core.records import read_csv
+from world_sim.core.scenario import to_doc
+from world_sim.shipped import load_scenario
 
 PROGRESS = re.compile(r't = +([\d.]+) s .* fresh commands (\d+) %')
 
@@ -154,3 +159,27 @@ def test_a_pace_the_machine_cannot_keep_is_reported_once(tmp_path: Path, ros_env
     said = [line for line in done.stdout.splitlines() if 'the run goes slower than asked' in line]
     assert len(said) == 1 and 'asks for 2000 steps/s' in said[0], done.stdout
     assert '--agents-per-process' in said[0] and '--rate' in said[0], 'it says what helps'
+
+
+def test_a_realtime_channel_discards_exactly_the_states_its_decision_names(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """Over DDS in realtime, each neighbour state that arrives goes through links.heard: the lost ones are
+    dropped, the others held for their latency. Every arrival each MAP logged is decided again here."""
+    doc = to_doc(dataclasses.replace(load_scenario('paper'), seed=5))
+    doc['links'] = {'loss': 0.4, 'burst': 3, 'latency': 1, 'ttl': 5}
+    (tmp_path / 'lossy.yaml').write_text(yaml.safe_dump(doc))
+    done = cli('up', '--scenario', str(tmp_path / 'lossy.yaml'), '--maps', '12', '--duration', '6', '--sync', 'realtime',
+               '--rate', '2', '--out', str(tmp_path / 'up'), env=ros_env)
+    assert done.returncode == 0, done.stdout + done.stderr
+    logs = sorted((tmp_path / 'up' / 'links').glob('map_*.csv'))
+    assert len(logs) == 12, 'every MAP logs what arrived'
+    links, decided = Links(loss=0.4, burst=3.0, latency=1, ttl=5), 0
+    lost = 0
+    for log in logs:
+        rows = np.atleast_2d(np.loadtxt(log, delimiter=',', skiprows=1))
+        rx = int(log.stem.split('_')[1])
+        for row in rows:
+            again = heard(links, 5, int(row[0]), np.array([rx]), np.array([int(row[1])]), row[None, 2:5], row[None, 5:8], 24.0)[0]
+            assert bool(row[8]) == again, f'MAP {rx}: the state of step {int(row[0])} from {int(row[1])}'
+        decided += len(rows)
+        lost += int((rows[:, 8] == 0).sum())
+    assert decided > 100 and 0 < lost < decided, (decided, lost)

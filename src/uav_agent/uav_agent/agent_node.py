@@ -74,22 +74,15 @@ class AgentNode(Node):
         node_defaults = AgentNodeParams()
         for f in fields(AgentNodeParams):
             self.declare_parameter(f.name, getattr(node_defaults, f.name))
-        for f in fields(links.Links):
-            self.declare_parameter(f'links.{f.name}', getattr(links.Links(), f.name))
-        self.declare_parameter('seed', 0)
         self.params = FlockParams(**{f.name: self.get_parameter(f.name).value for f in fields(FlockParams)})
         check_params(self.params, lambda name: f'parameter {name}')
-        self.links = links.check(links.Links(**{f.name: self.get_parameter(f'links.{f.name}').value
-                                                for f in fields(links.Links)}), lambda name: f'parameter links.{name}')
-        self.seed = int(self.get_parameter('seed').value)  # the run's: every channel decision draws from it
-        # What this MAP holds of its neighbours' states, under a channel that is not the paper's.
-        self.inbox: Optional[links.Inbox[Heard]] = None if self.links.perfect else links.Inbox(self.links)
         node = AgentNodeParams(**{f.name: self.get_parameter(f.name).value for f in fields(AgentNodeParams)})
         check_fields(node, lambda name: f'parameter {name}')
         self.hysteresis = float(node.hysteresis)
         self.realtime = is_realtime(str(node.sync))
         self.world_start_timeout = float(node.world_start_timeout)
         self.crash_dir = str(node.crash_dir)
+        self.channel(str(node.links_log))
         self.world_seen = False
 
         self.memory = Memory()
@@ -123,6 +116,24 @@ class AgentNode(Node):
         if not self.realtime:
             self.create_timer(SWEEP_PERIOD_S, self.sweep)
 
+    def channel(self, log: str) -> None:
+        """The radio to the neighbours (links.py): the run's channel and seed, what this MAP holds of its
+        neighbours' states under it, and in realtime where it writes each state's fate (links_log)."""
+        for f in fields(links.Links):
+            self.declare_parameter(f'links.{f.name}', getattr(links.Links(), f.name))
+        self.declare_parameter('seed', 0)
+        self.links = links.check(links.Links(**{f.name: self.get_parameter(f'links.{f.name}').value
+                                                for f in fields(links.Links)}), lambda name: f'parameter links.{name}')
+        self.seed = int(self.get_parameter('seed').value)  # the run's: every channel decision draws from it
+        self.inbox: Optional[links.Inbox[Heard]] = None if self.links.perfect else links.Inbox(self.links)
+        self.own_at: dict[int, np.ndarray] = {}  # realtime: this MAP's position at its recent steps
+        self.discarded = 0  # realtime: neighbour states the channel lost
+        self.links_log = None
+        if log and self.realtime and self.inbox is not None:
+            Path(log).mkdir(parents=True, exist_ok=True)
+            self.links_log = open(Path(log) / f'map_{self.map_id}.csv', 'w', buffering=1 << 16)
+            self.links_log.write('step,sender,x_rx,y_rx,z_rx,x_tx,y_tx,z_tx,heard\n')
+
     # ------------------------------------------------------------------ inputs
     def reject(self, source: str, why: str) -> None:
         """Count a bad message; log the first one per source only."""
@@ -137,6 +148,10 @@ class AgentNode(Node):
 
     def summary(self) -> None:
         """At the end: what was ignored, in one line, if anything."""
+        if self.links_log is not None:
+            self.links_log.close()
+        if self.discarded:
+            self.get_logger().info(f'the channel lost {self.discarded} neighbour states')
         if self.repeats:
             told = ', '.join(f'{n} from {src}' for src, n in sorted(self.repeats.items()))
             self.get_logger().info(f'ignored {sum(self.repeats.values())} late copies of past steps ({told})')
@@ -199,6 +214,9 @@ class AgentNode(Node):
         self.pending, self.pending_header = s, msg.header
         self.step = s.step
         self.own_q = s.q
+        if self.realtime and self.inbox is not None:
+            self.own_at[s.step] = s.q
+            self.own_at.pop(s.step - REALTIME_AHEAD_STEPS - self.links.ttl, None)
         self.publish_state(s)
         self.follow(s.neighbour_ids.tolist())
         self.try_step()
@@ -220,9 +238,27 @@ class AgentNode(Node):
         if msg.step > self.step + ahead:  # no neighbour gets that far ahead: something is wrong
             self.reject(source, f'step {msg.step} ahead of this MAP (now at {self.step})')
             return
+        if self.realtime and self.inbox is not None and not self.delivered(msg):
+            return
         self.latest[sender] = msg
         if not self.realtime:
             self.try_step()
+
+    def delivered(self, msg: convert.AgentStateData) -> bool:
+        """Realtime under a channel: whether the state that just arrived is heard (links.heard, from this MAP's
+        position at the state's step if it has it, else its latest); a lost one is gone, a heard one is held
+        until its latency has passed (Inbox)."""
+        here = self.own_at.get(msg.step, self.own_q)
+        ok = bool(links.heard(self.links, self.seed, msg.step, np.array([self.map_id]), np.array([msg.id]),
+                              here[None, :], msg.q[None, :], self.params.r)[0])
+        if self.links_log is not None:
+            self.links_log.write(f'{msg.step},{msg.id},{here[0]:.17g},{here[1]:.17g},{here[2]:.17g},'
+                                 f'{msg.q[0]:.17g},{msg.q[1]:.17g},{msg.q[2]:.17g},{int(ok)}\n')
+        if not ok:
+            self.discarded += 1
+            return False
+        self.inbox.receive(msg.step, [msg.id], [Heard(msg.q, msg.p, float(msg.n_users), said(msg))])  # type: ignore[union-attr]
+        return True
 
     # ------------------------------------------------------------------ neighbours
     def follow(self, listed: list[int]) -> None:
@@ -268,13 +304,17 @@ class AgentNode(Node):
         if s is None or self.clusters is None or self.clusters_version < s.clusters_version:
             return
         needed = [j for j in s.neighbour_ids.tolist() if j not in self.dead]
-        if self.realtime:
+        if self.realtime and self.inbox is not None:
+            heard = []  # what the channel delivered is in the inbox (delivered)
+        elif self.realtime:
             heard = [self.latest[j] for j in needed if j in self.latest]  # whatever came in, of any step
         elif self.unheard(s):
             return
         else:
             heard = [self.latest[j] for j in needed]  # ascending id, as the world lists them
-        if self.inbox is not None:
+        if self.realtime and self.inbox is not None:
+            hood = heard_from([h for _, _, h in self.inbox.usable(s.step)])
+        elif self.inbox is not None:
             hood = heard_from(self.through_channel(s, heard))
         else:
             hood = Neighbourhood.hearing(np.array([m.q for m in heard]), np.array([m.p for m in heard]),
@@ -296,7 +336,6 @@ class AgentNode(Node):
         """The neighbour states this MAP uses at step s under the scenario's channel: of the states of step s
         that came in, those the channel delivers (links.heard, as the batch simulator decides them), then the
         latest one of each neighbour it may use now."""
-        states = [m for m in states if m.step == s.step]  # realtime: the others were decided when they came
         ok = links.heard(self.links, self.seed, s.step, np.full(len(states), self.map_id),
                          np.array([m.id for m in states], dtype=np.int64), np.tile(s.q, (len(states), 1)),
                          np.array([m.q for m in states]).reshape(-1, 3), self.params.r)

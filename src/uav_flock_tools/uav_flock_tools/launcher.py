@@ -37,6 +37,8 @@ START_TIMEOUT_MIN_S = 60.0
 START_TIMEOUT_PER_PROCESS_S = 1.5
 JOIN_TIMEOUT_S = 300.0  # a run that listens for agents of other hosts waits this long for them to appear
 
+LINKS_LOG_DIR = 'links'  # realtime under a channel: map_<id>.csv, each neighbour state that arrived and its fate
+
 
 @dataclass
 class Plan:
@@ -120,6 +122,8 @@ class Run:
         p.run.mkdir(parents=True, exist_ok=True)
         agent_params = {**s.flock.as_dict(), 'links': s.links.as_dict(), 'seed': s.seed, 'sync': p.sync,
                         'world_start_timeout': 2 * p.start_timeout}
+        if p.sync == 'realtime' and not s.links.perfect:  # each MAP writes which states the channel lost
+            agent_params['links_log'] = str(p.run / LINKS_LOG_DIR)
         params = write_params(p.run / 'agent_params.yaml', {**agent_params, 'crash_dir': str(p.run / CRASH_DIR)})
         self.info = {'domain_id': p.claim.domain, 'discovery_server': p.server_address,
                      'discovery_range': None if p.server_address else p.discovery_range,

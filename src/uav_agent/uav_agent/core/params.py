@@ -85,3 +85,6 @@ class AgentNodeParams:
     # Where `uav-flock kill` leaves a file named by a MAP id before it sends SIGUSR1: that MAP's node then ends
     # at once inside its process, as a crash would, while the process's other MAPs fly on ('' : none).
     crash_dir: str = ''
+    # Realtime under a channel: each neighbour state that arrives, with the inputs of its decision and whether it
+    # was heard, goes as a line into <links_log>/map_<id>.csv ('' : nowhere).
+    links_log: str = ''
