@@ -15,6 +15,9 @@ from hypothesis import strategies as st
 
 from uav_agent.core.links import Inbox, Links, heard, lost
 from uav_agent.core.potentials import bump
+from uav_flock_tools.batch import BatchSimulator
+from world_sim.core.hearing import LINK_COLUMNS
+from world_sim.core.records import METRICS_COLUMNS
 from world_sim.core.scenario import to_doc
 from world_sim.shipped import load_scenario
 
@@ -96,3 +99,15 @@ def test_a_bad_channel_is_one_line_and_exit_2(tmp_path: Path, links: dict, says:
                            '--out', str(tmp_path / 'run')], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and says in proc.stderr, proc.stderr
     assert not (tmp_path / 'run').exists()
+
+
+def test_a_run_under_a_channel_records_what_the_maps_heard() -> None:
+    """metrics.csv gains hearing.LINK_COLUMNS under a channel, and only then."""
+    s = load_scenario('paper').with_overrides(maps=30, duration=8.0)
+    assert BatchSimulator(s).run().metrics.shape[1] == len(METRICS_COLUMNS)
+    m = BatchSimulator(dataclasses.replace(s, links=Links(loss=0.3, latency=2, ttl=6))).run().metrics
+    col = {c: m[:, i] for i, c in enumerate(METRICS_COLUMNS + LINK_COLUMNS)}
+    assert np.array_equal(col['usable_fiedler'], col['fiedler']), 'under disc the usable graph is the disc graph'
+    assert abs(col['heard_share'][10:].mean() - 0.7) < 0.03
+    assert col['oldest_used'].max() <= 6 and col['oldest_used'][5:].min() >= 2, 'ages from latency to ttl'
+    assert np.all((col['heard_components'] >= 1) & (col['usable_components'] >= col['components']))

@@ -12,6 +12,7 @@ from uav_agent.core.clusters import NO_GOAL, ClusterMap
 from . import physics
 from .records import Motion
 from .crowd import Crowd
+from .hearing import LINK_COLUMNS, Hearing
 from .scenario import Scenario
 from .survey import NONE, Tracks, settle, survey
 
@@ -64,6 +65,7 @@ class World:
         self.clusters_version = 0  # grows whenever the clusters the MAPs know change (Sensing says which)
         self.crowd = Crowd(scenario, self.drawn.xyz[:, :2], self.drawn.cluster, rng['walk']) \
             if scenario.users_move else None
+        self.hearing = None if scenario.links.perfect else Hearing(scenario)  # what the MAPs hear, for the records
         self.tracks: Optional[Tracks] = None    # the last survey's clusters
         self.reported: Optional[Tracks] = None  # what the MAPs were told of them (survey.settle)
         self.label = self.drawn.cluster.copy()
@@ -169,6 +171,8 @@ class World:
         counts = np.bincount(np.asarray(modes, dtype=np.intp), minlength=3)
         t = self.k * self.scenario.dt
         row = np.array([self.k, t, sensed.coverage_ratio, lam2, len(rows), n_comp, *counts[:3]], dtype=float)
+        if self.hearing is not None:  # under a channel: what the MAPs heard (hearing.LINK_COLUMNS)
+            row = np.r_[row, self.hearing.row(self.k, rows, sensed.q, sensed.pairs)]
         self._metrics.append(row)
         self._traj.append(np.column_stack([np.full(len(rows), self.k), np.full(len(rows), t), rows,
                                            sensed.q, sensed.p, modes, goals, sensed.n_users]))
@@ -185,5 +189,5 @@ class World:
         if self._motion:
             steps, xy, present, label = zip(*self._motion)
             motion = Motion(np.array(steps), np.stack(xy), np.stack(present), np.stack(label))
-        return RunResult(self.scenario, self.drawn, np.array(self._metrics).reshape(-1, 9), traj, self.failed,
+        return RunResult(self.scenario, self.drawn, np.array(self._metrics).reshape(-1, 9 + (len(LINK_COLUMNS) if self.hearing else 0)), traj, self.failed,
                          self.fail_step if self.scenario.fail_fraction > 0 else None, motion, list(self.events))

@@ -24,7 +24,13 @@ def write_csv(path: Path, columns: tuple[str, ...], rows: np.ndarray, fmt: tuple
 
 
 def write_metrics(path: Path, rows: np.ndarray) -> None:
-    write_csv(path, METRICS_COLUMNS, rows, _METRICS_FMT)
+    """METRICS_COLUMNS, and a run under a channel's LINK_COLUMNS after them (hearing.py)."""
+    from .hearing import LINK_COLUMNS, LINK_FMT
+    rows = np.asarray(rows, dtype=float)
+    if rows.ndim == 2 and rows.shape[1] == len(METRICS_COLUMNS) + len(LINK_COLUMNS):
+        write_csv(path, METRICS_COLUMNS + LINK_COLUMNS, rows, _METRICS_FMT + LINK_FMT)
+    else:
+        write_csv(path, METRICS_COLUMNS, rows, _METRICS_FMT)
 
 
 def write_trajectory(path: Path, rows: np.ndarray) -> None:
