@@ -79,6 +79,19 @@ def fiedler_series(series: Sequence[tuple[str, np.ndarray, np.ndarray]], title: 
     return save(fig, path)
 
 
+def channel(t: np.ndarray, metrics: np.ndarray, title: str, path: Path, events: Sequence[Event] = ()) -> Path:
+    """A run under a channel: lambda2 of the disc, usable and heard graphs above, the share of neighbour
+    states heard below (metrics rows with hearing.LINK_COLUMNS after METRICS_COLUMNS)."""
+    fig, (top, low) = plt.subplots(2, 1, figsize=(6.4, 5.6), sharex=True, height_ratios=(2, 1))
+    for col, name in ((3, 'disc graph'), (9, 'usable graph (delivery ≥ 0.5)'), (11, 'heard graph (last 1 s)')):
+        top.plot(t, metrics[:, col], lw=1.4, label=name)
+    fiedler_axis(top)
+    finish(top, '', 'Fiedler value λ2 (-, symlog)', title, events)
+    low.plot(t, 100 * metrics[:, 13], lw=1.2, color='tab:grey')
+    finish(low, 'time t (s)', 'states heard (%)', '')
+    return save(fig, path)
+
+
 def command_difference(t: np.ndarray, du: np.ndarray, tolerance: float, title: str, path: Path) -> Path:
     """|Δu| of a replay against the recording over time, on a log axis where 1e-12 and 1 both read."""
     fig, ax = plt.subplots(figsize=(6.4, 3.6))
@@ -286,6 +299,8 @@ def run_figures(metrics: np.ndarray, traj: dict[str, np.ndarray], users_xy: np.n
             fiedler_series([(label, t, metrics[:, 3])], f'Connectivity, {label}', folder / 'fiedler.png', events),
             mode_counts(t, metrics[:, 6:9], f'Modes, {label}', folder / 'modes.png'),
         ]
+        if metrics.shape[1] > 9:  # under a channel: the graphs of what the MAPs could and did hear (hearing.py)
+            out.append(channel(t, metrics, f'Radio between MAPs, {label}', folder / 'links.png', events))
         if child is not None:
             end = float(traj['t'].max())
             times = sorted({0.0, round(end / 4, 1), round(end / 2, 1), end})

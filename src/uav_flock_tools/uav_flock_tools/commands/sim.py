@@ -5,6 +5,8 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from .options import EXIT_INTERRUPTED, add_scenario_options, check_failure, default_out, floor_note, run_folder
 
 SUMMARY = 'run a scenario in-process for one or more MAP counts and seeds'
@@ -59,6 +61,10 @@ def handle(args: argparse.Namespace) -> int:
         m = r.metrics
         print(f'{label}: t = {m[-1, 1]:.1f} s, R_c = {100 * m[-1, 2]:.1f} %, Fiedler = {m[-1, 3]:.4f}, '
               f'components = {int(m[-1, 5])}, alive = {int(m[-1, 4])}')
+        if m.shape[1] > 9:  # under a channel (world_sim/core/hearing.py)
+            print(f'{" " * len(label)}  usable graph connected {100 * np.mean(m[:, 9] > 0):.1f} % of the run, '
+                  f'heard graph {100 * np.mean(m[:, 11] > 0):.1f} %; {100 * m[:, 13].mean():.1f} % of neighbour states '
+                  f'heard, oldest used {int(m[:, 14].max())} steps')
     if several:
         table = simrun.write_summary([r for _, r in done], out)
         print('\n'.join(['', 'Mean ± std over the seeds (time to success: first t with R_c ≥ 95 % and λ2 > 0):',
