@@ -22,7 +22,7 @@ import numpy as np
 from scipy.stats import bootstrap
 
 import bench_motion
-from uav_agent.core.allocations.demand import ablation
+from uav_agent.core import ablation
 from uav_flock_tools.layouts import draw, policy_sets
 from world_sim.core import layouts
 from world_sim.core.scenario import Scenario

@@ -12,7 +12,7 @@ import numpy as np
 from ...clusters import NO_GOAL, ClusterMap, Edge
 from ...state import APART, M0, M1, M2, NOBODY, PASSING, RELATED, Memory, Near, Reference, Told, aim, hold
 from . import keys
-from .ablation import on
+from ...ablation import on
 from .layout import Roles
 from .memory import Mine, gossip_of
 from .vacancy import code, gossip, role_of, vacate

@@ -15,7 +15,7 @@ import numpy as np
 
 from ...clusters import ClusterMap, Edge, ids_of, tree_links
 from . import keys
-from .ablation import on
+from ...ablation import on
 
 LINEAGE_MARGIN = 10.0  # m beyond two clusters' radii within which one continues the other (lineage)
 SLACK = 0.3  # a cluster keeps servers down to its proportional share / (1 + SLACK) (kept)

@@ -25,7 +25,7 @@ import numpy as np
 from ...clusters import NO_GOAL, ClusterMap, key_of
 from ...state import M1, Told
 from . import keys
-from .ablation import on
+from ...ablation import on
 from . import layout
 from .layout import Roles
 from .memory import Mine
