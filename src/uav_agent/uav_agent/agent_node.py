@@ -122,9 +122,11 @@ class AgentNode(Node):
         for f in fields(links.Links):
             self.declare_parameter(f'links.{f.name}', getattr(links.Links(), f.name))
         self.declare_parameter('seed', 0)
+        self.declare_parameter('dt', 0.1)
         self.links = links.check(links.Links(**{f.name: self.get_parameter(f'links.{f.name}').value
                                                 for f in fields(links.Links)}), lambda name: f'parameter links.{name}')
         self.seed = int(self.get_parameter('seed').value)  # the run's: every channel decision draws from it
+        self.dt = float(self.get_parameter('dt').value)  # the run's step (s): how far a stale state is flown on
         self.inbox: Optional[links.Inbox[Heard]] = None if self.links.perfect else links.Inbox(self.links)
         self.own_at: dict[int, np.ndarray] = {}  # realtime: this MAP's position at its recent steps
         self.discarded = 0  # realtime: neighbour states the channel lost
@@ -313,9 +315,9 @@ class AgentNode(Node):
         else:
             heard = [self.latest[j] for j in needed]  # ascending id, as the world lists them
         if self.realtime and self.inbox is not None:
-            hood = heard_from([h for _, _, h in self.inbox.usable(s.step)])
+            hood = heard_from(self.inbox.usable(s.step), self.dt, s.q, self.params.r)
         elif self.inbox is not None:
-            hood = heard_from(self.through_channel(s, heard))
+            hood = heard_from(self.through_channel(s, heard), self.dt, s.q, self.params.r)
         else:
             hood = Neighbourhood.hearing(np.array([m.q for m in heard]), np.array([m.p for m in heard]),
                                          np.array([float(m.n_users) for m in heard]), [said(m) for m in heard])
@@ -332,7 +334,7 @@ class AgentNode(Node):
         self.last_cmd = (s.step, convert.CommandData(self.map_id, s.step, u, mem.mode, mem.goal).to_msg(self.pending_header))
         self.cmd_pub.publish(self.last_cmd[1])
 
-    def through_channel(self, s: convert.SensingData, states: list[convert.AgentStateData]) -> list[Heard]:
+    def through_channel(self, s: convert.SensingData, states: list[convert.AgentStateData]) -> list[tuple[int, int, Heard]]:
         """The neighbour states this MAP uses at step s under the scenario's channel: of the states of step s
         that came in, those the channel delivers (links.heard, as the batch simulator decides them), then the
         latest one of each neighbour it may use now."""
@@ -341,7 +343,7 @@ class AgentNode(Node):
                          np.array([m.q for m in states]).reshape(-1, 3), self.params.r)
         self.inbox.receive(s.step, [m.id for m, o in zip(states, ok) if o],  # type: ignore[union-attr]
                            [Heard(m.q, m.p, float(m.n_users), said(m)) for m, o in zip(states, ok) if o])
-        return [h for _, _, h in self.inbox.usable(s.step)]  # type: ignore[union-attr]
+        return self.inbox.usable(s.step)  # type: ignore[union-attr]
 
     def unheard(self, s: convert.SensingData) -> list[int]:
         """The live neighbours listed for step s whose state of that step has not come in."""

@@ -120,7 +120,7 @@ class Run:
         """agent_params.yaml, run.json and logs/; returns the agents' parameter file."""
         p, s = self.p, self.p.scenario
         p.run.mkdir(parents=True, exist_ok=True)
-        agent_params = {**s.flock.as_dict(), 'links': s.links.as_dict(), 'seed': s.seed, 'sync': p.sync,
+        agent_params = {**s.flock.as_dict(), 'links': s.links.as_dict(), 'seed': s.seed, 'dt': s.dt, 'sync': p.sync,
                         'world_start_timeout': 2 * p.start_timeout}
         if p.sync == 'realtime' and not s.links.perfect:  # each MAP writes which states the channel lost
             agent_params['links_log'] = str(p.run / LINKS_LOG_DIR)

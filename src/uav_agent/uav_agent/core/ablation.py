@@ -1,4 +1,4 @@
-"""The demand allocation's rules by name, so that an ablation can switch one off (benchmarks/bench_ablation.py).
+"""Rules by name, so that an ablation can switch one off alone (benchmarks/bench_ablation.py, bench_links.py).
 
 Nothing a user starts sets OFF: every rule is on. Each name is the rule's section in docs/dynamics.md.
 """
@@ -19,6 +19,11 @@ RULES = {
     'stall': 'a goal whose coverage stopped growing counts as served (demand.served)',
     'reach': 'a relay stays where both clusters\' servers reach it (demand.relay_place)',
 }
+# The channel's (core/agent.heard_from): what a MAP makes of a neighbour state that is not of this step.
+RULES.update({
+    'predict': 'a stale neighbour state stands for where its sender is now, flown on at its velocity then',
+    'gone': 'a neighbour whose state so predicted lies beyond r is taken for gone',
+})
 OFF: set[str] = set()
 
 

@@ -11,6 +11,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
+from .ablation import on
 from .clusters import ClusterMap
 from .control import control_input
 from .params import FlockParams
@@ -62,10 +63,20 @@ class Heard(NamedTuple):
     said: Said
 
 
-def heard_from(states: Sequence[Heard]) -> Neighbourhood:
-    """The neighbourhood of the states a MAP holds, rows alike (ascending id, as Inbox.usable gives them)."""
-    return Neighbourhood.hearing(np.array([h.q for h in states]), np.array([h.p for h in states]),
-                                 np.array([h.n_users for h in states]), [h.said for h in states])
+def heard_from(held: Sequence[tuple[int, int, Heard]], dt: float, here: np.ndarray, r: float) -> Neighbourhood:
+    """The neighbourhood of the states a MAP holds under a channel ((id, age in steps, state), ascending id,
+    as links.Inbox.usable gives them), for a MAP at `here`.
+
+    A state `age` steps old stands for where its sender is now, flown on at its velocity then (rule
+    'predict'); one whose sender is so placed beyond r is taken for gone (rule 'gone'): out of range, its
+    messages stop as lost ones do, and its old place would pull the MAP towards where it no longer is.
+    """
+    states, q = [h for _, _, h in held], np.array([h.q for _, _, h in held], dtype=float).reshape(-1, 3)
+    if on('predict') and len(states):
+        q = q + np.array([age * dt for _, age, _ in held])[:, None] * np.array([h.p for h in states])
+    keep = np.linalg.norm(q - here, axis=1) <= r if on('gone') else np.ones(len(states), dtype=bool)
+    return Neighbourhood.hearing(q[keep], np.array([h.p for h in states]).reshape(-1, 3)[keep],
+                                 np.array([h.n_users for h in states])[keep], [h.said for h, k in zip(states, keep) if k])
 
 
 class Plan(NamedTuple):
