@@ -2,13 +2,16 @@
 lost in bursts, or late, on random layouts, still and drifting.
 
 Run: ./uav-flock exec python benchmarks/bench_links.py [--layouts 30 --seeds 1 --kinds static,drift2]
-     [--channels perfect,alpha.3L2,loss.5,loss.3B20] [--csv links.csv]  (one row per run, kept across calls:
-     the same command again runs only the rows missing from it; --table prints what the CSV holds)
+     [--channels perfect,alpha.3L2,loss.5,loss.3B20] [--variants all,predict+gone] [--csv links.csv]
+     (one row per run, kept across calls: the same command again runs only the rows missing from it; --table
+     prints what the CSV holds)
 Layout n is layout n of `./uav-flock layouts --seed 0`, with the default policies and the online survey.
   static   the layout standing still, N = ceil(1.5 x LB), 60 s
   drift2   bench_motion's: a cluster picked at random drifts at 2 m/s, N = ceil(1.5 x the largest LB), 90 s
 Channels (the scenario's links:, docs/scenarios.md): `perfect` (none), or a name of the form
 [alpha][loss]<p>[B<burst>][L<latency>], e.g. alpha.3L2 = {delivery: alpha, z1: 0.8, loss: 0.3, latency: 2}.
+A variant names the rules switched off (core/ablation.py; `all`: none off), e.g. predict+gone: stale neighbour
+states used as they came, before the MAP predicted them and dropped the ones gone. Variants are paired by run.
 The usable graph links two MAPs whose delivery probability is at least 0.5 (links.USABLE; under disc, the
 disc graph). Per run: the first step covered (R_c >= 95 %) with the usable graph connected ("convergence");
 after it, the share of time the usable graph and the disc graph are connected and the longest outage of
@@ -29,10 +32,11 @@ import numpy as np
 from scipy.stats import bootstrap
 
 import bench_motion
-from uav_agent.core import links
+from uav_agent.core import ablation, links
 from uav_flock_tools.batch import BatchSimulator
 from uav_flock_tools.layouts import draw, policy_sets
-from world_sim.core import layouts, physics
+from world_sim.core import layouts
+from world_sim.core.records import METRICS_COLUMNS
 from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario
 
@@ -64,29 +68,16 @@ def scenario_of(kind: str, n: int, lay: Scenario, seed: int, name: str) -> tuple
     return dataclasses.replace(s, links=channel(name)), draw_seed
 
 
-def usable_connected(sim: BatchSimulator) -> bool:
-    """Whether the live MAPs' usable graph is connected now."""
-    s = sim.scenario
-    rows = np.flatnonzero(sim.alive)
-    q = sim.q[rows]
-    pairs = physics.neighbour_pairs(q, s.flock.r)
-    keep = links.delivery(s.links, np.linalg.norm(q[pairs[:, 0]] - q[pairs[:, 1]], axis=1), s.flock.r) >= links.USABLE
-    return physics.components(pairs[keep], len(rows)) == 1
-
-
-def run(job: tuple[str, str, int, int, Scenario]) -> dict[str, object]:
-    kind, name, n, seed, s = job
-    sim = BatchSimulator(s)
-    up = []
-    for _ in range(s.steps):
-        up.append(usable_connected(sim))
-        sim.step()
-    up.append(usable_connected(sim))
-    sim.step(integrate=False)
-    m = sim.result().metrics
-    ok_usable, covered = np.array(up), m[:, 2] >= 0.95
+def run(job: tuple[str, str, str, int, int, Scenario]) -> dict[str, object]:
+    variant, kind, name, n, seed, s = job
+    ablation.OFF.clear()
+    ablation.OFF.update(off(variant))
+    m = BatchSimulator(s).run().metrics
+    # The usable graph's lambda2 (hearing.LINK_COLUMNS) under a channel; the disc graph's under the paper's.
+    usable = m[:, METRICS_COLUMNS.index('fiedler') if s.links.perfect else len(METRICS_COLUMNS)]
+    ok_usable, covered = usable > 0, m[:, 2] >= 0.95
     held = int(round(HELD_S / s.dt))
-    out: dict[str, object] = {'kind': kind, 'channel': name, 'layout': n, 'seed': seed, 'converged': '', 'usable': 0.0,
+    out: dict[str, object] = {'variant': variant, 'kind': kind, 'channel': name, 'layout': n, 'seed': seed, 'converged': '', 'usable': 0.0,
                               'disc': 0.0, 'outage': '', 'end_rc': float(m[-1, 2]),
                               'success': float((covered & ok_usable)[-held:].all())}
     both = covered & ok_usable
@@ -97,6 +88,11 @@ def run(job: tuple[str, str, int, int, Scenario]) -> dict[str, object]:
     return out
 
 
+def off(variant: str) -> set[str]:
+    """The rules a variant switches off."""
+    return set() if variant == 'all' else set(variant.split('+'))
+
+
 def interval(v: np.ndarray) -> str:
     if len(v) < 2 or np.all(v == v[0]):
         return f'{100 * v.mean():.1f}'
@@ -104,22 +100,33 @@ def interval(v: np.ndarray) -> str:
     return f'{100 * v.mean():.1f} [{100 * ci.low:.1f}, {100 * ci.high:.1f}]'
 
 
+def paired(cell: list[dict[str, str]], rows: list[dict[str, str]]) -> str:
+    """The change in usable-connected share against the same runs with all rules on."""
+    base = {(r['kind'], r['channel'], r['layout'], r['seed']): float(r['usable']) for r in rows if r['variant'] == 'all'}
+    d = np.array([float(r['usable']) - base[key] for r in cell
+                  if (key := (r['kind'], r['channel'], r['layout'], r['seed'])) in base])
+    return f'{100 * d.mean():+.1f} [{interval(d).split("[")[-1]}' if len(d) > 1 and np.any(d) else f'{100 * d.mean():+.1f}' if len(d) else ''
+
+
 def table(rows: list[dict[str, str]]) -> str:
-    out = ['| kind | channel | runs | success | usable graph connected after convergence: mean [95 %] | worst run | '
-           'disc graph connected: mean | longest usable outage: median, worst | never converged |',
-           '|---|---|---|---|---|---|---|---|---|']
+    out = ['| kind | channel | variant | runs | success | usable graph connected after convergence: mean [95 %] | worst run | '
+           'disc graph connected: mean | longest usable outage: median, worst | never converged | '
+           'usable connected, paired change against all rules on [95 %] |',
+           '|---|---|---|---|---|---|---|---|---|---|---|']
     for kind in KINDS:
-        for name in sorted({r['channel'] for r in rows}, key=lambda c: (c != 'perfect', c)):
-            cell = [r for r in rows if r['kind'] == kind and r['channel'] == name]
+        for name, variant in sorted({(r['channel'], r['variant']) for r in rows},
+                                    key=lambda c: (c[0] != 'perfect', c[0], c[1] != 'all', c[1])):
+            cell = [r for r in rows if r['kind'] == kind and r['channel'] == name and r['variant'] == variant]
             if not cell:
                 continue
             conv = [r for r in cell if r['converged'] != '']
             usable = np.array([float(r['usable']) for r in cell])
             disc = np.array([float(r['disc']) for r in conv]) if conv else np.zeros(1)
             outage = np.array([float(r['outage']) for r in conv]) if conv else np.zeros(1)
-            out.append(f'| {kind} | {name} | {len(cell)} | {sum(float(r["success"]) for r in cell):.0f}/{len(cell)} | '
+            out.append(f'| {kind} | {name} | {variant} | {len(cell)} | {sum(float(r["success"]) for r in cell):.0f}/{len(cell)} | '
                        f'{interval(usable)} | {100 * usable.min():.1f} | {100 * disc.mean():.1f} | '
-                       f'{np.median(outage):.1f} s, {outage.max():.1f} s | {len(cell) - len(conv)} |')
+                       f'{np.median(outage):.1f} s, {outage.max():.1f} s | {len(cell) - len(conv)} | '
+                       f'{paired(cell, rows) if variant != "all" else ""} |')
     return '\n'.join(out)
 
 
@@ -129,6 +136,7 @@ def main() -> int:
     ap.add_argument('--seeds', type=int, default=1, help='seeds per layout (default: 1)')
     ap.add_argument('--kinds', default=','.join(KINDS), help=f'comma-separated, of: {", ".join(KINDS)}')
     ap.add_argument('--channels', default=','.join(CHANNELS), help=f'comma-separated (default: {",".join(CHANNELS)})')
+    ap.add_argument('--variants', default='all', help='comma-separated: all, or rules off joined by + (default: all)')
     ap.add_argument('--workers', type=int, default=os.cpu_count() or 1, help='processes (default: one a core)')
     ap.add_argument('--csv', default='links.csv', help='one row per run, kept across calls (default: links.csv)')
     ap.add_argument('--table', action='store_true', help='only print the table of what --csv holds')
@@ -141,31 +149,36 @@ def main() -> int:
         [channel(c) for c in names]
     except ValueError as exc:
         ap.error(f'--channels: {exc}')
+    variants = [v for v in args.variants.split(',') if v]
+    unknown = sorted(set().union(*map(off, variants)) - set(ablation.RULES))
+    if not variants or unknown:
+        ap.error(f'--variants: {", ".join(unknown) or "none"}: not a rule of core/ablation.py')
     done: list[dict[str, str]] = []
     if os.path.exists(args.csv):
         with open(args.csv, newline='') as f:
             done = list(csv.DictReader(f))
     if not args.table:
-        done = sweep(args, kinds, names, done)
+        done = sweep(args, kinds, names, variants, done)
     print(table(done))
     return 0
 
 
-def sweep(args: argparse.Namespace, kinds: list[str], names: list[str], done: list[dict[str, str]]) -> list[dict[str, str]]:
-    have = {(r['kind'], r['channel'], int(r['layout']), int(r['seed'])) for r in done}
+def sweep(args: argparse.Namespace, kinds: list[str], names: list[str], variants: list[str],
+          done: list[dict[str, str]]) -> list[dict[str, str]]:
+    have = {(r['variant'], r['kind'], r['channel'], int(r['layout']), int(r['seed'])) for r in done}
     flock = policy_sets(load_scenario('paper'))['default']
     jobs = []
     for n, lay in enumerate(draw('paper', args.layouts, (3, 6), 0)):
         lay = dataclasses.replace(lay, flock=flock)
         for seed in range(args.seeds):
             for kind in kinds:
-                jobs += [(kind, c, n, seed, scenario_of(kind, n, lay, seed, c)[0]) for c in names
-                         if (kind, c, n, seed) not in have]
+                jobs += [(v, kind, c, n, seed, scenario_of(kind, n, lay, seed, c)[0]) for c in names for v in variants
+                         if (v, kind, c, n, seed) not in have and (c != 'perfect' or v == 'all')]
     print(f'{len(jobs)} runs to go ({len(have)} in {args.csv}), {args.workers} processes', flush=True)
     t0 = time.perf_counter()
     new = not done
     with open(args.csv, 'a', newline='') as f, ProcessPoolExecutor(max_workers=args.workers) as pool:
-        out = csv.DictWriter(f, fieldnames=['kind', 'channel', 'layout', 'seed', *FIELDS])
+        out = csv.DictWriter(f, fieldnames=['variant', 'kind', 'channel', 'layout', 'seed', *FIELDS])
         if new:
             out.writeheader()
         futures = [pool.submit(run, job) for job in jobs]
