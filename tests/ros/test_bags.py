@@ -425,3 +425,20 @@ def test_rviz_markers_show_maps_by_mode_links_msds_and_centroids(recorded: Path)
         assert b.users is not None
         assert len(by_ns['msds'].points) == len(by_ns['msds'].colors) == len(b.users.xyz)
         assert len(by_ns['clusters'].points) == len(b.users.centroids) == 3
+
+
+def test_a_run_under_a_channel_records_and_reports_what_the_maps_heard(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """/metrics carries the channel's figures: the bag holds metrics.csv's every column, and the report says
+    and plots what the MAPs heard."""
+    doc = yaml.safe_load((GOLDEN / 'scenario.yaml').read_text())
+    doc['links'] = {'delivery': 'alpha', 'loss': 0.3, 'latency': 1}
+    (tmp_path / 'lossy.yaml').write_text(yaml.safe_dump(doc))
+    done = cli('up', '--scenario', str(tmp_path / 'lossy.yaml'), '--record', '--out', str(tmp_path / 'run'), env=ros_env)
+    assert done.returncode == 0, done.stdout + done.stderr
+    csv_rows = np.loadtxt(tmp_path / 'run' / 'metrics.csv', delimiter=',', skiprows=1)
+    assert csv_rows.shape[1] == 15
+    assert np.allclose(bag.load(tmp_path / 'run' / 'bag').metrics, csv_rows, rtol=1e-9, atol=0), 'the bag holds every column'
+    assert cli('report', str(tmp_path / 'run' / 'bag'), '--out', str(tmp_path / 'report')).returncode == 0
+    text = (tmp_path / 'report' / 'summary.md').read_text()
+    assert 'usable graph connected' in text and 'neighbour states heard' in text, text
+    assert (tmp_path / 'report' / 'links.png').stat().st_size > 1000

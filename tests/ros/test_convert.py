@@ -70,7 +70,8 @@ VALUES = {
         convert.AssociationData, st.integers(0, 2**63), st.just(n), arrays(np.intp, len(n), elements=U32),
         arrays(np.float64, st.integers(0, 8), elements=st.floats(0, 1)), st.floats(0, 1))),
     convert.MetricsData: st.builds(convert.MetricsData, st.integers(0, 2**63), FINITE, st.floats(0, 1), FINITE,
-                                   U32, U32, U32, U32, U32),
+                                   U32, U32, U32, U32, U32,
+                                   st.one_of(st.none(), st.tuples(FINITE, U32, FINITE, U32, st.floats(0, 1), U32))),
     convert.FailureData: st.builds(convert.FailureData, st.integers(0, 2**63), ids().map(lambda a: tuple(a.tolist())),
                                    st.sampled_from(['scheduled', 'killed'])),
 }

@@ -14,8 +14,8 @@ from typing import Any, Iterable, NamedTuple, Optional
 import numpy as np
 from geometry_msgs.msg import Point, Vector3
 from std_msgs.msg import Header
-from uav_flock_msgs.msg import (AgentState, Association, Clusters, Command, FailureEvent, Metrics, NeighborList,
-                                 RoleGossip, Sensing, Users)
+from uav_flock_msgs.msg import (AgentState, Association, Clusters, Command, FailureEvent, LinkMetrics, Metrics,
+                                 NeighborList, RoleGossip, Sensing, Users)
 
 
 def point(v: np.ndarray) -> Point:
@@ -214,7 +214,7 @@ class AssociationData(NamedTuple):
 
 
 class MetricsData(NamedTuple):
-    """/metrics: one row of metrics.csv (records.METRICS_COLUMNS)."""
+    """/metrics: one row of metrics.csv (records.METRICS_COLUMNS, then under a channel hearing.LINK_COLUMNS)."""
 
     step: int
     t: float
@@ -225,19 +225,36 @@ class MetricsData(NamedTuple):
     mode0: int
     mode1: int
     mode2: int
+    # Under a channel: usable_fiedler, usable_components, heard_fiedler, heard_components, heard_share, oldest_used.
+    links: Optional[tuple[float, int, float, int, float, int]] = None
 
     @classmethod
     def of_row(cls, row: Iterable[float]) -> 'MetricsData':
-        k, t, rc, lam2, alive, comp, m0, m1, m2 = row
-        return cls(int(k), float(t), float(rc), float(lam2), int(alive), int(comp), int(m0), int(m1), int(m2))
+        k, t, rc, lam2, alive, comp, m0, m1, m2, *heard = row
+        links = None if not heard else (float(heard[0]), int(heard[1]), float(heard[2]), int(heard[3]),
+                                        float(heard[4]), int(heard[5]))
+        return cls(int(k), float(t), float(rc), float(lam2), int(alive), int(comp), int(m0), int(m1), int(m2), links)
+
+    def row(self) -> list[float]:
+        """The metrics.csv row."""
+        return [*self[:9], *(self.links or ())]
 
     def to_msg(self, header: Header) -> Metrics:
-        return Metrics(header=header, **{f: getattr(self, f) for f in self._fields})
+        heard = [] if self.links is None else [LinkMetrics(**dict(zip(LINK_FIELDS, self.links)))]
+        return Metrics(header=header, **{f: getattr(self, f) for f in self._fields[:9]}, links=heard)
 
     @classmethod
     def from_msg(cls, msg: Any) -> 'MetricsData':
+        links = None
+        if len(msg.links):
+            h = msg.links[0]
+            links = (float(h.usable_fiedler), int(h.usable_components), float(h.heard_fiedler), int(h.heard_components),
+                     float(h.heard_share), int(h.oldest_used))
         return cls(int(msg.step), float(msg.t), float(msg.coverage_ratio), float(msg.fiedler), int(msg.alive),
-                   int(msg.components), int(msg.mode0), int(msg.mode1), int(msg.mode2))
+                   int(msg.components), int(msg.mode0), int(msg.mode1), int(msg.mode2), links)
+
+
+LINK_FIELDS = ('usable_fiedler', 'usable_components', 'heard_fiedler', 'heard_components', 'heard_share', 'oldest_used')
 
 
 class FailureData(NamedTuple):

@@ -75,7 +75,7 @@ class BagRun:
 
     path: Path
     counts: dict[str, int]                   # messages per topic
-    metrics: np.ndarray                      # (S, 9) records.METRICS_COLUMNS, from /metrics
+    metrics: np.ndarray                      # (S, 9) records.METRICS_COLUMNS (and a channel's 6), from /metrics
     trajectory: np.ndarray                   # (R, 12) records.TRAJECTORY_COLUMNS, from the states
     sensed: dict[int, dict[int, np.ndarray]]  # step -> id -> q measured by the world
     users: Optional[physics.Users]           # the MSDs and clusters before the first step
@@ -214,7 +214,7 @@ def _read(path: Path, reader: AnyReader) -> BagRun:
                 st = convert.CommandData.from_msg(msg)
             heard[kind][st.step].add(i)
         elif conn.topic == '/metrics':
-            metrics.append(list(convert.MetricsData.from_msg(msg)))
+            metrics.append(convert.MetricsData.from_msg(msg).row())
         elif conn.topic == '/events/failure':
             f = convert.FailureData.from_msg(msg)
             failures.append((f.step, list(f.ids), f.cause))
@@ -230,7 +230,8 @@ def _read(path: Path, reader: AnyReader) -> BagRun:
             raise BagError(f'{path}: the bag holds no steps (no /metrics and no /map_<id>/state message): '
                            'the run ended before its first step')
         raise BagError(f'{path}: no uav_flock_msgs topics: not a uav-flock run')
-    m = np.array(sorted(metrics), dtype=float).reshape(-1, len(records.METRICS_COLUMNS))
+    m = np.array(sorted(metrics), dtype=float).reshape(len(metrics), -1) if metrics else \
+        np.zeros((0, len(records.METRICS_COLUMNS)))
     run = BagRun(path=path, counts=dict(counts), metrics=m, trajectory=np.zeros((0, 12)), sensed=dict(sensed),
                  users=None, failures=sorted(failures), association=association,
                  heard={kind: dict(v) for kind, v in heard.items()},
@@ -319,6 +320,10 @@ def summary(run: BagRun) -> dict[str, Any]:
         'planned_duration_s': _number(run.scenario.get('duration')),
         'scheduled_failure': None if not run.scenario.get('fail_fraction') else
         {'t_s': _number(run.scenario.get('fail_at')), 'fraction': float(run.scenario['fail_fraction'])},
+        # under a channel between MAPs (hearing.LINK_COLUMNS): what they heard, over the run
+        'channel': None if m.shape[1] <= len(records.METRICS_COLUMNS) else {
+            'usable_connected': float(np.mean(m[:, 9] > 0)), 'heard_connected': float(np.mean(m[:, 11] > 0)),
+            'heard_share': float(m[:, 13].mean()), 'oldest_used': int(m[:, 14].max())},
     }
 
 

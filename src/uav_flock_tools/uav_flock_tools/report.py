@@ -48,6 +48,12 @@ def summary_table(s: dict[str, Any]) -> str:
         ('failures', failures or 'none'),
         ('commands used and not recorded', _missing(s['missing_commands'])),
     ]
+    heard = s.get('channel')
+    if heard:  # a run under a channel between MAPs (docs/scenarios.md, `links`)
+        rows += [('usable graph connected (delivery ≥ 0.5)', f'{100 * heard["usable_connected"]:.1f} % of the steps'),
+                 ('heard graph connected (last 1 s)', f'{100 * heard["heard_connected"]:.1f} % of the steps'),
+                 ('neighbour states heard', f'{100 * heard["heard_share"]:.1f} %, the oldest used '
+                                            f'{heard["oldest_used"]} steps old')]
     width = max(len(k) for k, _ in rows)
     lines = [f'| {"figure".ljust(width)} | value |', f'|{"-" * (width + 2)}|-------|']
     lines += [f'| {k.ljust(width)} | {v} |' for k, v in rows]
@@ -111,4 +117,4 @@ def scene_frames(run: bag.BagRun, traj: dict[str, np.ndarray]) -> Iterator[tuple
         logs = [scene.event(t, f'MAP {i} lost') for i in lost.get(k, [])]
         yield (t, scene.formation(t, ids, q, traj['mode'][rows].astype(int).tolist(), run.r, centroids, radii,
                                   sorted(gone)),
-               None if m is None else scene.metrics(int(m[0]), m[1], m[2], m[3], int(m[4]), int(m[5])), logs)
+               None if m is None else scene.metrics(m), logs)

@@ -39,6 +39,11 @@ METRICS_SCHEMA = {
         'fiedler': {'type': 'number', 'description': 'lambda2 of the MAP graph Laplacian'},
         'alive': {'type': 'integer', 'description': 'MAPs still flying'},
         'components': {'type': 'integer', 'description': 'connected components of the MAP graph'},
+        # Under a channel between MAPs (a scenario's links:): what they heard, world_sim/core/hearing.py.
+        'usable_fiedler': {'type': 'number', 'description': 'lambda2 of the usable graph (delivery probability >= 0.5)'},
+        'heard_fiedler': {'type': 'number', 'description': 'lambda2 of the heard graph (a state either way in the last 1 s)'},
+        'heard_share': {'type': 'number', 'description': 'share of the neighbour states of the step heard, 0..1'},
+        'oldest_used': {'type': 'integer', 'description': 'age of the oldest neighbour state a MAP used (steps)'},
     },
 }
 
@@ -88,9 +93,15 @@ def formation(t: float, ids: Sequence[int], q: np.ndarray, modes: Sequence[int],
     return SceneUpdate(deletions=deletions, entities=entities)
 
 
-def metrics(step: int, t: float, coverage_ratio: float, fiedler: float, alive: int, components: int) -> dict:
-    return {'step': int(step), 't': float(t), 'coverage_ratio': float(coverage_ratio), 'fiedler': float(fiedler),
-            'alive': int(alive), 'components': int(components)}
+def metrics(row: Sequence[float]) -> dict:
+    """The metrics channel's message of one metrics.csv row (and a channel's columns, when it has them)."""
+    step, t, coverage_ratio, fiedler, alive, components = row[:6]
+    out = {'step': int(step), 't': float(t), 'coverage_ratio': float(coverage_ratio), 'fiedler': float(fiedler),
+           'alive': int(alive), 'components': int(components)}
+    if len(row) > 9:  # hearing.LINK_COLUMNS
+        out.update(usable_fiedler=float(row[9]), heard_fiedler=float(row[11]), heard_share=float(row[13]),
+                   oldest_used=int(row[14]))
+    return out
 
 
 def event(t: float, message: str, warning: bool = True) -> Log:

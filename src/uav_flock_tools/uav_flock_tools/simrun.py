@@ -13,6 +13,7 @@ from uav_flock_tools.batch import BatchSimulator
 from world_sim.core.model import RunResult
 from world_sim.core import outcome, records
 from world_sim.core.crowd import events as events_of
+from world_sim.core.hearing import LINK_COLUMNS
 from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario  # noqa: F401 (the CLI, paper and benchmarks read it here)
 
@@ -123,7 +124,7 @@ def read_run(run: Path, scenario: Scenario) -> Optional[RunResult]:
     if len(m['step']) == 0:
         return None
     t = records.read_csv(run / 'trajectory.csv')
-    metrics = records.rows(m, records.METRICS_COLUMNS)
+    metrics = records.rows(m, records.METRICS_COLUMNS + (LINK_COLUMNS if LINK_COLUMNS[0] in m else ()))
     traj = records.rows(t, records.TRAJECTORY_COLUMNS)
     failed, fail_step, events = records.read_failures(run / records.FAILURES_FILE)
     return RunResult(scenario, records.read_users(run / records.USERS_FILE), metrics, traj, failed, fail_step,

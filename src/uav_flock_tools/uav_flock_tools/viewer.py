@@ -110,7 +110,7 @@ class Viewer(Node):
         q = np.array([convert.xyz(self.sensed[i].position) for i in ids])
         self.channels.frame(msg.t, scene.formation(msg.t, ids, q.reshape(-1, 3), [self.modes.get(i, 0) for i in ids],
                                                    self.r, lost=self.gone),
-                            scene.metrics(msg.step, msg.t, msg.coverage_ratio, msg.fiedler, msg.alive, msg.components),
+                            scene.metrics(convert.MetricsData.from_msg(msg).row()),
                             self.logs)
         self.gone, self.logs = [], []
 

@@ -338,7 +338,7 @@ class WorldNode(Node):
         return True
 
     def publish_metrics(self, row: np.ndarray) -> None:
-        m = convert.MetricsData.of_row(row[:len(records.METRICS_COLUMNS)].tolist())
+        m = convert.MetricsData.of_row(row.tolist())
         k, t, rc, lam2, alive, m0, m1, m2 = m.step, m.t, m.coverage_ratio, m.fiedler, m.alive, m.mode0, m.mode1, m.mode2
         self.metrics_pub.publish(m.to_msg(Header(stamp=sim_time(t), frame_id='world')))
         if int(k) % int(round(1.0 / self.scenario.dt)) == 0:
