@@ -8,6 +8,8 @@ Run: ./uav-flock exec python benchmarks/bench_links.py [--layouts 30 --seeds 1 -
 Layout n is layout n of `./uav-flock layouts --seed 0`, with the default policies and the online survey.
   static   the layout standing still, N = ceil(1.5 x LB), 60 s
   drift2   bench_motion's: a cluster picked at random drifts at 2 m/s, N = ceil(1.5 x the largest LB), 90 s
+  paper    the paper's layout, 90 MAPs, with its own policies (Algorithm 2), seed n for layout n, 60 s
+  paper_demand  the same with the default policies (the demand allocation)
 Channels (the scenario's links:, docs/scenarios.md): `perfect` (none), or a name of the form
 [alpha][loss]<p>[B<burst>][L<latency>], e.g. alpha.3L2 = {delivery: alpha, z1: 0.8, loss: 0.3, latency: 2}.
 A variant names the rules switched off (core/ablation.py; `all`: none off), e.g. predict+gone: stale neighbour
@@ -40,7 +42,7 @@ from world_sim.core.records import METRICS_COLUMNS
 from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario
 
-KINDS = ('static', 'drift2')
+KINDS = ('static', 'drift2', 'paper', 'paper_demand')
 CHANNELS = ('perfect', 'alpha.3L2', 'loss.5', 'loss.3B20')
 FIELDS = ('converged', 'usable', 'disc', 'outage', 'success', 'end_rc')
 HELD_S = 10.0
@@ -59,6 +61,11 @@ def channel(name: str) -> links.Links:
 
 
 def scenario_of(kind: str, n: int, lay: Scenario, seed: int, name: str) -> tuple[Scenario, int]:
+    if kind.startswith('paper'):
+        s = load_scenario('paper').with_overrides(maps=90, seed=n * 100 + seed, duration=60.0)
+        if kind == 'paper_demand':
+            s = dataclasses.replace(s, flock=lay.flock)
+        return dataclasses.replace(s, links=channel(name)), n
     if kind == 'static':
         s = dataclasses.replace(lay, seed=seed, survey='online', duration=60.0)
         s, draw_seed = dataclasses.replace(s, maps=math.ceil(1.5 * layouts.floor(s).total)), n * 1000 + seed * 10 + 9
@@ -134,7 +141,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument('--layouts', type=int, default=30, help='random layouts (default: 30)')
     ap.add_argument('--seeds', type=int, default=1, help='seeds per layout (default: 1)')
-    ap.add_argument('--kinds', default=','.join(KINDS), help=f'comma-separated, of: {", ".join(KINDS)}')
+    ap.add_argument('--kinds', default='static,drift2', help=f'comma-separated, of: {", ".join(KINDS)}')
     ap.add_argument('--channels', default=','.join(CHANNELS), help=f'comma-separated (default: {",".join(CHANNELS)})')
     ap.add_argument('--variants', default='all', help='comma-separated: all, or rules off joined by + (default: all)')
     ap.add_argument('--workers', type=int, default=os.cpu_count() or 1, help='processes (default: one a core)')
