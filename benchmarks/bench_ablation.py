@@ -12,16 +12,13 @@ runs that end covered and connected, with the change off - on and its bootstrap 
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import math
 import os
-import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 import numpy as np
-from scipy.stats import bootstrap
 
 import bench_motion
+import resumable
 from uav_agent.core import ablation
 from uav_flock_tools.layouts import draw, policy_sets
 from world_sim.core import layouts
@@ -61,13 +58,6 @@ def run(job: tuple[str, str, int, Scenario, int]) -> dict[str, object]:
             'ends_ok': r['ends_ok'], 'converged': r['converged']}
 
 
-def interval(d: np.ndarray) -> tuple[float, float]:
-    if len(d) < 2 or np.all(d == d[0]):
-        return float(d.mean()), float(d.mean())
-    ci = bootstrap((d,), np.mean, confidence_level=0.95, n_resamples=4000, random_state=0).confidence_interval
-    return float(ci.low), float(ci.high)
-
-
 def table(rows: list[dict[str, str]], rules: list[str]) -> str:
     by = {(r['rule'], r['kind'], int(r['layout'])): r for r in rows}
     out = ['| rule off | kind | runs | connected after convergence, all on | change off - on [95 % interval] | '
@@ -83,7 +73,7 @@ def table(rows: list[dict[str, str]], rules: list[str]) -> str:
             rc = np.array([[float(a['end_rc']), float(b['end_rc'])] for a, b in pairs])
             ok = np.array([[float(a['ends_ok']), float(b['ends_ok'])] for a, b in pairs])
             dc, dr = con[:, 1] - con[:, 0], rc[:, 1] - rc[:, 0]
-            (cl, ch), (rl, rh) = interval(dc), interval(dr)
+            (cl, ch), (rl, rh) = resumable.interval(dc), resumable.interval(dr)
             pays = ch < 0 or rh < 0  # switching it off costs, beyond the interval
             harms = cl > 0 or rl > 0
             same = not np.any(dc) and not np.any(dr)
@@ -108,10 +98,7 @@ def main() -> int:
         ap.error(f'--rules: choose from {", ".join(KINDS_OF)}')
     if args.layouts < 1 or args.workers < 1:
         ap.error('--layouts and --workers must be at least 1')
-    done: list[dict[str, str]] = []
-    if os.path.exists(args.csv):
-        with open(args.csv, newline='') as f:
-            done = list(csv.DictReader(f))
+    done = resumable.rows(args.csv)
     if not args.table:
         done = sweep(args, rules, done)
     print(table(done, rules))
@@ -129,30 +116,7 @@ def sweep(args: argparse.Namespace, rules: list[str], done: list[dict[str, str]]
             s, draw_seed = scenario_of(kind, n, lay)
             jobs += [(rule, kind, n, s, draw_seed) for rule in ('none', *rules)
                      if (rule == 'none' or kind in KINDS_OF[rule]) and (rule, kind, n) not in have]
-    print(f'{len(jobs)} runs to go ({len(have)} in {args.csv}), {args.workers} processes', flush=True)
-    t0 = time.perf_counter()
-    new = not os.path.exists(args.csv) or not done
-    with open(args.csv, 'a', newline='') as f, ProcessPoolExecutor(max_workers=args.workers) as pool:
-        out = csv.DictWriter(f, fieldnames=['rule', 'kind', 'layout', *FIELDS])
-        if new:
-            out.writeheader()
-        futures = [pool.submit(run, job) for job in jobs]
-        try:
-            for i, fut in enumerate(as_completed(futures), 1):
-                row = {k: ('' if v is None else v) for k, v in fut.result().items()}
-                out.writerow(row)
-                f.flush()
-                done.append({k: str(v) for k, v in row.items()})
-                if i % 10 == 0 or i == len(jobs):
-                    left = (time.perf_counter() - t0) / i * (len(jobs) - i)
-                    print(f'  {i}/{len(jobs)} runs, {time.perf_counter() - t0:.0f} s, about {left / 60:.0f} min left',
-                          flush=True)
-        except KeyboardInterrupt:
-            for fut in futures:
-                fut.cancel()
-            print(f'interrupted: {len(done)} rows kept in {args.csv}; the same command goes on from there')
-            raise SystemExit(130)
-    return done
+    return resumable.sweep(args.csv, ['rule', 'kind', 'layout', *FIELDS], jobs, run, args.workers, done)
 
 
 if __name__ == '__main__':

@@ -22,18 +22,15 @@ the usable graph; success: covered and the usable graph connected over the last 
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import math
 import os
 import re
-import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 
 import numpy as np
-from scipy.stats import bootstrap
 
 import bench_motion
+import resumable
 from uav_agent.core import ablation, links
 from uav_flock_tools.batch import BatchSimulator
 from uav_flock_tools.layouts import draw, policy_sets
@@ -101,10 +98,8 @@ def off(variant: str) -> set[str]:
 
 
 def interval(v: np.ndarray) -> str:
-    if len(v) < 2 or np.all(v == v[0]):
-        return f'{100 * v.mean():.1f}'
-    ci = bootstrap((v,), np.mean, n_resamples=2000, random_state=0).confidence_interval
-    return f'{100 * v.mean():.1f} [{100 * ci.low:.1f}, {100 * ci.high:.1f}]'
+    low, high = resumable.interval(v)
+    return f'{100 * v.mean():.1f}' if low == high else f'{100 * v.mean():.1f} [{100 * low:.1f}, {100 * high:.1f}]'
 
 
 def paired(cell: list[dict[str, str]], rows: list[dict[str, str]]) -> str:
@@ -160,10 +155,7 @@ def main() -> int:
     unknown = sorted(set().union(*map(off, variants)) - set(ablation.RULES))
     if not variants or unknown:
         ap.error(f'--variants: {", ".join(unknown) or "none"}: not a rule of core/ablation.py')
-    done: list[dict[str, str]] = []
-    if os.path.exists(args.csv):
-        with open(args.csv, newline='') as f:
-            done = list(csv.DictReader(f))
+    done = resumable.rows(args.csv)
     if not args.table:
         done = sweep(args, kinds, names, variants, done)
     print(table(done))
@@ -181,30 +173,7 @@ def sweep(args: argparse.Namespace, kinds: list[str], names: list[str], variants
             for kind in kinds:
                 jobs += [(v, kind, c, n, seed, scenario_of(kind, n, lay, seed, c)[0]) for c in names for v in variants
                          if (v, kind, c, n, seed) not in have and (c != 'perfect' or v == 'all')]
-    print(f'{len(jobs)} runs to go ({len(have)} in {args.csv}), {args.workers} processes', flush=True)
-    t0 = time.perf_counter()
-    new = not done
-    with open(args.csv, 'a', newline='') as f, ProcessPoolExecutor(max_workers=args.workers) as pool:
-        out = csv.DictWriter(f, fieldnames=['variant', 'kind', 'channel', 'layout', 'seed', *FIELDS])
-        if new:
-            out.writeheader()
-        futures = [pool.submit(run, job) for job in jobs]
-        try:
-            for i, fut in enumerate(as_completed(futures), 1):
-                row = fut.result()
-                out.writerow(row)
-                f.flush()
-                done.append({k: str(v) for k, v in row.items()})
-                if i % 10 == 0 or i == len(jobs):
-                    left = (time.perf_counter() - t0) / i * (len(jobs) - i)
-                    print(f'  {i}/{len(jobs)} runs, {time.perf_counter() - t0:.0f} s, about {left / 60:.0f} min left',
-                          flush=True)
-        except KeyboardInterrupt:
-            for fut in futures:
-                fut.cancel()
-            print(f'interrupted: {len(done)} rows kept in {args.csv}; the same command goes on from there')
-            raise SystemExit(130)
-    return done
+    return resumable.sweep(args.csv, ['variant', 'kind', 'channel', 'layout', 'seed', *FIELDS], jobs, run, args.workers, done)
 
 
 if __name__ == '__main__':
