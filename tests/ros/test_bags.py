@@ -428,8 +428,8 @@ def test_rviz_markers_show_maps_by_mode_links_msds_and_centroids(recorded: Path)
 
 
 def test_a_run_under_a_channel_records_and_reports_what_the_maps_heard(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    """/metrics carries the channel's figures: the bag holds metrics.csv's every column, and the report says
-    and plots what the MAPs heard."""
+    """/metrics carries the channel's figures: the bag holds metrics.csv's every column, the report says and
+    plots what the MAPs heard, and a MAP replayed from the bag hears through the same channel."""
     doc = yaml.safe_load((GOLDEN / 'scenario.yaml').read_text())
     doc['links'] = {'delivery': 'alpha', 'loss': 0.3, 'latency': 1}
     (tmp_path / 'lossy.yaml').write_text(yaml.safe_dump(doc))
@@ -442,3 +442,6 @@ def test_a_run_under_a_channel_records_and_reports_what_the_maps_heard(tmp_path:
     text = (tmp_path / 'report' / 'summary.md').read_text()
     assert 'usable graph connected' in text and 'neighbour states heard' in text, text
     assert (tmp_path / 'report' / 'links.png').stat().st_size > 1000
+    replayed = cli('replay', str(tmp_path / 'run'), '--agent', '3')
+    assert replayed.returncode == 0 and 'commands compared' in replayed.stdout, \
+        'a MAP replayed from the bag decides under the same channel: ' + replayed.stdout + replayed.stderr

@@ -380,6 +380,12 @@ def replay_inputs(path: Path, agent: int) -> ReplayInputs:
                         sorted(failures, key=lambda f: f[0].step))
 
 
+def run_params(s: Scenario) -> dict[str, object]:
+    """What every agent of a run decides with, as its bag records it for replay (PARAMS_KEY): the flock, and
+    the channel between MAPs with the run's seed and step, which its decisions draw from (links.py)."""
+    return {**s.flock.as_dict(), 'links': s.links.as_dict(), 'seed': s.seed, 'dt': s.dt}
+
+
 def scenario_summary(path: Path, s: Scenario) -> dict[str, object]:
     """What a bag says about the run it holds, beside the agents' parameters."""
     return {'scenario': Path(path).name, 'maps': s.maps, 'seed': s.seed, 'dt': s.dt, 'duration': s.duration,

@@ -120,8 +120,7 @@ class Run:
         """agent_params.yaml, run.json and logs/; returns the agents' parameter file."""
         p, s = self.p, self.p.scenario
         p.run.mkdir(parents=True, exist_ok=True)
-        agent_params = {**s.flock.as_dict(), 'links': s.links.as_dict(), 'seed': s.seed, 'dt': s.dt, 'sync': p.sync,
-                        'world_start_timeout': 2 * p.start_timeout}
+        agent_params = {**bag.run_params(s), 'sync': p.sync, 'world_start_timeout': 2 * p.start_timeout}
         if p.sync == 'realtime' and not s.links.perfect:  # each MAP writes which states the channel lost
             agent_params['links_log'] = str(p.run / LINKS_LOG_DIR)
         params = write_params(p.run / 'agent_params.yaml', {**agent_params, 'crash_dir': str(p.run / CRASH_DIR)})
@@ -175,7 +174,7 @@ class Run:
         self.raise_if_interrupted()
         if p.record:
             rec_params = write_params(p.run / 'recorder_params.yaml', {
-                'out': str(p.bag_path), 'maps': s.maps, 'sync': p.sync, 'params_json': json.dumps(s.flock.as_dict()),
+                'out': str(p.bag_path), 'maps': s.maps, 'sync': p.sync, 'params_json': json.dumps(bag.run_params(s)),
                 'scenario_json': json.dumps({**bag.scenario_summary(p.scenario_path, s), 'sync': p.sync})})
             # With a discovery server, a plain client hears only of the topics it already uses; the recorder
             # finds its topics in the graph, so it is a super-client, which hears of every endpoint.
