@@ -23,6 +23,7 @@ RULES = {
 RULES.update({
     'predict': 'a stale neighbour state stands for where its sender is now, flown on at its velocity then',
     'gone': 'a neighbour whose state so predicted lies beyond r is taken for gone',
+    'inside': 'relay chains laid on links no longer than the channel still delivers half over (demand.reach_of)',
 })
 OFF: set[str] = set()
 

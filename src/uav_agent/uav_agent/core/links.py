@@ -93,6 +93,14 @@ def delivery(links: Links, dist: np.ndarray, r: float) -> np.ndarray:
 USABLE = 0.5  # a link that delivers at least this share of the states sent over it is in the usable graph
 
 
+def reach(links: Links, r: float) -> float:
+    """The longest link (m) that delivers USABLE of its states (before `loss`): r under disc; under alpha,
+    where its half cosine falls to USABLE. 0 stands for r (FlockParams.reach)."""
+    if links.delivery == 'disc':
+        return 0.0
+    return links.z1 * r + (1.0 - links.z1) * r * math.acos(2.0 * USABLE - 1.0) / math.pi
+
+
 def lost(links: Links, seed: int, k: int, rx: np.ndarray, tx: np.ndarray) -> np.ndarray:
     """Whether the loss process of each link (tx -> rx) is in its lossy state at step k.
 

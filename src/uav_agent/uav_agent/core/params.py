@@ -14,6 +14,7 @@ OPEN_CHOICES: dict[str, tuple[str, ...]] = {
     'm0_exhausted': ('bridge', 'serve'),
     'edge_choice': ('nearest', 'keep_nearest', 'share'),
 }
+DERIVED = ('reach',)  # FlockParams fields a scenario sets from its other sections, not from `flock:`
 
 
 @dataclass(frozen=True)
@@ -39,9 +40,17 @@ class FlockParams:
     m1_pending: str = 'hold'
     m0_exhausted: str = 'bridge'
     edge_choice: str = 'keep_nearest'
+    # The longest link a MAP relies on (m), 0 for r: where the scenario's channel delivers half of what is
+    # sent (links.reach). Set from its `links:` section, never in `flock:`.
+    reach: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @property
+    def link_reach(self) -> float:
+        """The longest link a MAP relies on (m)."""
+        return self.reach or self.r
 
 
 def check(p: FlockParams, where: Callable[[str], str] = str,
@@ -58,6 +67,8 @@ def check(p: FlockParams, where: Callable[[str], str] = str,
                 raise ValueError(f'{where(f.name)}: must be one of {", ".join(choices[f.name])}, got {v!r}')
         elif isinstance(f.default, str):
             continue  # a choice whose values another module names
+        elif f.name in DERIVED:
+            number(v, where(f.name), low=0.0, high=p.r)
         elif isinstance(f.default, int):
             number(v, where(f.name), low=0, integer=True)
         else:

@@ -1,7 +1,7 @@
 """Scenarios: every parameter of a run in one YAML file, checked before anything starts."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -10,7 +10,7 @@ import yaml
 from uav_agent.core import links as channel
 from uav_agent.core.checks import bound, number
 from uav_agent.core.links import Links
-from uav_agent.core.params import FlockParams
+from uav_agent.core.params import DERIVED, FlockParams
 from uav_agent.core.policies import POLICY_VALUES
 from uav_agent.core.policies import check as check_flock
 
@@ -64,6 +64,12 @@ class Scenario:
     survey_period: float = 2.0
     # The radio between MAPs (uav_agent/core/links.py): by default the paper's, every state within r heard at once.
     links: Links = field(default_factory=Links)
+
+    def __post_init__(self) -> None:
+        # The flock relies on links as long as the channel delivers (links.reach), however the scenario was made.
+        reach = channel.reach(self.links, self.flock.r)
+        if self.flock.reach != reach:
+            object.__setattr__(self, 'flock', replace(self.flock, reach=reach))
 
     @property
     def users_move(self) -> bool:
@@ -171,10 +177,10 @@ def _cluster(where: str, c: dict[str, Any]) -> Cluster:
 
 def _flock(doc: dict[str, Any]) -> FlockParams:
     """The flock: section's numbers and the policies: section's choices, as one FlockParams."""
-    flock_doc = _section(doc, 'flock', {f.name for f in fields(FlockParams)} - set(POLICY_VALUES))
+    flock_doc = _section(doc, 'flock', {f.name for f in fields(FlockParams)} - set(POLICY_VALUES) - set(DERIVED))
     flock_vals: dict[str, Any] = {}
     for f in fields(FlockParams):
-        if f.name in POLICY_VALUES:
+        if f.name in POLICY_VALUES or f.name in DERIVED:
             continue
         raw = _need(flock_doc, 'flock', f.name)
         flock_vals[f.name] = (_int(f'flock.{f.name}', raw, minimum=0) if f.type in ('int', int)
@@ -268,7 +274,7 @@ def to_doc(s: Scenario, policies: bool = True) -> dict[str, Any]:
     flock = s.flock.as_dict()
     doc: dict[str, Any] = {
         'name': s.name, 'seed': s.seed, 'maps': s.maps, 'duration': s.duration, 'dt': s.dt,
-        'flock': {k: v for k, v in flock.items() if k not in POLICY_VALUES},
+        'flock': {k: v for k, v in flock.items() if k not in POLICY_VALUES and k not in DERIVED},
     }
     if policies:
         doc['policies'] = {k: v for k, v in flock.items() if k in POLICY_VALUES}

@@ -147,9 +147,9 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
             return min(max(mid, reach_b), reach_a)
         return mid
     if math.isfinite(below):
-        return min(below + fp.r - 1.0, length)
+        return min(below + reach_of(fp) - 1.0, length)
     if math.isfinite(above):
-        return max(above - fp.r + 1.0, 0.0)
+        return max(above - reach_of(fp) + 1.0, 0.0)
     roles, key = role_of(agent_id, lost, clusters, fp, short)
     start, stop = clusters.gap(edge, fp.d / 2)
     at = roles.place(key, clusters.count + roles.edges.index(edge))
@@ -173,7 +173,7 @@ def _chain(q: np.ndarray, edge: Edge, nbr_q: np.ndarray, told: Sequence[Told], c
         at = float(np.dot(qj[:2] - a, u))
         if tj.mode != M1 and tj.goal in edge:
             off = abs(float(u[0] * (qj[1] - a[1]) - u[1] * (qj[0] - a[0])))
-            reach = math.sqrt(max((fp.r - 1.0) ** 2 - off * off, 0.0))
+            reach = math.sqrt(max((reach_of(fp) - 1.0) ** 2 - off * off, 0.0))
             if tj.goal == edge[0]:
                 reach_a = max(reach_a, at + reach)
             else:
@@ -192,7 +192,7 @@ def taut(mem: Mine, q: np.ndarray, near: Near, clusters: ClusterMap, fp: FlockPa
     assert mem.bridge is not None
     _, below, above, _, _ = _chain(q, mem.bridge, near.q, near.told, clusters, fp)
     if math.isfinite(below) and math.isfinite(above):
-        return above - below > fp.d + fp.r
+        return above - below > fp.d + reach_of(fp)
     if math.isfinite(below) == math.isfinite(above):
         return False  # hears no member: cut off alone, nothing to say of the chain
     silent = mem.bridge[1] if math.isfinite(below) else mem.bridge[0]
@@ -213,6 +213,12 @@ def tally(mem: Mine, taut_now: bool, roles: Roles) -> Mine:
         short[code(mem.bridge)] = found
         return mem._replace(taut=steps, short=tuple(sorted(short.items())))
     return mem._replace(taut=steps)
+
+
+def reach_of(fp: FlockParams) -> float:
+    """The longest link a chain is laid on (m): r, or under a channel that loses long links the distance it
+    still delivers half of what is sent over (FlockParams.reach; rule 'inside')."""
+    return fp.link_reach if on('inside') else fp.r
 
 
 def _in_place(qj: np.ndarray, tj: 'Told', edge: Edge, clusters: ClusterMap, fp: FlockParams) -> bool:
