@@ -8,8 +8,7 @@ from __future__ import annotations
 
 from typing import NamedTuple, Optional
 
-from ...clusters import NO_GOAL, Edge
-from ...state import M0, Memory, Told
+from ...state import Memory, Told
 from .keys import Span
 
 
