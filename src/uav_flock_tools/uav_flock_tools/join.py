@@ -85,8 +85,10 @@ def join(address: str, ids: list[int], out: Path, agents_per_process: int, timeo
     info = fetch_run_info(address, env, timeout)
     check_ids(ids, info)
     out.mkdir(parents=True, exist_ok=True)
-    params = write_params(out / 'agent_params.yaml', {**info['agent_params'],  # type: ignore[dict-item]
-                                                      'crash_dir': str(out / CRASH_DIR)})
+    here = {'crash_dir': str(out / CRASH_DIR)}  # this host's run folder, not the listening host's
+    if info['agent_params'].get('links_log'):  # type: ignore[union-attr]
+        here['links_log'] = str(out / 'links')
+    params = write_params(out / 'agent_params.yaml', {**info['agent_params'], **here})  # type: ignore[dict-item]
     (out / 'run.json').write_text(json.dumps({'domain_id': domain, 'discovery_server': address, 'join': address,
                                               'maps': info['maps'], 'ids': ids}, indent=1))
     logs = out / 'logs'
