@@ -10,6 +10,7 @@ import yaml
 # In a run folder, beside pids.json: one empty file per MAP that `uav-flock kill` ended inside a process
 # that lives on for its other MAPs (world_sim drops those MAPs as it drops one whose process is gone).
 CRASH_DIR = 'crash'
+LINKS_LOG_DIR = 'links'  # realtime under a channel: map_<id>.csv, each neighbour state that arrived and its fate
 
 
 def write_params(path: Path, values: dict[str, Any]) -> Path:

@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 
-from uav_flock_ros.processes import CRASH_DIR, write_params
+from uav_flock_ros.processes import CRASH_DIR, LINKS_LOG_DIR, write_params
 
 from .domains import DISCOVERY_BASE_PORT, ros_env
 from .spawn import ForkedAgent, start_agents, stop, write_pid_table
@@ -87,7 +87,7 @@ def join(address: str, ids: list[int], out: Path, agents_per_process: int, timeo
     out.mkdir(parents=True, exist_ok=True)
     here = {'crash_dir': str(out / CRASH_DIR)}  # this host's run folder, not the listening host's
     if info['agent_params'].get('links_log'):  # type: ignore[union-attr]
-        here['links_log'] = str(out / 'links')
+        here['links_log'] = str(out / LINKS_LOG_DIR)
     params = write_params(out / 'agent_params.yaml', {**info['agent_params'], **here})  # type: ignore[dict-item]
     (out / 'run.json').write_text(json.dumps({'domain_id': domain, 'discovery_server': address, 'join': address,
                                               'maps': info['maps'], 'ids': ids}, indent=1))

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
-from uav_flock_ros.processes import CRASH_DIR, write_params
+from uav_flock_ros.processes import CRASH_DIR, LINKS_LOG_DIR, write_params
 from world_sim.core.scenario import Scenario
 
 from . import bag, viewer
@@ -36,8 +36,6 @@ LOCALHOST_MAPS_LIMIT = 100
 START_TIMEOUT_MIN_S = 60.0
 START_TIMEOUT_PER_PROCESS_S = 1.5
 JOIN_TIMEOUT_S = 300.0  # a run that listens for agents of other hosts waits this long for them to appear
-
-LINKS_LOG_DIR = 'links'  # realtime under a channel: map_<id>.csv, each neighbour state that arrived and its fate
 
 
 @dataclass
