@@ -26,6 +26,7 @@ import dataclasses
 import math
 import os
 import re
+from pathlib import Path
 
 import numpy as np
 
@@ -132,6 +133,29 @@ def table(rows: list[dict[str, str]]) -> str:
     return '\n'.join(out)
 
 
+def against_loss(rows: list[dict[str, str]], path: Path) -> Path:
+    """The share of time the usable graph is connected after convergence against the channel's loss, a panel
+    per kind, a line per delivery, burst, latency and variant (mean over runs, with its 95 % interval)."""
+    import matplotlib.pyplot as plt
+    from uav_flock_tools import plots
+    kinds = [k for k in KINDS if any(r['kind'] == k for r in rows)]
+    fig, axes = plt.subplots(1, len(kinds), figsize=(5.2 * len(kinds), 4.0), squeeze=False)
+    for ax, kind in zip(axes[0], kinds):
+        lines: dict[str, list[tuple[float, float, float, float]]] = {}
+        for name, variant in sorted({(r['channel'], r['variant']) for r in rows if r['kind'] == kind}):
+            c = channel(name)
+            v = np.array([float(r['usable']) for r in rows if (r['kind'], r['channel'], r['variant']) == (kind, name, variant)])
+            low, high = resumable.interval(v)
+            label = (f'{c.delivery}, burst {c.burst:g}, latency {c.latency}' + ('' if variant == 'all' else f', {variant} off'))
+            lines.setdefault(label, []).append((c.loss, 100 * v.mean(), 100 * low, 100 * high))
+        for label, pts in sorted(lines.items()):
+            x, y, lo, hi = np.array(sorted(pts)).T
+            ax.errorbar(x, y, yerr=[y - lo, hi - y], marker='o', capsize=3, lw=1.4, label=label)
+        plots.finish(ax, 'loss (share of states lost on top of delivery)', 'usable graph connected after convergence (%)',
+                     f'{kind}: {len({r["layout"] for r in rows if r["kind"] == kind})} layouts')
+    return plots.save(fig, path)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument('--layouts', type=int, default=30, help='random layouts (default: 30)')
@@ -142,6 +166,7 @@ def main() -> int:
     ap.add_argument('--workers', type=int, default=os.cpu_count() or 1, help='processes (default: one a core)')
     ap.add_argument('--csv', default='links.csv', help='one row per run, kept across calls (default: links.csv)')
     ap.add_argument('--table', action='store_true', help='only print the table of what --csv holds')
+    ap.add_argument('--plot', metavar='PNG', help='also draw the usable graph connected against loss, per kind')
     args = ap.parse_args()
     kinds = [k for k in args.kinds.split(',') if k]
     names = [c for c in args.channels.split(',') if c]
@@ -159,6 +184,8 @@ def main() -> int:
     if not args.table:
         done = sweep(args, kinds, names, variants, done)
     print(table(done))
+    if args.plot:
+        print(f'plot: {against_loss(done, Path(args.plot))}')
     return 0
 
 

@@ -69,7 +69,7 @@ def test_a_random_layout_with_a_drift_and_lost_maps_equals_sim_and_its_maps_goss
         tmp_path: Path, ros_env: dict[str, str]) -> None:
     """A layout as `layouts` draws it, one cluster drifting, 30 % of the MAPs lost at 15 s (seed 5): a role is
     emptied and a chain left short. Over DDS the MAPs declare the keys lost and the chain short
-    (AgentState.lost_keys, roles_short) and re-staff both exactly as `sim` does."""
+    (the roles block of AgentState: lost_keys, roles_short) and re-staff both exactly as `sim` does."""
     drawn = cli('layouts', '--count', '1', '--clusters', '3', '--seed', '1', '--duration', '30',
                 '--out', str(tmp_path / 'layouts'))
     assert drawn.returncode == 0, drawn.stdout + drawn.stderr
@@ -88,6 +88,6 @@ def test_a_random_layout_with_a_drift_and_lost_maps_equals_sim_and_its_maps_goss
     with AnyReader([tmp_path / 'up' / 'bag'], default_typestore=typestore()) as bag:
         states = [c for c in bag.connections if c.topic.endswith('/state')]
         said = (bag.deserialize(raw, conn.msgtype) for conn, _, raw in bag.messages(connections=states))
-        told = [(int(m.id), len(m.lost_keys), len(m.roles_short)) for m in said]
+        told = [(int(m.id), len(m.roles[0].lost_keys), len(m.roles[0].roles_short)) for m in said if len(m.roles)]
     assert any(lost for _, lost, _ in told), 'no MAP told its neighbours of lost keys: the case must empty a role'
     assert any(short for _, _, short in told), 'no MAP told its neighbours of a short chain: the case must leave one'
