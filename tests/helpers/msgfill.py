@@ -20,9 +20,9 @@ def msg_class(type_name: str) -> type:
 
 
 def _value(kind: str, rng: random.Random) -> Any:
-    seq = re.fullmatch(r'sequence<(.+?)(?:, \d+)?>', kind) or re.fullmatch(r'(.+)\[(\d+)\]', kind)
-    if seq:
-        n = int(seq.group(2)) if kind.endswith(']') else rng.randint(1, 4)
+    seq = re.fullmatch(r'sequence<(.+?)(?:, (\d+))?>', kind) or re.fullmatch(r'(.+)\[(\d+)\]', kind)
+    if seq:  # a fixed array, a bounded sequence (up to its bound) or an unbounded one
+        n = int(seq.group(2)) if kind.endswith(']') else rng.randint(1, int(seq.group(2) or 4))
         return [_value(seq.group(1), rng) for _ in range(n)]
     if kind in _INT_RANGES:
         lo, hi = _INT_RANGES[kind]
