@@ -111,3 +111,25 @@ def test_a_run_under_a_channel_records_what_the_maps_heard() -> None:
     assert abs(col['heard_share'][10:].mean() - 0.7) < 0.03
     assert col['oldest_used'].max() <= 6 and col['oldest_used'][5:].min() >= 2, 'ages from latency to ttl'
     assert np.all((col['heard_components'] >= 1) & (col['usable_components'] >= col['components']))
+
+
+def test_a_stale_state_stands_where_its_sender_flew_on_and_one_gone_out_of_range_is_dropped() -> None:
+    from uav_agent.core.agent import Heard, Said, heard_from
+    from uav_agent.core.state import Told
+    said = Said(0, Told(0, -1, None))
+    held = [(3, 0, Heard(np.array([10.0, 0, 20]), np.array([5.0, 0, 0]), 2.0, said)),
+            (5, 4, Heard(np.array([10.0, 0, 20]), np.array([5.0, 0, 0]), 1.0, said)),
+            (8, 4, Heard(np.array([20.0, 0, 20]), np.array([5.0, 0, 0]), 0.0, said))]
+    hood = heard_from(held, 0.1, np.zeros(3) + [0, 0, 20], R)
+    assert hood.q[:, 0].tolist() == [10.0, 12.0, 22.0], 'age 0 as heard; age 4 flown on 4 x 0.1 s at 5 m/s'
+    assert hood.n_users.tolist() == [2.0, 1.0, 0.0] and len(hood.told) == 3
+    far = heard_from(held, 0.1, np.array([-5.0, 0, 20]), R)
+    assert far.q[:, 0].tolist() == [10.0, 12.0], 'MAP 8, flown on to 27 m away, is taken for gone'
+
+
+def test_chains_are_laid_inside_what_the_channel_delivers() -> None:
+    from uav_agent.core.links import USABLE, delivery, reach
+    assert reach(Links(), R) == 0.0, 'under disc: r itself'
+    far = reach(Links(delivery='alpha', z1=0.8), R)
+    assert far == pytest.approx(0.9 * R) and delivery(Links(delivery='alpha'), np.array([far]), R)[0] == pytest.approx(USABLE)
+    assert dataclasses.replace(load_scenario('paper'), links=Links(delivery='alpha')).flock.link_reach == pytest.approx(0.9 * R)
