@@ -13,8 +13,10 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from uav_agent.core.links import Inbox, Links, heard, lost
+from uav_agent.core.agent import Heard, Said, heard_from
+from uav_agent.core.links import USABLE, Inbox, Links, delivery, heard, lost, reach
 from uav_agent.core.potentials import bump
+from uav_agent.core.state import Told
 from uav_flock_tools.batch import BatchSimulator
 from world_sim.core.hearing import LINK_COLUMNS
 from world_sim.core.records import METRICS_COLUMNS
@@ -114,8 +116,6 @@ def test_a_run_under_a_channel_records_what_the_maps_heard() -> None:
 
 
 def test_a_stale_state_stands_where_its_sender_flew_on_and_one_gone_out_of_range_is_dropped() -> None:
-    from uav_agent.core.agent import Heard, Said, heard_from
-    from uav_agent.core.state import Told
     said = Said(0, Told(0, -1, None))
     held = [(3, 0, Heard(np.array([10.0, 0, 20]), np.array([5.0, 0, 0]), 2.0, said)),
             (5, 4, Heard(np.array([10.0, 0, 20]), np.array([5.0, 0, 0]), 1.0, said)),
@@ -128,7 +128,6 @@ def test_a_stale_state_stands_where_its_sender_flew_on_and_one_gone_out_of_range
 
 
 def test_chains_are_laid_inside_what_the_channel_delivers() -> None:
-    from uav_agent.core.links import USABLE, delivery, reach
     assert reach(Links(), R) == 0.0, 'under disc: r itself'
     far = reach(Links(delivery='alpha', z1=0.8), R)
     assert far == pytest.approx(0.9 * R) and delivery(Links(delivery='alpha'), np.array([far]), R)[0] == pytest.approx(USABLE)
