@@ -151,7 +151,8 @@ def full_topic_name(topic: str) -> str:
 
 
 RUN_EXTRA_TOPICS = ('/rosout', '/parameter_events', '/recorder/progress', '/run_info')
-FAILURES_WAIT_S = 2.0  # how long the failure events kept by world_sim may take to come in, once it is found
+FAILURES_WAIT_S = 5.0  # how long the failure events kept by world_sim may take to come in, once it is found
+# (2 s was too short once on two busy cores: echo said the MAP was killed but not when it was dropped)
 WORLD_FOUND_S = 15.0  # how long discovery may take to find world_sim's writer of them on a loaded machine
 
 
