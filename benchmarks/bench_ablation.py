@@ -1,7 +1,8 @@
 """What each rule of the demand allocation adds: every rule switched off alone, paired against all rules on.
 
 Run: ./uav-flock exec python benchmarks/bench_ablation.py [--layouts 30] [--rules kept,swing,...]
-     [--csv ablation.csv]  (one row per run; the same command again runs only the rows missing from it)
+     [--csv ablation.csv] [--every-kind]  (one row per run; the same command again runs only the rows
+     missing from it; --every-kind: each rule off on all six kinds, the check before a rule is removed)
 Layouts, kinds and draws are bench_motion's (layout n of `./uav-flock layouts --seed 0`, seed 0), plus
 static12: the layout standing still, N = ceil(1.2 x LB), 60 s. Each rule is switched off on the kinds it
 was made for and, when it acts on a still layout, static12 (KINDS_OF). Per rule and kind, paired by layout:
@@ -32,6 +33,7 @@ KINDS_OF = {  # the kinds each rule was made for, then static12 where it acts on
     'straight': ('drift2',), 'vacate': ('wipeout', 'static12'), 'short': ('loss', 'static12'),
     'stall': ('arrival', 'static12'), 'reach': ('loss', 'static12'),
 }
+EVERY_KIND = ('drift2', 'crossing', 'arrival', 'loss', 'wipeout', 'static12')
 FIELDS = ('connected', 'end_rc', 'ends_ok', 'converged')
 
 
@@ -58,13 +60,13 @@ def run(job: tuple[str, str, int, Scenario, int]) -> dict[str, object]:
             'ends_ok': r['ends_ok'], 'converged': r['converged']}
 
 
-def table(rows: list[dict[str, str]], rules: list[str]) -> str:
+def table(rows: list[dict[str, str]], rules: list[str], kinds_of: dict[str, tuple[str, ...]]) -> str:
     by = {(r['rule'], r['kind'], int(r['layout'])): r for r in rows}
     out = ['| rule off | kind | runs | connected after convergence, all on | change off - on [95 % interval] | '
            'R_c at end, all on | change [95 %] | end covered and connected: on, off | verdict |',
            '|---|---|---|---|---|---|---|---|---|']
     for rule in rules:
-        for kind in KINDS_OF[rule]:
+        for kind in kinds_of[rule]:
             pairs = [(by[('none', kind, n)], by[(rule, kind, n)]) for (r, k, n) in by
                      if r == rule and k == kind and ('none', kind, n) in by]
             if not pairs:
@@ -91,6 +93,9 @@ def main() -> int:
     ap.add_argument('--rules', default=','.join(KINDS_OF), help='comma-separated (default: every rule)')
     ap.add_argument('--workers', type=int, default=os.cpu_count() or 1, help='processes (default: one a core)')
     ap.add_argument('--csv', default='ablation.csv', help='one row per run, kept across calls (default: ablation.csv)')
+    ap.add_argument('--every-kind', action='store_true',
+                    help='switch the rules off on all six kinds, not only those they were made for: the check '
+                         'before a rule is removed')
     ap.add_argument('--table', action='store_true', help='only print the table of what --csv holds')
     args = ap.parse_args()
     rules = [r.strip() for r in args.rules.split(',') if r.strip()]
@@ -98,24 +103,26 @@ def main() -> int:
         ap.error(f'--rules: choose from {", ".join(KINDS_OF)}')
     if args.layouts < 1 or args.workers < 1:
         ap.error('--layouts and --workers must be at least 1')
+    kinds_of = {r: EVERY_KIND if args.every_kind else KINDS_OF[r] for r in rules}
     done = resumable.rows(args.csv)
     if not args.table:
-        done = sweep(args, rules, done)
-    print(table(done, rules))
+        done = sweep(args, kinds_of, done)
+    print(table(done, rules, kinds_of))
     return 0
 
 
-def sweep(args: argparse.Namespace, rules: list[str], done: list[dict[str, str]]) -> list[dict[str, str]]:
+def sweep(args: argparse.Namespace, kinds_of: dict[str, tuple[str, ...]],
+          done: list[dict[str, str]]) -> list[dict[str, str]]:
     have = {(r['rule'], r['kind'], int(r['layout'])) for r in done}
-    kinds = sorted({k for rule in rules for k in KINDS_OF[rule]})
+    kinds = sorted({k for ks in kinds_of.values() for k in ks})
     flock = policy_sets(load_scenario('paper'))['default']
     jobs = []
     for n, lay in enumerate(draw('paper', args.layouts, (3, 6), 0)):
         lay = dataclasses.replace(lay, flock=flock)
         for kind in kinds:
             s, draw_seed = scenario_of(kind, n, lay)
-            jobs += [(rule, kind, n, s, draw_seed) for rule in ('none', *rules)
-                     if (rule == 'none' or kind in KINDS_OF[rule]) and (rule, kind, n) not in have]
+            jobs += [(rule, kind, n, s, draw_seed) for rule in ('none', *kinds_of)
+                     if (rule == 'none' or kind in kinds_of[rule]) and (rule, kind, n) not in have]
     return resumable.sweep(args.csv, ['rule', 'kind', 'layout', *FIELDS], jobs, run, args.workers, done)
 
 
