@@ -9,7 +9,7 @@ import numpy as np
 from uav_agent.core.clusters import ClusterMap, key_of
 from uav_agent.core.params import FlockParams
 from uav_agent.core.allocations.demand import keys, layout
-from uav_agent.core.allocations.demand.allocation import TAUT_STEPS, demand_switch, tally, taut
+from uav_agent.core.allocations.demand.allocation import TAUT_STEPS, _chain, demand_switch, tally, taut
 from uav_agent.core.allocations.demand.memory import Mine
 from uav_agent.core.state import M1, M2, NOBODY, Near, Told
 from uav_agent.core.allocations.demand.vacancy import VACANT_STEPS, code, gossip, vacate, view
@@ -110,12 +110,18 @@ def test_a_chain_is_taut_when_its_links_outgrow_what_holds_or_it_no_longer_reach
     """A relay of edge (1, 2) midway, at x = 150: cluster 1's servers reach to x = 125, cluster 2's from 175."""
     relay = relay_of_edge_12(seen=heard({r: 400 for r in ALL}))
     here = np.array([150.0, 0.0, P.height])
-    assert taut(relay, here, chain_heard((124.0, 1), (176.0, 2)), ROW, P), 'links of 26 m: past (d + r) / 2'
-    assert not taut(relay, here, chain_heard((130.0, 1), (170.0, 2)), ROW, P), 'links of 20 m hold'
-    assert taut(relay, here, chain_heard((130.0, 1)), ROW, P), 'cluster 2, heard since it settled, out of reach'
+
+    def is_taut(mem: Mine, near: Near) -> bool:
+        assert mem.bridge is not None
+        return taut(mem, _chain(here, mem.bridge, near.q, near.told, ROW, P), P)
+
+    assert is_taut(relay, chain_heard((124.0, 1), (176.0, 2))), 'links of 26 m: past (d + r) / 2'
+    assert not is_taut(relay, chain_heard((130.0, 1), (170.0, 2))), 'links of 20 m hold'
+    assert is_taut(relay, chain_heard((130.0, 1))), 'cluster 2, heard since it settled, out of reach'
     forming = relay._replace(seen=heard({r: 400 for r in ALL} | {2: 90}))  # not heard since it settled (100)
-    assert not taut(forming, here, chain_heard((130.0, 1)), ROW, P), 'cluster 2\'s servers may not be there yet'
-    assert not taut(relay, here, NOBODY, ROW, P), 'cut off alone: nothing to say of the chain'
+    assert not is_taut(forming, chain_heard((130.0, 1))), 'cluster 2\'s servers may not be there yet'
+    assert not is_taut(relay, NOBODY), 'cut off alone: nothing to say of the chain'
+    assert not is_taut(relay._replace(hold=150.0), chain_heard((130.0, 1))), 'a silence it takes for lost states'
 
 
 def test_a_chain_found_taut_is_found_short_and_its_share_grown() -> None:

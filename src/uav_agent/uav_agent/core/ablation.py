@@ -24,6 +24,8 @@ RULES.update({
     'predict': 'a stale neighbour state stands for where its sender is now, flown on at its velocity then',
     'gone': 'a neighbour whose state so predicted lies beyond r is taken for gone',
     'inside': 'relay chains laid on links no longer than the channel still delivers half over (demand.reach_of)',
+    'hold': 'a relay takes a side of its chain silent for no longer than the channel\'s losses last for lost '
+            'states and holds its place (demand.hushed)',
 })
 OFF: set[str] = set()
 

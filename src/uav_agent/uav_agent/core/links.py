@@ -101,6 +101,13 @@ def reach(links: Links, r: float) -> float:
     return links.z1 * r + (1.0 - links.z1) * r * math.acos(2.0 * USABLE - 1.0) / math.pi
 
 
+def hush(links: Links) -> int:
+    """Steps a neighbour may stay silent and still be there (FlockParams.hush): 0 under the paper's channel,
+    where silence is absence; otherwise its ttl and three mean bursts, past which a run of losses that long
+    is rare (a burst outlasts n of its means with probability about e^-n)."""
+    return 0 if links.perfect else int(links.ttl + math.ceil(3.0 * links.burst))
+
+
 def lost(links: Links, seed: int, k: int, rx: np.ndarray, tx: np.ndarray) -> np.ndarray:
     """Whether the loss process of each link (tx -> rx) is in its lossy state at step k.
 

@@ -14,7 +14,7 @@ OPEN_CHOICES: dict[str, tuple[str, ...]] = {
     'm0_exhausted': ('bridge', 'serve'),
     'edge_choice': ('nearest', 'keep_nearest', 'share'),
 }
-DERIVED = ('reach',)  # FlockParams fields a scenario sets from its other sections, not from `flock:`
+DERIVED = ('reach', 'hush')  # FlockParams fields a scenario sets from its other sections, not from `flock:`
 
 
 @dataclass(frozen=True)
@@ -43,6 +43,9 @@ class FlockParams:
     # The longest link a MAP relies on (m), 0 for r: where the scenario's channel delivers half of what is
     # sent (links.reach). Set from its `links:` section, never in `flock:`.
     reach: float = 0.0
+    # Steps a relay takes a chain member's silence for the channel's losses, not for its absence (links.hush):
+    # 0 under the paper's channel, where silence is absence. Set from `links:` too.
+    hush: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -67,7 +70,7 @@ def check(p: FlockParams, where: Callable[[str], str] = str,
                 raise ValueError(f'{where(f.name)}: must be one of {", ".join(choices[f.name])}, got {v!r}')
         elif isinstance(f.default, str):
             continue  # a choice whose values another module names
-        elif f.name in DERIVED:
+        elif f.name == 'reach':
             number(v, where(f.name), low=0.0, high=p.r)
         elif isinstance(f.default, int):
             number(v, where(f.name), low=0, integer=True)

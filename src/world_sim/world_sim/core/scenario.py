@@ -67,9 +67,9 @@ class Scenario:
 
     def __post_init__(self) -> None:
         # The flock relies on links as long as the channel delivers (links.reach), however the scenario was made.
-        reach = channel.reach(self.links, self.flock.r)
-        if self.flock.reach != reach:
-            object.__setattr__(self, 'flock', replace(self.flock, reach=reach))
+        derived = {'reach': channel.reach(self.links, self.flock.r), 'hush': channel.hush(self.links)}
+        if any(getattr(self.flock, name) != value for name, value in derived.items()):
+            object.__setattr__(self, 'flock', replace(self.flock, **derived))
 
     @property
     def users_move(self) -> bool:

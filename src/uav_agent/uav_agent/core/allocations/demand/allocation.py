@@ -83,8 +83,28 @@ def demand_switch(mem: Mine, agent_id: int, r_g: float, q: np.ndarray, clusters:
         if float(np.linalg.norm(a + u * swing_place(mem.swing, edge, clusters, fp) - np.asarray(q)[:2])) <= fp.d:
             mem = mem._replace(swing=None)
     if mem.settled and not mem.transit and mem.swing is None:
-        mem = tally(mem, taut(mem, q, near, clusters, fp), roles)
+        chain = _chain(q, edge, near.q, near.told, clusters, fp)
+        mem = hushed(mem, chain, step, fp)
+        mem = tally(mem, taut(mem, chain, fp), roles)
     return mem
+
+
+def hushed(mem: Mine, chain: tuple[float, float, float, float, float], step: int, fp: FlockParams) -> Mine:
+    """Whether a relay that hears one side of its chain no more holds its place (Mine.hold).
+
+    Under a channel that loses states, a silent side is most often a neighbour whose states are lost, not an
+    empty side: a relay that heard a member on both sides within fp.hush steps holds where it was when the
+    side fell silent, instead of reaching r - 1 m beyond the other side (relay_place). Reaching, it would pull
+    its chain towards the silent side, and the chain crawls until it breaks on the other (docs/links.md).
+    """
+    here, below, above, _, _ = chain
+    if fp.hush <= 0 or not on('hold'):
+        return mem
+    if math.isfinite(below) and math.isfinite(above):
+        return mem if mem.both == step and mem.hold is None else mem._replace(both=step, hold=None)
+    if mem.both >= 0 and step - mem.both <= fp.hush:
+        return mem if mem.hold is not None else mem._replace(hold=here)
+    return mem if mem.hold is None else mem._replace(hold=None)
 
 
 def _gap_from(end: int, edge: Edge, clusters: ClusterMap, fp: FlockParams) -> tuple[float, float, float]:
@@ -185,16 +205,17 @@ def _chain(q: np.ndarray, edge: Edge, nbr_q: np.ndarray, told: Sequence[Told], c
     return here, below, above, reach_a, reach_b
 
 
-def taut(mem: Mine, q: np.ndarray, near: Near, clusters: ClusterMap, fp: FlockParams) -> bool:
-    """Whether a settled relay's chain is stretched past what holds: the members it hears on either side are
-    more than d + r apart (links longer than (d + r) / 2 break as the MAPs sway), or one side is silent
-    though its cluster was heard of since the relay settled (the chain was whole and no longer reaches)."""
+def taut(mem: Mine, chain: tuple[float, float, float, float, float], fp: FlockParams) -> bool:
+    """Whether a settled relay's chain (_chain) is stretched past what holds: the members it hears on either
+    side are more than d + r apart (links longer than (d + r) / 2 break as the MAPs sway), or one side is
+    silent though its cluster was heard of since the relay settled (the chain was whole and no longer reaches)
+    and the relay does not take the silence for lost states (hushed)."""
     assert mem.bridge is not None
-    _, below, above, _, _ = _chain(q, mem.bridge, near.q, near.told, clusters, fp)
+    _, below, above, _, _ = chain
     if math.isfinite(below) and math.isfinite(above):
         return above - below > fp.d + reach_of(fp)
-    if math.isfinite(below) == math.isfinite(above):
-        return False  # hears no member: cut off alone, nothing to say of the chain
+    if math.isfinite(below) == math.isfinite(above) or mem.hold is not None:
+        return False  # hears no member (cut off alone, nothing to say of the chain), or holds through a silence
     silent = mem.bridge[1] if math.isfinite(below) else mem.bridge[0]
     return dict(mem.seen).get(silent, -1) > mem.since
 
@@ -335,6 +356,7 @@ class Demand:
         if mine.mode == M1 and mine.bridge is not None:
             va, vb = clusters.velocities[mine.bridge[0]], clusters.velocities[mine.bridge[1]]
             place = swing_place(mine.swing, mine.bridge, clusters, fp) if mine.swing is not None else \
+                mine.hold if mine.hold is not None else \
                 relay_place(agent_id, q, mine.bridge, nbr_q, told, clusters, fp, mine.lost, mine.short)
             q1, q2 = relay_slot(place, mine.bridge, clusters, fp)
             # The slot moves as its point of the edge does: at the velocity interpolated between the ends.
