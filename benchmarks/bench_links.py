@@ -2,7 +2,7 @@
 lost in bursts, or late, on random layouts, still and drifting.
 
 Run: ./uav-flock exec python benchmarks/bench_links.py [--layouts 30 --seeds 1 --kinds static,drift2]
-     [--channels perfect,alpha.3L2,loss.5,loss.3B20] [--variants all,predict+gone] [--csv links.csv]
+     [--channels perfect,alpha.3L2,loss.5,loss.3B20 | grid] [--variants all,predict+gone] [--csv links.csv]
      (one row per run, kept across calls: the same command again runs only the rows missing from it; --table
      prints what the CSV holds)
 Layout n is layout n of `./uav-flock layouts --seed 0`, with the default policies and the online survey.
@@ -42,6 +42,9 @@ from world_sim.shipped import load_scenario
 
 KINDS = ('static', 'drift2', 'paper', 'paper_demand')
 CHANNELS = ('perfect', 'alpha.3L2', 'loss.5', 'loss.3B20')
+# `--channels grid`: loss 0 / 0.2 / 0.4 / 0.6, disc and alpha (z1 = 0.8 r), latency 0 and 3 steps.
+GRID = tuple(f'{"alpha" if alpha else "loss"}{loss}{"L3" if late else ""}'
+             for alpha in (False, True) for late in (False, True) for loss in ('0', '.2', '.4', '.6'))
 FIELDS = ('converged', 'usable', 'disc', 'outage', 'success', 'end_rc')
 HELD_S = 10.0
 
@@ -161,7 +164,8 @@ def main() -> int:
     ap.add_argument('--layouts', type=int, default=30, help='random layouts (default: 30)')
     ap.add_argument('--seeds', type=int, default=1, help='seeds per layout (default: 1)')
     ap.add_argument('--kinds', default='static,drift2', help=f'comma-separated, of: {", ".join(KINDS)}')
-    ap.add_argument('--channels', default=','.join(CHANNELS), help=f'comma-separated (default: {",".join(CHANNELS)})')
+    ap.add_argument('--channels', default=','.join(CHANNELS),
+                    help=f'comma-separated; grid: the 16 of loss 0-0.6 x disc, alpha x latency 0, 3 (default: {",".join(CHANNELS)})')
     ap.add_argument('--variants', default='all', help='comma-separated: all, or rules off joined by + (default: all)')
     ap.add_argument('--workers', type=int, default=os.cpu_count() or 1, help='processes (default: one a core)')
     ap.add_argument('--csv', default='links.csv', help='one row per run, kept across calls (default: links.csv)')
@@ -169,7 +173,7 @@ def main() -> int:
     ap.add_argument('--plot', metavar='PNG', help='also draw the usable graph connected against loss, per kind')
     args = ap.parse_args()
     kinds = [k for k in args.kinds.split(',') if k]
-    names = [c for c in args.channels.split(',') if c]
+    names = [n for c in args.channels.split(',') if c for n in (GRID if c == 'grid' else (c,))]
     if not kinds or any(k not in KINDS for k in kinds):
         ap.error(f'--kinds: choose from {", ".join(KINDS)}')
     try:
@@ -199,7 +203,7 @@ def sweep(args: argparse.Namespace, kinds: list[str], names: list[str], variants
         for seed in range(args.seeds):
             for kind in kinds:
                 jobs += [(v, kind, c, n, seed, scenario_of(kind, n, lay, seed, c)[0]) for c in names for v in variants
-                         if (v, kind, c, n, seed) not in have and (c != 'perfect' or v == 'all')]
+                         if (v, kind, c, n, seed) not in have and (not channel(c).perfect or v == 'all')]
     return resumable.sweep(args.csv, ['variant', 'kind', 'channel', 'layout', 'seed', *FIELDS], jobs, run, args.workers, done)
 
 
