@@ -13,12 +13,13 @@ from hypothesis import strategies as st
 from uav_agent.core.agent import Neighbourhood, agent_step
 from uav_agent.core.allocations.algorithm2 import mode_switch
 from uav_agent.core.allocations.demand import layout
-from uav_agent.core.allocations.demand.allocation import STALL_STEPS, demand_switch, en_route, pivot, relay_place, swing_place
+from uav_agent.core.allocations.demand.allocation import (STALL_STEPS, anchored, demand_switch, en_route, hushed, pivot,
+                                                          relay_place, swing_place)
 from uav_agent.core.allocations.demand.memory import Gossip, Mine
 from uav_agent.core.clusters import NO_GOAL, ClusterMap, key_of, mst_edges
 from uav_agent.core.params import FlockParams
 from uav_agent.core.policies import decide, reference
-from uav_agent.core.state import M0, M1, M2, Memory, Told
+from uav_agent.core.state import M0, M1, M2, NOBODY, Memory, Near, Told
 from uav_flock_tools.batch import BatchSimulator
 from world_sim.core import layouts, outcome
 from world_sim.core.scenario import load
@@ -307,3 +308,29 @@ def test_only_a_settled_relay_whose_edges_share_one_cluster_swings() -> None:
     assert pivot(Mine(mode=M0, goal=0, settled=True), q, (0, 2), clusters, fp) is None, 'a server'
     gone = ClusterMap(clusters.xy, fp.height, np.full(4, 25.0), active=np.array([True, False, True, True]))
     assert pivot(settled, q, (0, 2), gone, fp) is None, 'its old edge ended with its cluster: nothing to swing'
+
+
+def test_under_a_lossy_channel_a_map_holds_its_place_through_a_silence_no_longer_than_the_channels_losses_last() -> None:
+    """Rule 'hold': a relay that heard its chain on both sides, or a server that heard a relay of its cluster,
+    within fp.hush steps keeps the place it had when the silence began; past hush it acts as before."""
+    lossy = replace(P, hush=30)
+    relay = Mine(mode=M1, goal=0, bridge=(0, 1), settled=True, since=100)
+    both, one_side = (150.0, 130.0, 170.0, -math.inf, math.inf), (152.0, 130.0, math.inf, -math.inf, math.inf)
+    heard = hushed(relay, both, 200, lossy)
+    assert (heard.whole, heard.hold) == (200, None)
+    silent = hushed(heard, one_side, 210, lossy)
+    assert silent.hold == (152.0,), 'where it was when the side fell silent'
+    assert hushed(silent, (155.0, *one_side[1:]), 230, lossy).hold == (152.0,), 'and there it stays'
+    assert hushed(silent, one_side, 231, lossy).hold is None, 'silent past hush: an empty side, reached for'
+    assert hushed(heard, both, 231, lossy).hold is None
+    assert hushed(relay, one_side, 210, P) == relay, 'the paper\'s channel: silence is absence'
+    two = line([100.0])
+    server = Mine(mode=M2, goal=1, settled=True, since=100)
+    relay_near = Near(np.array([[two.xy[1, 0] - 40.0, 0.0, P.height]]), [Told(M1, 0, (0, 1))])
+    at = np.array([two.xy[1, 0] - 22.0, 3.0, P.height])
+    server = anchored(server, at, relay_near, two, 300, lossy)
+    assert (server.whole, server.hold) == (300, None)
+    held = anchored(server, at, NOBODY, two, 310, lossy)
+    assert held.hold == pytest.approx((-22.0, 3.0)), 'its offset from its cluster\'s centre'
+    ref = reference(held.memory(), 7, at + [1.0, 0.0, 0.0], np.zeros((0, 3)), [], two, lossy)
+    assert ref.target[:2] == pytest.approx(at[:2]), 'its goal term aims where it held, not at the centre'

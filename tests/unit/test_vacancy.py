@@ -121,7 +121,7 @@ def test_a_chain_is_taut_when_its_links_outgrow_what_holds_or_it_no_longer_reach
     forming = relay._replace(seen=heard({r: 400 for r in ALL} | {2: 90}))  # not heard since it settled (100)
     assert not is_taut(forming, chain_heard((130.0, 1))), 'cluster 2\'s servers may not be there yet'
     assert not is_taut(relay, NOBODY), 'cut off alone: nothing to say of the chain'
-    assert not is_taut(relay._replace(hold=150.0), chain_heard((130.0, 1))), 'a silence it takes for lost states'
+    assert not is_taut(relay._replace(hold=(150.0,)), chain_heard((130.0, 1))), 'a silence it takes for lost states'
 
 
 def test_a_chain_found_taut_is_found_short_and_its_share_grown() -> None:

@@ -25,8 +25,8 @@ RULES.update({
     'gone': 'a neighbour whose state so predicted lies beyond r is taken for gone',
     'fresh': 'an old neighbour state\'s velocity counts less in velocity consensus, nothing at 2 x FRESH_STEPS',
     'inside': 'relay chains laid on links no longer than the channel still delivers half over (demand.reach_of)',
-    'hold': 'a relay takes a side of its chain silent for no longer than the channel\'s losses last for lost '
-            'states and holds its place (demand.hushed)',
+    'hold': 'a relay that hears one side of its chain, or a server no relay of its cluster, for no longer than '
+            'the channel\'s losses last takes it for lost states and holds its place (demand.hushed, demand.anchored)',
 })
 OFF: set[str] = set()
 

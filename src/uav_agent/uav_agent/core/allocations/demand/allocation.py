@@ -72,6 +72,8 @@ def demand_switch(mem: Mine, agent_id: int, r_g: float, q: np.ndarray, clusters:
         mem = served(mem, r_g, arrived, fp)
         if mem.mode == M0 and mem.achieved >> mem.goal & 1:
             mem = mem._replace(mode=M2)
+        if mem.settled and not mem.transit:
+            mem = anchored(mem, q, near, clusters, step, fp)
         return mem
     edge = roles.edges[role - clusters.count]
     if mem.mode != M1 or mem.bridge != edge:
@@ -90,7 +92,8 @@ def demand_switch(mem: Mine, agent_id: int, r_g: float, q: np.ndarray, clusters:
 
 
 def hushed(mem: Mine, chain: tuple[float, float, float, float, float], step: int, fp: FlockParams) -> Mine:
-    """Whether a relay that hears one side of its chain no more holds its place (Mine.hold).
+    """Whether a relay that hears one side of its chain no more holds its place (Mine.hold: its place along
+    the edge).
 
     Under a channel that loses states, a silent side is most often a neighbour whose states are lost, not an
     empty side: a relay that heard a member on both sides within fp.hush steps holds where it was when the
@@ -98,12 +101,28 @@ def hushed(mem: Mine, chain: tuple[float, float, float, float, float], step: int
     its chain towards the silent side, and the chain crawls until it breaks on the other (docs/links.md).
     """
     here, below, above, _, _ = chain
+    return _hushed(mem, math.isfinite(below) and math.isfinite(above), (here,), step, fp)
+
+
+def anchored(mem: Mine, q: np.ndarray, near: Near, clusters: ClusterMap, step: int, fp: FlockParams) -> Mine:
+    """Whether a server that hears no relay of its cluster's edges any more holds its place (Mine.hold: its
+    offset from the cluster's centre): the relay's pull held it out at the end of the chain, and without it
+    the server would fall back into its cluster and break the link the silence did not (docs/links.md)."""
+    relays = any(t.mode == M1 and t.bridge is not None and mem.goal in t.bridge and not gossip_of(t).transit
+                 for t in near.told)
+    offset = tuple(float(x) for x in np.asarray(q, dtype=float)[:2] - clusters.xy[mem.goal])
+    return _hushed(mem, relays, offset, step, fp)
+
+
+def _hushed(mem: Mine, whole: bool, place: tuple[float, ...], step: int, fp: FlockParams) -> Mine:
+    """Rule 'hold': a MAP whose links were whole within fp.hush steps (0 under the paper's channel, where
+    silence is absence) holds `place` from the step they were not."""
     if fp.hush <= 0 or not on('hold'):
         return mem
-    if math.isfinite(below) and math.isfinite(above):
-        return mem if mem.both == step and mem.hold is None else mem._replace(both=step, hold=None)
-    if mem.both >= 0 and step - mem.both <= fp.hush:
-        return mem if mem.hold is not None else mem._replace(hold=here)
+    if whole:
+        return mem if mem.whole == step and mem.hold is None else mem._replace(whole=step, hold=None)
+    if mem.whole >= 0 and step - mem.whole <= fp.hush:
+        return mem if mem.hold is not None else mem._replace(hold=place)
     return mem if mem.hold is None else mem._replace(hold=None)
 
 
@@ -356,13 +375,15 @@ class Demand:
         if mine.mode == M1 and mine.bridge is not None:
             va, vb = clusters.velocities[mine.bridge[0]], clusters.velocities[mine.bridge[1]]
             place = swing_place(mine.swing, mine.bridge, clusters, fp) if mine.swing is not None else \
-                mine.hold if mine.hold is not None else \
+                mine.hold[0] if mine.hold is not None else \
                 relay_place(agent_id, q, mine.bridge, nbr_q, told, clusters, fp, mine.lost, mine.short)
             q1, q2 = relay_slot(place, mine.bridge, clusters, fp)
             # The slot moves as its point of the edge does: at the velocity interpolated between the ends.
             length = clusters.axis(mine.bridge)[2]
             vs = va + (min(max(place / length, 0.0), 1.0) if length > 0 else 0.5) * (vb - va)
             return Reference(here, q1, q2, M1, np.array([v, vs, vs]))
+        if mine.hold is not None and mine.goal != NO_GOAL:  # a server holding its place (anchored)
+            here = here + np.array([*mine.hold, 0.0])
         return hold(mine, here, v)
 
     def link(self, a: Told, b: Told) -> int:

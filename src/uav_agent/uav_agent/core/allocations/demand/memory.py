@@ -38,9 +38,10 @@ class Own(NamedTuple):
     step) pairs; the spans of keys known lost; the roles found short, as (role code, MAPs); and the step it last
     reached its role's place. A relay counts the steps it has found its chain taut (taut). A relay released
     from a chain that stood out of the tree to one of its clusters flies straight there, along its own chain
-    (straight; layout.standing), not along the tree. Under a lossy channel a relay keeps the last step it
-    heard its chain on both sides (both) and, while a side is silent no longer than the channel's losses
-    last, the place along its edge it holds (hold; demand.hushed)."""
+    (straight; layout.standing), not along the tree. Under a lossy channel a MAP keeps the last step its links
+    were whole (whole: a relay heard its chain on both sides, a server a relay of its cluster) and, while
+    they have been broken no longer than the channel's losses last, the place it holds (hold: a relay's place
+    along its edge, a server's offset from its cluster's centre; demand.hushed, demand.anchored)."""
 
     best: float = 0.0
     flat: int = 0
@@ -53,8 +54,8 @@ class Own(NamedTuple):
     since: int = -1
     taut: int = 0
     straight: bool = False
-    both: int = -1
-    hold: Optional[float] = None
+    whole: int = -1
+    hold: Optional[tuple[float, ...]] = None
 
     def said(self) -> Gossip:
         """What the MAP's state message carries of it (Told.block)."""
