@@ -11,7 +11,8 @@ Layout n is layout n of `./uav-flock layouts --seed 0`, with the default policie
   paper    the paper's layout, 90 MAPs, with its own policies (Algorithm 2), seed n for layout n, 60 s
   paper_demand  the same with the default policies (the demand allocation)
 Channels (the scenario's links:, docs/scenarios.md): `perfect` (none), or a name of the form
-[alpha][loss]<p>[B<burst>][L<latency>], e.g. alpha.3L2 = {delivery: alpha, z1: 0.8, loss: 0.3, latency: 2}.
+[alpha][loss]<p>[B<burst>][L<latency>][T<ttl>], e.g. alpha.3L2 = {delivery: alpha, z1: 0.8, loss: 0.3, latency: 2}
+(ttl 10 unless T says otherwise).
 A variant names the rules switched off (core/ablation.py; `all`: none off), e.g. predict+gone: stale neighbour
 states used as they came, before the MAP predicted them and dropped the ones gone. Variants are paired by run.
 The usable graph links two MAPs whose delivery probability is at least 0.5 (links.USABLE; under disc, the
@@ -53,12 +54,12 @@ def channel(name: str) -> links.Links:
     """A channel by its name (module docstring); ValueError for a name of no channel."""
     if name == 'perfect':
         return links.Links()
-    m = re.fullmatch(r'(alpha)?(?:loss)?(\d*\.?\d+)(?:B(\d*\.?\d+))?(?:L(\d+))?', name)
+    m = re.fullmatch(r'(alpha)?(?:loss)?(\d*\.?\d+)(?:B(\d*\.?\d+))?(?:L(\d+))?(?:T(\d+))?', name)
     if not m:
-        raise ValueError(f'{name!r}: expected perfect or [alpha][loss]<p>[B<burst>][L<latency>]')
-    alpha, loss, burst, latency = m.groups()
+        raise ValueError(f'{name!r}: expected perfect or [alpha][loss]<p>[B<burst>][L<latency>][T<ttl>]')
+    alpha, loss, burst, latency, ttl = m.groups()
     return links.check(links.Links('alpha' if alpha else 'disc', 0.8, float(loss), float(burst or 1.0),
-                                   int(latency or 0), max(10, int(latency or 0))))
+                                   int(latency or 0), int(ttl) if ttl else max(10, int(latency or 0))))
 
 
 def scenario_of(kind: str, n: int, lay: Scenario, seed: int, name: str) -> tuple[Scenario, int]:
