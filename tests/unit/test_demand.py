@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from uav_agent.core.agent import Neighbourhood, agent_step
 from uav_agent.core.allocations.algorithm2 import mode_switch
 from uav_agent.core.allocations.demand import layout
-from uav_agent.core.allocations.demand.allocation import (STALL_STEPS, anchored, demand_switch, en_route, hushed, pivot,
+from uav_agent.core.allocations.demand.allocation import (anchored, demand_switch, en_route, hushed, pivot,
                                                           relay_place, swing_place)
 from uav_agent.core.allocations.demand.memory import Gossip, Mine
 from uav_agent.core.clusters import NO_GOAL, ClusterMap, key_of, mst_edges
@@ -65,27 +65,6 @@ def test_every_map_of_an_edge_role_bridges_that_edge_in_connectivity_mode() -> N
             assert mem.mode == M1 and mem.bridge == roles.edges[role - clusters.count]
         else:
             assert mem.mode == M0 and mem.goal == role and mem.bridge is None
-
-
-def server_of(clusters: ClusterMap, cluster: int) -> int:
-    roles = layout.roles(clusters, P.d)
-    return next(i for i in range(1000) if roles.of(key_of(i)) == cluster)
-
-
-def test_a_cluster_stalled_below_r0_still_counts_as_served() -> None:
-    clusters = line([100.0, 200.0])
-    i = server_of(clusters, 1)
-    cover = np.array([0.0, 0.90, 0.0])  # under r0 = 0.95 for good
-    mem = Memory()
-    here = np.array([clusters.xy[1][0], 0.0, 20.0])
-    for _ in range(STALL_STEPS + 2):
-        mem = decide(mem, i, 12, cover, here, [], clusters, P)
-    assert mem.achieved >> 1 & 1, 'the stalled cluster joins the achieved set'
-    assert mem.mode == M2
-    growing = Memory()
-    for k in range(STALL_STEPS + 2):
-        growing = decide(growing, i, 12, np.array([0.0, 0.011 * k, 0.0]), here, [], clusters, P)
-    assert not growing.achieved >> 1 & 1 and growing.mode == M0, 'a cluster still gaining is not yet served'
 
 
 def test_a_relay_aims_midway_between_the_chain_members_it_hears() -> None:

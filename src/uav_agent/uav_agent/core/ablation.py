@@ -16,7 +16,6 @@ RULES = {
     'straight': 'released relays of a standing chain fly straight along it (demand.demand_switch)',
     'vacate': 'vacated roles: a role heard of by nobody for VACANT_STEPS is declared lost (vacancy.vacate)',
     'short': 'short roles: a relay that finds its chain taut asks for more MAPs (demand.tally)',
-    'stall': 'a goal whose coverage stopped growing counts as served (demand.served)',
     'reach': 'a relay stays where both clusters\' servers reach it (demand.relay_place)',
 }
 # The channel's (core/agent.heard_from): what a MAP makes of a neighbour state that is not of this step.

@@ -20,23 +20,12 @@ from .vacancy import code, gossip, role_of, vacate
 if TYPE_CHECKING:
     from ...params import FlockParams
 
-STALL_STEPS = 50             # steps without a 1 % gain after which a goal's coverage counts as stalled
-STALL_GAIN = 0.01
 TAUT_STEPS = 100             # 10 s of a relay's chain found taut (demand.taut) find it one MAP short
 
 
-def served(mem: Mine, r_g: float, arrived: bool, fp: FlockParams) -> Mine:
-    """Track the goal's coverage: achieved above r0, or once it has stopped growing (a stall).
-
-    A cluster whose MAPs are all in place but that stays just under r0 would otherwise never count as
-    served; STALL_STEPS without a gain of STALL_GAIN, counted while this MAP is at the cluster (arrived),
-    count it served, so it joins the achieved set.
-    """
-    if r_g > mem.best + STALL_GAIN:
-        mem = mem._replace(best=r_g, flat=0)
-    elif arrived and r_g > 0:
-        mem = mem._replace(flat=mem.flat + 1)
-    if (r_g > fp.r0 or mem.flat >= STALL_STEPS and on('stall')) and not mem.achieved >> mem.goal & 1:
+def served(mem: Mine, r_g: float, fp: FlockParams) -> Mine:
+    """The goal joins the achieved set once its coverage r_g passes r0 (Algorithm 2's test)."""
+    if r_g > fp.r0 and not mem.achieved >> mem.goal & 1:
         mem = mem._replace(achieved=mem.achieved | 1 << mem.goal)
     return mem
 
@@ -69,7 +58,7 @@ def demand_switch(mem: Mine, agent_id: int, r_g: float, q: np.ndarray, clusters:
         arrived = float(np.hypot(*(np.asarray(q, dtype=float)[:2] - clusters.xy[role]))) <= clusters.radii[role]
         if arrived and (mem.transit or not mem.settled):
             mem = mem._replace(settled=True, transit=False, since=step)
-        mem = served(mem, r_g, arrived, fp)
+        mem = served(mem, r_g, fp)
         if mem.mode == M0 and mem.achieved >> mem.goal & 1:
             mem = mem._replace(mode=M2)
         if mem.settled and not mem.transit:

@@ -30,21 +30,19 @@ def gossip_of(told: Told) -> Gossip:
 
 
 class Own(NamedTuple):
-    """The demand allocation's memory: the best coverage of its goal so far and the steps since it last grew;
-    whether it has reached its role's place once, and whether it is on its way to a new role since (transit:
-    a role change after settling, flown along the tree); a relay whose edge left the tree for one with a
-    cluster in common swings about that cluster (swing: the pivot and its place along the gap). What it
-    gossips of the roles (vacancy.py): the last step a member of each role was heard of, as sorted (role code,
-    step) pairs; the spans of keys known lost; the roles found short, as (role code, MAPs); and the step it last
-    reached its role's place. A relay counts the steps it has found its chain taut (taut). A relay released
-    from a chain that stood out of the tree to one of its clusters flies straight there, along its own chain
-    (straight; layout.standing), not along the tree. Under a lossy channel a MAP keeps the last step its links
-    were whole (whole: a relay heard its chain on both sides, a server a relay of its cluster) and, while
-    they have been broken no longer than the channel's losses last, the place it holds (hold: a relay's place
-    along its edge, a server's offset from its cluster's centre; demand.hushed, demand.anchored)."""
+    """The demand allocation's memory: whether it has reached its role's place once, and whether it is on its
+    way to a new role since (transit: a role change after settling, flown along the tree); a relay whose edge
+    left the tree for one with a cluster in common swings about that cluster (swing: the pivot and its place
+    along the gap). What it gossips of the roles (vacancy.py): the last step a member of each role was heard of,
+    as sorted (role code, step) pairs; the spans of keys known lost; the roles found short, as (role code,
+    MAPs); and the step it last reached its role's place. A relay counts the steps it has found its chain taut
+    (taut). A relay released from a chain that stood out of the tree to one of its clusters flies straight
+    there, along its own chain (straight; layout.standing), not along the tree. Under a lossy channel a MAP
+    keeps the last step its links were whole (whole: a relay heard its chain on both sides, a server a relay of
+    its cluster) and, while they have been broken no longer than the channel's losses last, the place it holds
+    (hold: a relay's place along its edge, a server's offset from its cluster's centre; demand.hushed,
+    demand.anchored)."""
 
-    best: float = 0.0
-    flat: int = 0
     settled: bool = False
     transit: bool = False
     swing: Optional[tuple[int, float]] = None
