@@ -13,7 +13,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from uav_agent.core.agent import FRESH_STEPS, Heard, Said, heard_from
+from uav_agent.core.agent import Heard, Said, heard_from
 from uav_agent.core.links import USABLE, Inbox, Links, delivery, heard, lost, reach
 from uav_agent.core.potentials import bump
 from uav_agent.core.state import Told
@@ -120,23 +120,11 @@ def test_a_stale_state_stands_where_its_sender_flew_on_and_one_gone_out_of_range
     held = [(3, 0, Heard(np.array([10.0, 0, 20]), np.array([5.0, 0, 0]), 2.0, said)),
             (5, 4, Heard(np.array([10.0, 0, 20]), np.array([5.0, 0, 0]), 1.0, said)),
             (8, 4, Heard(np.array([20.0, 0, 20]), np.array([5.0, 0, 0]), 0.0, said))]
-    still = np.zeros(3)
-    hood = heard_from(held, 0.1, np.zeros(3) + [0, 0, 20], still, R)
+    hood = heard_from(held, 0.1, np.zeros(3) + [0, 0, 20], R)
     assert hood.q[:, 0].tolist() == [10.0, 12.0, 22.0], 'age 0 as heard; age 4 flown on 4 x 0.1 s at 5 m/s'
     assert hood.n_users.tolist() == [2.0, 1.0, 0.0] and len(hood.told) == 3
-    far = heard_from(held, 0.1, np.array([-5.0, 0, 20]), still, R)
+    far = heard_from(held, 0.1, np.array([-5.0, 0, 20]), R)
     assert far.q[:, 0].tolist() == [10.0, 12.0], 'MAP 8, flown on to 27 m away, is taken for gone'
-
-
-def test_an_old_state_counts_less_in_velocity_consensus_and_nothing_at_twice_fresh_steps() -> None:
-    said = Said(0, Told(0, -1, None))
-    held = [(j, age, Heard(np.array([10.0, 0, 20]), np.array([4.0, 0, 0]), 0.0, said))
-            for j, age in enumerate((0, FRESH_STEPS, round(1.5 * FRESH_STEPS), 2 * FRESH_STEPS, 10))]
-    own = np.array([0.0, 2.0, 0.0])
-    p = heard_from(held, 0.1, np.array([0.0, 0, 20]), own, 1e3).p
-    assert p[:2].tolist() == [[4.0, 0, 0]] * 2, 'up to FRESH_STEPS old: as heard'
-    assert p[3:].tolist() == [own.tolist()] * 2, 'from twice that: the MAP\'s own velocity, no consensus pull'
-    assert 0.0 < p[2, 0] < 4.0 and p[2, 0] / 4.0 + p[2, 1] / 2.0 == pytest.approx(1.0), 'between: a blend'
 
 
 def test_chains_are_laid_inside_what_the_channel_delivers() -> None:

@@ -315,9 +315,9 @@ class AgentNode(Node):
         else:
             heard = [self.latest[j] for j in needed]  # ascending id, as the world lists them
         if self.realtime and self.inbox is not None:
-            hood = heard_from(self.inbox.usable(s.step), self.dt, s.q, s.p, self.params.r)
+            hood = heard_from(self.inbox.usable(s.step), self.dt, s.q, self.params.r)
         elif self.inbox is not None:
-            hood = heard_from(self.through_channel(s, heard), self.dt, s.q, s.p, self.params.r)
+            hood = heard_from(self.through_channel(s, heard), self.dt, s.q, self.params.r)
         else:
             hood = Neighbourhood.hearing(np.array([m.q for m in heard]), np.array([m.p for m in heard]),
                                          np.array([float(m.n_users) for m in heard]), [said(m) for m in heard])

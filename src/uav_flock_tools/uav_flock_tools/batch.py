@@ -86,7 +86,7 @@ class BatchSimulator:
             js = pairs[sensed.bounds[n]:sensed.bounds[n + 1], 1][ok[sensed.bounds[n]:sensed.bounds[n + 1]]]
             self.inboxes[i].receive(sensed.k, rows[js].tolist(), [Heard(sensed.q[j].copy(), sensed.p[j].copy(),
                                                                         float(sensed.n_users[j]), said[j]) for j in js])
-            hoods.append(heard_from(self.inboxes[i].usable(sensed.k), s.dt, sensed.q[n], sensed.p[n], s.flock.r))
+            hoods.append(heard_from(self.inboxes[i].usable(sensed.k), s.dt, sensed.q[n], s.flock.r))
             owner += [n] * len(hoods[-1].q)
         return hoods, np.array(owner, dtype=np.intp), Neighbourhood(
             np.concatenate([np.zeros((0, 3)), *(h.q for h in hoods)]), np.concatenate([np.zeros((0, 3)), *(h.p for h in hoods)]),

@@ -22,7 +22,6 @@ RULES = {
 RULES.update({
     'predict': 'a stale neighbour state stands for where its sender is now, flown on at its velocity then',
     'gone': 'a neighbour whose state so predicted lies beyond r is taken for gone',
-    'fresh': 'an old neighbour state\'s velocity counts less in velocity consensus, nothing at 2 x FRESH_STEPS',
     'inside': 'relay chains laid on links no longer than the channel still delivers half over (demand.reach_of)',
     'hold': 'a relay that hears one side of its chain, or a server no relay of its cluster, for no longer than '
             'the channel\'s losses last takes it for lost states and holds its place (demand.hushed, demand.anchored)',

@@ -16,7 +16,6 @@ from .clusters import ClusterMap
 from .control import control_input
 from .params import FlockParams
 from .policies import decide, links, reference
-from .potentials import bump
 from .state import Memory, Near, Reference, Told
 
 
@@ -64,33 +63,20 @@ class Heard(NamedTuple):
     said: Said
 
 
-FRESH_STEPS = 3  # states up to this old count fully in velocity consensus; they count nothing at twice it
-
-
-def heard_from(held: Sequence[tuple[int, int, Heard]], dt: float, here: np.ndarray, here_p: np.ndarray,
-               r: float) -> Neighbourhood:
+def heard_from(held: Sequence[tuple[int, int, Heard]], dt: float, here: np.ndarray, r: float) -> Neighbourhood:
     """The neighbourhood of the states a MAP holds under a channel ((id, age in steps, state), ascending id,
-    as links.Inbox.usable gives them), for a MAP at `here` flying at `here_p`.
+    as links.Inbox.usable gives them), for a MAP at `here`.
 
     A state `age` steps old stands for where its sender is now, flown on at its velocity then (rule
     'predict'); one whose sender is so placed beyond r is taken for gone (rule 'gone'): out of range, its
-    messages stop as lost ones do, and its old place would pull the MAP towards where it no longer is. An
-    old state's velocity counts less in velocity consensus (rule 'fresh'): matching a velocity a second old
-    with the gain of eq. 10's consensus term sets a formation swinging (a delayed consensus), so from
-    FRESH_STEPS to twice that its weight falls to 0; the MAP takes its own velocity for the rest.
+    messages stop as lost ones do, and its old place would pull the MAP towards where it no longer is.
     """
-    states = [h for _, _, h in held]
-    q = np.array([h.q for h in states], dtype=float).reshape(-1, 3)
-    p = np.array([h.p for h in states], dtype=float).reshape(-1, 3)
-    ages = np.array([age for _, age, _ in held], dtype=float)
+    states, q = [h for _, _, h in held], np.array([h.q for _, _, h in held], dtype=float).reshape(-1, 3)
     if on('predict') and len(states):
-        q = q + (ages * dt)[:, None] * p
-    if on('fresh') and len(states):
-        w = bump(ages, FRESH_STEPS, 2 * FRESH_STEPS)[:, None]
-        p = w * p + (1.0 - w) * np.asarray(here_p, dtype=float)
+        q = q + np.array([age * dt for _, age, _ in held])[:, None] * np.array([h.p for h in states])
     keep = np.linalg.norm(q - here, axis=1) <= r if on('gone') else np.ones(len(states), dtype=bool)
-    return Neighbourhood.hearing(q[keep], p[keep], np.array([h.n_users for h in states])[keep],
-                                 [h.said for h, k in zip(states, keep) if k])
+    return Neighbourhood.hearing(q[keep], np.array([h.p for h in states]).reshape(-1, 3)[keep],
+                                 np.array([h.n_users for h in states])[keep], [h.said for h, k in zip(states, keep) if k])
 
 
 class Plan(NamedTuple):
