@@ -28,7 +28,7 @@ from world_sim.shipped import load_scenario
 
 KINDS_OF = {  # the kinds each rule was made for, then static12 where it acts on a still layout
     'carry': ('drift2', 'arrival'),
-    'kept': ('drift2', 'arrival'), 'standing': ('drift2', 'crossing'), 'lineage': ('crossing',),
+    'kept': ('drift2', 'arrival'), 'standing': ('drift2', 'crossing'),
     'swing': ('drift2',), 'tree': ('drift2', 'arrival'), 'chain': ('drift2',), 'passing': ('drift2', 'static12'),
     'straight': ('drift2',), 'vacate': ('wipeout', 'static12'), 'short': ('loss', 'static12'),
     'reach': ('loss', 'static12'),

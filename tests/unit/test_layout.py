@@ -1,4 +1,4 @@
-"""The demand allocation's roles (core/allocations/demand/layout.py): shares by demand, keys carried across surveys, lineage, kept shares, standing chains."""
+"""The demand allocation's roles (core/allocations/demand/layout.py): shares by demand, keys carried across surveys, kept shares, standing chains."""
 from __future__ import annotations
 
 import math
@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from uav_agent.core.allocations.demand import keys, layout
+from uav_agent.core.allocations.demand import layout
 from uav_agent.core.allocations.demand.allocation import demand_switch, en_route
 from uav_agent.core.allocations.demand.memory import Mine
 from uav_agent.core.clusters import NO_GOAL, ClusterMap, key_of
@@ -33,48 +33,6 @@ def test_when_a_cluster_leaves_only_its_own_maps_change_role() -> None:
     others = sum(afresh[i] != old[i] for i in range(n) if i not in own)
     assert others >= 10, f'end to end, MAPs of the roles that stayed would have moved too (here {others})'
     assert 0 not in carried and (0, 1) not in carried
-
-
-def without_lineage(before: ClusterMap, after: ClusterMap, n: int, fp: FlockParams) -> list[Any]:
-    """Roles as keys.carry lays them out when nothing tells it which cluster continues which."""
-    new, ids = layout.roles(after, fp.d), [*range(after.count), *layout.roles(after, fp.d).edges]
-    pieces = keys.carry(layout.roles(before, fp.d).pieces, dict(zip(ids, new.share)))
-    return [r for i in range(n) for lo, hi, r in pieces if lo <= key_of(i) < hi]
-
-
-def test_when_two_clusters_merge_the_servers_over_them_keep_serving_them() -> None:
-    """The survey keeps one id of two clusters that merge and ends the other. The ended cluster's servers
-    are over the merged users: they serve the cluster that goes on, which draws nobody from elsewhere
-    while they cover its growth."""
-    fp, n = FlockParams(), 150
-    xy = np.array([[0.0, 0.0], [300.0, 0.0], [50.0, 0.0], [300.0, 200.0]])  # 0 and 2 apart on the key line
-    before = ClusterMap(xy, fp.height, np.array([30.0, 30.0, 30.0, 30.0]))
-    merged = xy.copy()
-    merged[0] = [25.0, 0.0]
-    after = ClusterMap(merged, fp.height, np.array([42.0, 30.0, 30.0, 30.0]), active=np.array([True, True, False, True]),
-                       previous=before)
-    old, new = role_ids(before, n, fp), role_ids(after, n, fp)
-    over = {i for i in range(n) if old[i] in (0, 2, (0, 2))}
-    assert {i for i in range(n) if new[i] == 0} <= over, 'nobody flies in from another role'
-    assert {i for i in range(n) if old[i] == 0} <= {i for i in range(n) if new[i] == 0}, 'its own servers stay'
-    assert sum(new[i] == 0 for i in range(n)) > sum(old[i] == 0 for i in range(n)), 'it grew by servers of 2'
-    blind = without_lineage(before, after, n, fp)
-    assert any(blind[i] == 0 for i in range(n) if i not in over), 'without lineage, others would fly in'
-
-
-def test_when_a_cluster_splits_the_part_that_moves_off_is_served_by_the_servers_of_the_whole() -> None:
-    """The part of a split cluster that takes a new id is staffed from the cluster it split from, whose
-    servers are over it, not from the other roles' keys wherever those MAPs are."""
-    fp, n = FlockParams(), 150
-    xy = np.array([[0.0, 0.0], [300.0, 0.0], [300.0, 200.0]])
-    before = ClusterMap(xy, fp.height, np.array([45.0, 30.0, 30.0]))
-    split = np.array([[-25.0, 0.0], [300.0, 0.0], [300.0, 200.0], [25.0, 0.0]])
-    after = ClusterMap(split, fp.height, np.array([30.0, 30.0, 30.0, 30.0]), previous=before)
-    old, new = role_ids(before, n, fp), role_ids(after, n, fp)
-    part = {i for i in range(n) if new[i] == 3}
-    assert part and all(old[i] == 0 for i in part), 'the new part is served by servers of the whole'
-    blind = without_lineage(before, after, n, fp)
-    assert any(old[i] != 0 for i in range(n) if blind[i] == 3), 'without lineage, others would fly in'
 
 
 @settings(max_examples=60, deadline=None)

@@ -90,7 +90,7 @@ def test_only_an_allocation_knows_its_own_names() -> None:
                 names = [getattr(node, 'module', None) or ''] + [a.name for a in node.names]
                 assert not any('allocations' in n for n in names), f'{path.name} imports an allocation'
     demand = src / 'uav_agent' / 'uav_agent' / 'core' / 'allocations' / 'demand'
-    own = re.compile(r'\b(SLACK|STANDING|LINEAGE_MARGIN|lineage|standing|kept|vacate|VACANT_STEPS)\(?\b')
+    own = re.compile(r'\b(SLACK|STANDING|standing|kept|vacate|VACANT_STEPS)\(?\b')
     for path in src.rglob('*.py'):
         if demand in path.parents or 'build' in path.parts:
             continue

@@ -8,7 +8,6 @@ RULES = {
     'carry': 'keys carried across surveys: a role gives up or takes only what its share changed by (keys.carry)',
     'kept': 'kept shares: a role keeps its MAPs down to its share / (1 + SLACK) (layout.kept)',
     'standing': 'make before break: an edge that left the tree keeps its relays (layout.standing)',
-    'lineage': 'merges and splits: a continuing cluster inherits an ended one\'s keys (layout.lineage)',
     'swing': 'swinging chains: relays of a swapped edge swing about the shared cluster (demand.pivot)',
     'tree': 'along the tree: a MAP in transit flies cluster to cluster (demand.en_route)',
     'chain': 'leaving by the chain: a MAP in transit leaves its disc along the relay chain (demand.leg_aim)',

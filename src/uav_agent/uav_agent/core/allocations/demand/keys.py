@@ -11,7 +11,7 @@ the same layout, with no message exchanged.
 """
 from __future__ import annotations
 
-from typing import Iterable, Mapping, Optional, Sequence, Union
+from typing import Iterable, Sequence, Union
 
 RoleId = Union[int, tuple[int, int]]  # a cluster's id, or an MST edge (a, b): what stays the same across surveys
 Piece = tuple[float, float, RoleId]   # keys [lo, hi) belong to the role
@@ -33,15 +33,10 @@ def totals(pieces: Iterable[Piece]) -> dict[RoleId, float]:
     return held
 
 
-def carry(old: Sequence[Piece], shares: dict[RoleId, float], heirs: Optional[Mapping[RoleId, RoleId]] = None,
-          parents: Optional[Mapping[RoleId, RoleId]] = None) -> tuple[Piece, ...]:
+def carry(old: Sequence[Piece], shares: dict[RoleId, float]) -> tuple[Piece, ...]:
     """The layout after a survey: old, with each role's holding brought to its new share (shares, in role
     order, summing to 1), moving as few keys as it can.
 
-    0. A role that continues an ended one (heirs: ended role -> a role of shares) takes what it grew by from
-       the ended role's pieces, and a new role takes its share first from the role it split from (parents:
-       new role -> a role of old and shares): when two clusters merge or one splits, the MAPs already over
-       the users serve them (clusters.lineage).
     1. Neighbours trade at their common boundary: a growing role takes from a shrinking one it touches,
        so a share that moves a little moves the boundary a little, as end to end.
     2. A role still holding too much gives up its smallest pieces whole, then the high end of its largest.
@@ -50,8 +45,6 @@ def carry(old: Sequence[Piece], shares: dict[RoleId, float], heirs: Optional[Map
     """
     if not old:
         return fresh(end_to_end(shares))
-    if heirs or parents:
-        old = _inherited(old, shares, heirs or {}, parents or {})
     held = totals(old)
     spare = {role: held[role] - shares.get(role, 0.0) for role in held}
     need = {role: share - held.get(role, 0.0) for role, share in shares.items()}
@@ -134,24 +127,6 @@ def _tidied(pieces: list[list]) -> tuple[Piece, ...]:
         out[1][0] = out[0][0]
         out.pop(0)
     return tuple((lo, hi, role) for lo, hi, role in _merged(out))
-
-
-def _inherited(old: Sequence[Piece], shares: dict[RoleId, float], heirs: Mapping[RoleId, RoleId],
-               parents: Mapping[RoleId, RoleId]) -> list[Piece]:
-    """Step 0 of carry: each heir takes of its ended roles' pieces what it grew by, and each new role its
-    share from its parent; both cut from the high ends of the giver's largest pieces. A cluster that merely
-    left, beside one that stays as it was, passes nothing on."""
-    pieces = [list(p) for p in old]
-    for giver, taker in [*heirs.items(), *((parent, child) for child, parent in parents.items())]:
-        want = shares.get(taker, 0.0) - sum(p[1] - p[0] for p in pieces if p[2] == taker)
-        for p in sorted((p for p in pieces if p[2] == giver), key=lambda p: (p[0] - p[1], p[0])):
-            if want <= _EPS:
-                break
-            cut = min(want, p[1] - p[0])
-            pieces.append([p[1] - cut, p[1], taker])
-            p[1] -= cut
-            want -= cut
-    return [(lo, hi, role) for lo, hi, role in _merged([p for p in pieces if p[1] - p[0] > _EPS])]
 
 
 def halved(pieces: Sequence[Piece], role: RoleId, low: RoleId, high: RoleId) -> tuple[Piece, ...]:

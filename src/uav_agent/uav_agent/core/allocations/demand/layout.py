@@ -9,15 +9,14 @@ from __future__ import annotations
 
 import bisect
 import math
-from typing import Iterable, NamedTuple, Optional, Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from ...clusters import ClusterMap, Edge, ids_of, tree_links
+from ...clusters import ClusterMap, Edge, tree_links
 from . import keys
 from ...ablation import on
 
-LINEAGE_MARGIN = 10.0  # m beyond two clusters' radii within which one continues the other (lineage)
 SLACK = 0.3  # a cluster keeps servers down to its proportional share / (1 + SLACK) (kept)
 STANDING = 10  # surveys an edge that left the tree keeps its relays while its replacement forms (standing)
 
@@ -66,8 +65,7 @@ def _laid_out(now: ClusterMap, d: float) -> 'Roles':
             share = tuple(held.get(r, 0.0) if r in fixed else s for r, s in zip(ids, share))
             lenders = by_hops(tree, [k for e in tree if e not in was.edges for k in e])
         share = kept(share, ids, held, SLACK if on('kept') else 1e-9, lenders)
-        pieces = keys.carry(before, dict(zip(ids, share)),
-                            *(lineage(previous, now, tree) if on('lineage') else ({}, {}))) if on('carry') else \
+        pieces = keys.carry(before, dict(zip(ids, share))) if on('carry') else \
             keys.fresh(keys.end_to_end(dict(zip(ids, share))))
     else:
         pieces = keys.fresh(zip(ids, starts.tolist(), bounds.tolist()))
@@ -147,51 +145,6 @@ def kept(share: tuple[float, ...], ids: list[keys.RoleId], held: dict[keys.RoleI
         lack = sum(short)  # >= 1 - total, since the shares sum to 1
         out = [o + (1.0 - total) * w / lack for o, w in zip(out, short)]
     return tuple(out)
-
-
-def lineage(before: ClusterMap, now: ClusterMap, edges: tuple[Edge, ...]
-            ) -> tuple[dict[keys.RoleId, keys.RoleId], dict[keys.RoleId, keys.RoleId]]:
-    """Which roles of survey `now` continue which of survey `before` (heirs: ended -> continuing role;
-    parents: new -> the role it splits from), read from where the clusters are: keys.carry step 0.
-
-    The survey tracks each cluster by its centroid, so when two clusters merge one id goes on and the other
-    ends, and when one splits the part that moves off takes a new id. Without lineage the ended cluster's
-    servers, already over the merged users, were sent to whatever role their keys fell in, while the grown
-    cluster drew new servers from its neighbours on the key line, wherever they were; a split did the same
-    the other way round (docs/dynamics.md, "Merges and splits").
-    - An ended cluster's heir is the live cluster nearest its last centroid within the two radii plus
-      LINEAGE_MARGIN; an ended edge's heir is the tree edge between its ends' heirs (or ends), if any.
-    - A new cluster's parent is the cluster live in both surveys nearest it, within the same reach.
-    """
-    heirs: dict[keys.RoleId, keys.RoleId] = {}
-    parents: dict[keys.RoleId, keys.RoleId] = {}
-    was = [k for k in range(before.count) if before.live >> k & 1]
-    stays = [k for k in was if k < now.count and now.live >> k & 1]
-    for k in was:
-        if k not in stays:
-            heir = _within_reach(before.xy[k], before.radii[k], now, ids_of(now.live))
-            if heir is not None:
-                heirs[k] = heir
-    for k in ids_of(now.live):
-        if not (k < before.count and before.live >> k & 1):
-            parent = _within_reach(now.xy[k], now.radii[k], before, stays)
-            if parent is not None:
-                parents[k] = parent
-    if heirs:
-        tree = set(edges)
-        for a, b in before.mst(before.live):
-            ha, hb = heirs.get(a, a), heirs.get(b, b)
-            edge = (min(ha, hb), max(ha, hb))
-            if (a, b) not in tree and (a in heirs or b in heirs) and ha != hb and edge in tree:
-                heirs[(a, b)] = edge
-    return heirs, parents
-
-
-def _within_reach(xy: np.ndarray, radius: float, other: ClusterMap, among: Iterable[int]) -> Optional[int]:
-    """The cluster of `among` in survey `other` nearest xy, if within the two radii plus LINEAGE_MARGIN."""
-    near = [(float(np.linalg.norm(other.xy[j] - xy)), j) for j in among]
-    near = [(dist, j) for dist, j in near if dist <= radius + other.radii[j] + LINEAGE_MARGIN]
-    return min(near)[1] if near else None
 
 
 class Roles(NamedTuple):
