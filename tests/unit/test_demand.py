@@ -294,7 +294,7 @@ def test_under_a_lossy_channel_a_map_holds_its_place_through_a_silence_no_longer
     within fp.hush steps keeps the place it had when the silence began; past hush it acts as before."""
     lossy = replace(P, hush=30)
     relay = Mine(mode=M1, goal=0, bridge=(0, 1), settled=True, since=100)
-    both, one_side = (150.0, 130.0, 170.0, -math.inf, math.inf), (152.0, 130.0, math.inf, -math.inf, math.inf)
+    both, one_side = (150.0, 130.0, 170.0), (152.0, 130.0, math.inf)
     heard = hushed(relay, both, 200, lossy)
     assert (heard.whole, heard.hold) == (200, None)
     silent = hushed(heard, one_side, 210, lossy)

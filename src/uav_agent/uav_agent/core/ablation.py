@@ -15,7 +15,6 @@ RULES = {
     'straight': 'released relays of a standing chain fly straight along it (demand.demand_switch)',
     'vacate': 'vacated roles: a role heard of by nobody for VACANT_STEPS is declared lost (vacancy.vacate)',
     'short': 'short roles: a relay that finds its chain taut asks for more MAPs (demand.tally)',
-    'reach': 'a relay stays where both clusters\' servers reach it (demand.relay_place)',
 }
 # The channel's (core/agent.heard_from): what a MAP makes of a neighbour state that is not of this step.
 RULES.update({

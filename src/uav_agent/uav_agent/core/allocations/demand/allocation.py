@@ -80,7 +80,7 @@ def demand_switch(mem: Mine, agent_id: int, r_g: float, q: np.ndarray, clusters:
     return mem
 
 
-def hushed(mem: Mine, chain: tuple[float, float, float, float, float], step: int, fp: FlockParams) -> Mine:
+def hushed(mem: Mine, chain: tuple[float, float, float], step: int, fp: FlockParams) -> Mine:
     """Whether a relay that hears one side of its chain no more holds its place (Mine.hold: its place along
     the edge).
 
@@ -89,7 +89,7 @@ def hushed(mem: Mine, chain: tuple[float, float, float, float, float], step: int
     side fell silent, instead of reaching r - 1 m beyond the other side (relay_place). Reaching, it would pull
     its chain towards the silent side, and the chain crawls until it breaks on the other (docs/links.md).
     """
-    here, below, above, _, _ = chain
+    here, below, above = chain
     return _hushed(mem, math.isfinite(below) and math.isfinite(above), (here,), step, fp)
 
 
@@ -167,13 +167,10 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
     its gap if r per link does); hearing none, it takes its own place in
     the gap by its key.
     """
-    here, below, above, reach_a, reach_b = _chain(q, edge, nbr_q, told, clusters, fp)
+    here, below, above = _chain(q, edge, nbr_q, told, clusters, fp)
     length = clusters.axis(edge)[2]
     if math.isfinite(below) and math.isfinite(above):
-        mid = (below + above) / 2.0
-        if reach_b <= reach_a and on('reach'):  # both ends within reach: stay where both hold
-            return min(max(mid, reach_b), reach_a)
-        return mid
+        return (below + above) / 2.0
     if math.isfinite(below):
         return min(below + reach_of(fp) - 1.0, length)
     if math.isfinite(above):
@@ -185,41 +182,30 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
 
 
 def _chain(q: np.ndarray, edge: Edge, nbr_q: np.ndarray, told: Sequence[Told], clusters: ClusterMap,
-           fp: FlockParams) -> tuple[float, float, float, float, float]:
+           fp: FlockParams) -> tuple[float, float, float]:
     """A relay's chain as it hears it, in m along the edge from its first centre: (where the relay is, the
-    nearest member heard below it, above it (±inf: that side silent), how far towards b a server of a still
-    reaches, how far towards a a server of b still reaches)."""
+    nearest member heard below it, above it (±inf: that side silent))."""
     a, u, length = clusters.axis(edge)
     here = float(np.dot(np.asarray(q, dtype=float)[:2] - a, u))
     below, above = -math.inf, math.inf
-    # How far along the edge a relay may aim and stay within reach (r less 1 m) of some server of each
-    # cluster: a server off the axis reaches less far along it.
-    reach_a, reach_b = -math.inf, math.inf
     for qj, tj in zip(nbr_q, told):
         if not _in_place(qj, tj, edge, clusters, fp):
             continue
         at = float(np.dot(qj[:2] - a, u))
-        if tj.mode != M1 and tj.goal in edge:
-            off = abs(float(u[0] * (qj[1] - a[1]) - u[1] * (qj[0] - a[0])))
-            reach = math.sqrt(max((reach_of(fp) - 1.0) ** 2 - off * off, 0.0))
-            if tj.goal == edge[0]:
-                reach_a = max(reach_a, at + reach)
-            else:
-                reach_b = min(reach_b, at - reach)
         if tj.mode != M1 and tj.goal == edge[0] or tj.mode == M1 and tj.bridge == edge and at < here:
             below = max(below, at)
         elif tj.mode != M1 and tj.goal == edge[1] or tj.mode == M1 and tj.bridge == edge and at > here:
             above = min(above, at)
-    return here, below, above, reach_a, reach_b
+    return here, below, above
 
 
-def taut(mem: Mine, chain: tuple[float, float, float, float, float], fp: FlockParams) -> bool:
+def taut(mem: Mine, chain: tuple[float, float, float], fp: FlockParams) -> bool:
     """Whether a settled relay's chain (_chain) is stretched past what holds: the members it hears on either
     side are more than d + r apart (links longer than (d + r) / 2 break as the MAPs sway), or one side is
     silent though its cluster was heard of since the relay settled (the chain was whole and no longer reaches)
     and the relay does not take the silence for lost states (hushed)."""
     assert mem.bridge is not None
-    _, below, above, _, _ = chain
+    _, below, above = chain
     if math.isfinite(below) and math.isfinite(above):
         return above - below > fp.d + reach_of(fp)
     if math.isfinite(below) == math.isfinite(above) or mem.hold is not None:
