@@ -166,7 +166,8 @@ def main() -> int:
     ap.add_argument('--seeds', type=int, default=1, help='seeds per layout (default: 1)')
     ap.add_argument('--kinds', default='static,drift2', help=f'comma-separated, of: {", ".join(KINDS)}')
     ap.add_argument('--channels', default=','.join(CHANNELS),
-                    help=f'comma-separated; grid: the 16 of loss 0-0.6 x disc, alpha x latency 0, 3 (default: {",".join(CHANNELS)})')
+                    help='comma-separated; grid: the 16 of loss 0-0.6 x disc, alpha x latency 0, 3 '
+                         f'(default: {",".join(CHANNELS)})')
     ap.add_argument('--variants', default='all', help='comma-separated: all, or rules off joined by + (default: all)')
     ap.add_argument('--workers', type=int, default=os.cpu_count() or 1, help='processes (default: one a core)')
     ap.add_argument('--csv', default='links.csv', help='one row per run, kept across calls (default: links.csv)')

@@ -97,8 +97,8 @@ def anchored(mem: Mine, q: np.ndarray, near: Near, clusters: ClusterMap, step: i
     """Whether a server that hears no relay of its cluster's edges any more holds its place (Mine.hold: its
     offset from the cluster's centre): the relay's pull held it out at the end of the chain, and without it
     the server would fall back into its cluster and break the link the silence did not (docs/links.md)."""
-    if fp.hush <= 0:
-        return mem  # the paper's channel: nothing to look at (_hushed)
+    if fp.hush <= 0 or not on('hold'):
+        return mem  # as _hushed would, before looking at the neighbours
     relays = any(t.mode == M1 and t.bridge is not None and mem.goal in t.bridge and not gossip_of(t).transit
                  for t in near.told)
     offset = tuple(float(x) for x in np.asarray(q, dtype=float)[:2] - clusters.xy[mem.goal])
