@@ -32,7 +32,7 @@ from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, make_executor
 from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STEP_QOS, is_realtime
 
 from .core import links
-from .core.agent import Heard, Neighbourhood, Said, agent_step, heard_from
+from .core.agent import Heard, Hearing, Neighbourhood, Said, agent_step
 from .core.clusters import NO_GOAL, ClusterMap, ids_of, mask_of
 from .core.state import Memory, Told
 from .core.checks import check_fields
@@ -127,7 +127,7 @@ class AgentNode(Node):
                                                 for f in fields(links.Links)}), lambda name: f'parameter links.{name}')
         self.seed = int(self.get_parameter('seed').value)  # the run's: every channel decision draws from it
         self.dt = float(self.get_parameter('dt').value)  # the run's step (s): how far a stale state is flown on
-        self.inbox: Optional[links.Inbox[Heard]] = None if self.links.perfect else links.Inbox(self.links)
+        self.inbox: Optional[Hearing] = None if self.links.perfect else Hearing(self.links)
         self.own_at: dict[int, np.ndarray] = {}  # realtime: this MAP's position at its recent steps
         self.discarded = 0  # realtime: neighbour states the channel lost
         self.links_log = None
@@ -314,10 +314,10 @@ class AgentNode(Node):
             return
         else:
             heard = [self.latest[j] for j in needed]  # ascending id, as the world lists them
-        if self.realtime and self.inbox is not None:
-            hood = heard_from(self.inbox.usable(s.step), self.dt, s.q, self.params.r)
-        elif self.inbox is not None:
-            hood = heard_from(self.through_channel(s, heard), self.dt, s.q, self.params.r)
+        if self.inbox is not None:
+            if not self.realtime:
+                self.through_channel(s, heard)
+            hood = self.inbox.neighbourhood(s.step, self.dt, s.q, self.params.r, self.params.hush)
         else:
             hood = Neighbourhood.hearing(np.array([m.q for m in heard]), np.array([m.p for m in heard]),
                                          np.array([float(m.n_users) for m in heard]), [said(m) for m in heard])
@@ -334,16 +334,14 @@ class AgentNode(Node):
         self.last_cmd = (s.step, convert.CommandData(self.map_id, s.step, u, mem.mode, mem.goal).to_msg(self.pending_header))
         self.cmd_pub.publish(self.last_cmd[1])
 
-    def through_channel(self, s: convert.SensingData, states: list[convert.AgentStateData]) -> list[tuple[int, int, Heard]]:
-        """The neighbour states this MAP uses at step s under the scenario's channel: of the states of step s
-        that came in, those the channel delivers (links.heard, as the batch simulator decides them), then the
-        latest one of each neighbour it may use now."""
+    def through_channel(self, s: convert.SensingData, states: list[convert.AgentStateData]) -> None:
+        """Lockstep under the scenario's channel: of the neighbour states of step s that came in, those the
+        channel delivers (links.heard, as the batch simulator decides them) go into the inbox."""
         ok = links.heard(self.links, self.seed, s.step, np.full(len(states), self.map_id),
                          np.array([m.id for m in states], dtype=np.int64), np.tile(s.q, (len(states), 1)),
                          np.array([m.q for m in states]).reshape(-1, 3), self.params.r)
         self.inbox.receive(s.step, [m.id for m, o in zip(states, ok) if o],  # type: ignore[union-attr]
                            [Heard(m.q, m.p, float(m.n_users), said(m)) for m, o in zip(states, ok) if o])
-        return self.inbox.usable(s.step)  # type: ignore[union-attr]
 
     def unheard(self, s: convert.SensingData) -> list[int]:
         """The live neighbours listed for step s whose state of that step has not come in."""

@@ -11,7 +11,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from uav_agent.core import links
-from uav_agent.core.agent import Heard, Neighbourhood, Said, heard_from, plan
+from uav_agent.core.agent import Heard, Hearing, Neighbourhood, Said, plan
 from uav_agent.core.control import control_input
 from uav_agent.core.state import Memory
 
@@ -27,8 +27,8 @@ class BatchSimulator:
         self.world = World(scenario)
         self.memory = [Memory() for _ in range(scenario.maps)]
         # What each MAP holds of its neighbours' states, under a channel that is not the paper's (links.py).
-        self.inboxes: Optional[list[links.Inbox[Heard]]] = \
-            None if scenario.links.perfect else [links.Inbox(scenario.links) for _ in range(scenario.maps)]
+        self.inboxes: Optional[list[Hearing]] = \
+            None if scenario.links.perfect else [Hearing(scenario.links) for _ in range(scenario.maps)]
 
     # Views kept for callers that inspect the run as it goes.
     users = property(lambda self: self.world.users)
@@ -86,7 +86,7 @@ class BatchSimulator:
             js = pairs[sensed.bounds[n]:sensed.bounds[n + 1], 1][ok[sensed.bounds[n]:sensed.bounds[n + 1]]]
             self.inboxes[i].receive(sensed.k, rows[js].tolist(), [Heard(sensed.q[j].copy(), sensed.p[j].copy(),
                                                                         float(sensed.n_users[j]), said[j]) for j in js])
-            hoods.append(heard_from(self.inboxes[i].usable(sensed.k), s.dt, sensed.q[n], s.flock.r))
+            hoods.append(self.inboxes[i].neighbourhood(sensed.k, s.dt, sensed.q[n], s.flock.r, s.flock.hush))
             owner += [n] * len(hoods[-1].q)
         return hoods, np.array(owner, dtype=np.intp), Neighbourhood(
             np.concatenate([np.zeros((0, 3)), *(h.q for h in hoods)]), np.concatenate([np.zeros((0, 3)), *(h.p for h in hoods)]),

@@ -14,9 +14,12 @@ import numpy as np
 from .ablation import on
 from .clusters import ClusterMap
 from .control import control_input
+from .links import Inbox, Links
 from .params import FlockParams
 from .policies import decide, links, reference
-from .state import Memory, Near, Reference, Told
+from .state import M0, M1, PASSING, Memory, Near, Reference, Told, hold
+
+STILL_MARGIN = 2.0  # m inside r: a neighbour last placed nearer than that to r may be leaving (rule 'still')
 
 
 class Said(NamedTuple):
@@ -41,6 +44,7 @@ class Neighbourhood:
     n_users: np.ndarray    # (n,) N_u^j
     achieved: list[int]    # achieved-goal masks
     told: list[Told]       # what each one stated of its role, and its allocation's block
+    silent: bool = False   # a neighbour fell silent that is most likely still there (Hearing.neighbourhood)
 
     @classmethod
     def empty(cls) -> 'Neighbourhood':
@@ -63,6 +67,14 @@ class Heard(NamedTuple):
     said: Said
 
 
+def _flown_on(held: Sequence[tuple[int, int, Heard]], dt: float) -> np.ndarray:
+    """Where each held state's sender is now (rule 'predict': flown on at its velocity then for its age)."""
+    q = np.array([h.q for _, _, h in held], dtype=float).reshape(-1, 3)
+    if on('predict') and len(held):
+        q = q + np.array([age * dt for _, age, _ in held])[:, None] * np.array([h.p for _, _, h in held])
+    return q
+
+
 def heard_from(held: Sequence[tuple[int, int, Heard]], dt: float, here: np.ndarray, r: float) -> Neighbourhood:
     """The neighbourhood of the states a MAP holds under a channel ((id, age in steps, state), ascending id,
     as links.Inbox.usable gives them), for a MAP at `here`.
@@ -71,12 +83,43 @@ def heard_from(held: Sequence[tuple[int, int, Heard]], dt: float, here: np.ndarr
     'predict'); one whose sender is so placed beyond r is taken for gone (rule 'gone'): out of range, its
     messages stop as lost ones do, and its old place would pull the MAP towards where it no longer is.
     """
-    states, q = [h for _, _, h in held], np.array([h.q for _, _, h in held], dtype=float).reshape(-1, 3)
-    if on('predict') and len(states):
-        q = q + np.array([age * dt for _, age, _ in held])[:, None] * np.array([h.p for h in states])
+    states, q = [h for _, _, h in held], _flown_on(held, dt)
     keep = np.linalg.norm(q - here, axis=1) <= r if on('gone') else np.ones(len(states), dtype=bool)
     return Neighbourhood.hearing(q[keep], np.array([h.p for h in states]).reshape(-1, 3)[keep],
                                  np.array([h.n_users for h in states])[keep], [h.said for h, k in zip(states, keep) if k])
+
+
+class Hearing(Inbox[Heard]):
+    """What one MAP holds of its neighbours under a channel that is not the paper's: their states (links.Inbox)
+    and, for rule 'still', the step of the latest state of each that placed it well inside r (STILL_MARGIN).
+
+    The agent node holds one for its MAP, the batch simulator one per MAP.
+    """
+
+    def __init__(self, channel: Links) -> None:
+        super().__init__(channel)
+        self.placed: dict[int, int] = {}
+
+    def neighbourhood(self, k: int, dt: float, here: np.ndarray, r: float, hush: int) -> Neighbourhood:
+        """heard_from of the states usable at step k, and whether a neighbour fell silent (Neighbourhood.silent).
+
+        A neighbour forgotten (past ttl) whose last state placed it well inside r has most likely not left
+        but lost its states in a burst; for up to `hush` steps after that state the MAP counts it silent.
+        One whose latest state places it near the rim or beyond is let go: it may be leaving.
+        """
+        held = self.usable(k)
+        hood = heard_from(held, dt, here, r)
+        inside = np.linalg.norm(_flown_on(held, dt) - here, axis=1) <= r - STILL_MARGIN
+        for (j, age, _), well in zip(held, inside):
+            if well:
+                self.placed[j] = k - age
+            else:
+                self.placed.pop(j, None)
+        now = {j for j, _, _ in held}
+        for j in [j for j, at in self.placed.items() if k - at > hush]:
+            del self.placed[j]
+        hood.silent = on('still') and any(j not in now for j in self.placed)
+        return hood
 
 
 class Plan(NamedTuple):
@@ -93,7 +136,22 @@ def plan(mem: Memory, agent_id: int, q: np.ndarray, n_users: int, cluster_covera
     """Algorithm 1 lines 3-5 for one MAP at step k: gossip, mode switch (Alg. 2), the goal term's reference."""
     mem = decide(mem, agent_id, n_users, cluster_coverage, q, nbrs.achieved, clusters, params, step,
                  Near(nbrs.q, nbrs.told))
-    return Plan(mem, reference(mem, agent_id, q, nbrs.q, nbrs.told, clusters, params), links(mem, nbrs.told, params))
+    ref = reference(mem, agent_id, q, nbrs.q, nbrs.told, clusters, params)
+    if nbrs.silent and ref.mode != M0:
+        return still(mem, q, ref, len(nbrs.told))
+    return Plan(mem, ref, links(mem, nbrs.told, params))
+
+
+def still(mem: Memory, q: np.ndarray, ref: Reference, heard: int) -> Plan:
+    """Rule 'still': a MAP at its role (M1 or M2) that hears a neighbour fall silent holds where it is, moving
+    only as its goal does, and keeps from its neighbours the repulsion within d/2 alone.
+
+    Under bursts of losses, a neighbour forgotten mid-burst takes its forces with it and gives them back when
+    it is heard again: the formation, pushed each time, never came to rest and swayed its links past r and
+    its users out of reach (docs/links.md). Held still, a MAP owes its place to no neighbour's message.
+    """
+    v = ref.velocity[1] if ref.mode == M1 else ref.velocity[0]
+    return Plan(mem, hold(mem, np.asarray(q, dtype=float), v), [PASSING] * heard)
 
 
 def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_users: int, cluster_coverage: np.ndarray,

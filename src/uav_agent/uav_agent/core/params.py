@@ -43,7 +43,7 @@ class FlockParams:
     # The longest link a MAP relies on (m), 0 for r: where the scenario's channel delivers half of what is
     # sent (links.reach). Set from its `links:` section, never in `flock:`.
     reach: float = 0.0
-    # Steps a relay takes a chain member's silence for the channel's losses, not for its absence (links.hush):
+    # Steps a MAP takes a neighbour's silence for the channel's losses, not for its absence (links.hush):
     # 0 under the paper's channel, where silence is absence. Set from `links:` too.
     hush: int = 0
 
