@@ -36,88 +36,19 @@ from typing import Optional
 
 import numpy as np
 
-from uav_agent.core.clusters import mst_edges
 from uav_agent.core.state import M1, Told
 from uav_flock_tools.layouts import draw, policy_sets
 from uav_flock_tools.batch import BatchSimulator
-from world_sim.core import layouts, physics
-from world_sim.core.scenario import Cluster, Scenario
+from uav_flock_tools.study.cases import EVENT_S, HELD_S, case, figures, outage_s, wipe_at  # noqa: F401 (case, outage_s: bench_links)
+from world_sim.core import physics
+from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario
 
 KINDS = ('drift1', 'drift2', 'drift3', 'crossing', 'loss', 'wipeout', 'arrival')
-EVENT_S = {'loss': 45.0, 'wipeout': 45.0, 'arrival': 40.0}
-HELD_S = 10.0  # a run "ends covered and connected" when it is so over its last HELD_S
 FEW = 3        # up to this many MAPs cut off are told apart by what each was doing; more are a piece
 CUT = ('transit', 'relay', 'server', 'piece')
 AFTER = ('swing', 'standing', 'ended', 'began', 'none')  # what changed last before a larger piece split off
 RECENT_S = 20.0  # a change longer ago than this is 'none'
-
-
-def lb_along(s: Scenario, until: float) -> int:
-    """The largest floor LB of the layout as its drifting clusters move, sampled every 5 s."""
-    most = 0
-    for t in np.arange(0.0, until + 1e-9, 5.0):
-        moved = tuple(dataclasses.replace(c, center=(c.center[0] + c.velocity[0] * t, c.center[1] + c.velocity[1] * t))
-                      for c in s.clusters)
-        most = max(most, layouts.floor(dataclasses.replace(s, clusters=moved)).total)
-    return most
-
-
-def case(kind: str, lay: Scenario, seed: int, rng: np.random.Generator) -> Scenario:
-    """The scenario of one run of a kind on a layout, its random choices drawn from rng."""
-    s = dataclasses.replace(lay, seed=seed, survey='online')
-    clusters = list(s.clusters)
-    if kind.startswith('drift'):
-        heading = rng.uniform(0, 2 * math.pi)
-        speed = float(kind[len('drift'):])
-        c = int(rng.integers(len(clusters)))
-        clusters[c] = dataclasses.replace(clusters[c], velocity=(round(speed * math.cos(heading), 3),
-                                                                 round(speed * math.sin(heading), 3)))
-    elif kind == 'crossing':
-        a, b = mst_edges(np.array([c.center for c in clusters]))[int(rng.integers(len(clusters) - 1))]
-        ca, cb = np.array(clusters[a].center), np.array(clusters[b].center)
-        v = (cb - ca) * 2.0 / 90.0  # each is at the other's place at 45 s and as far beyond by 90 s
-        clusters[a] = dataclasses.replace(clusters[a], velocity=(round(v[0], 3), round(v[1], 3)))
-        clusters[b] = dataclasses.replace(clusters[b], velocity=(round(-v[0], 3), round(-v[1], 3)))
-    elif kind == 'arrival':
-        xy = np.array([c.center for c in clusters])
-        mid = xy.mean(axis=0)
-        heading = rng.uniform(0, 2 * math.pi)
-        u = np.array([math.cos(heading), math.sin(heading)])
-        far = float(np.max(xy @ u - mid @ u))
-        at = mid + u * (far + rng.uniform(100.0, 150.0))
-        clusters.append(Cluster(center=(round(at[0], 1), round(at[1], 1)), spread=14.0, size=300,
-                                start=EVENT_S['arrival']))
-    s = dataclasses.replace(s, clusters=tuple(clusters))
-    if kind in ('loss', 'wipeout'):
-        s = dataclasses.replace(s, duration=120.0, maps=math.ceil(1.8 * layouts.floor(s).total))
-        if kind == 'loss':
-            s = dataclasses.replace(s, fail_at=EVENT_S['loss'], fail_fraction=0.3)
-        return s
-    if kind == 'arrival':
-        return dataclasses.replace(s, duration=100.0, maps=math.ceil(1.5 * layouts.floor(s).total))
-    return dataclasses.replace(s, duration=90.0, maps=math.ceil(1.5 * lb_along(s, 90.0)))
-
-
-def wipe_out(sim: BatchSimulator, rng: np.random.Generator) -> int:
-    """Drop every live MAP of one role picked at random: a cluster's servers or an edge's relays."""
-    roles: dict[tuple, list[int]] = {}
-    for i in np.flatnonzero(sim.alive).tolist():
-        m = sim.memory[i]
-        roles.setdefault(('edge', m.bridge) if m.mode == M1 and m.bridge else ('cluster', m.goal), []).append(i)
-    keys = sorted(roles, key=str)
-    ids = roles[keys[int(rng.integers(len(keys)))]]
-    sim.world.drop(np.array(ids))
-    return len(ids)
-
-
-def outage_s(down: np.ndarray, dt: float) -> float:
-    """The longest run of True in down, in seconds."""
-    longest = run = 0
-    for d in down.tolist():
-        run = run + 1 if d else 0
-        longest = max(longest, run)
-    return longest * dt
 
 
 def cut_off(sim: BatchSimulator) -> np.ndarray:
@@ -160,8 +91,7 @@ def run(job: tuple[str, Scenario, int]) -> dict[str, Optional[float]]:
     tree = (known.live, known.mst(known.live))
     last, since = 'none', -math.inf
     for _ in range(s.steps):
-        if kind == 'wipeout' and abs(sim.world.k * s.dt - event) < s.dt / 2:
-            wipe_out(sim, rng)
+        wipe_at(kind, sim, rng)
         sim.step()
         cut.append(cut_off(sim))
         if sim.clusters is not known:  # the tree changes only with the clusters the MAPs are told of
@@ -174,21 +104,11 @@ def run(job: tuple[str, Scenario, int]) -> dict[str, Optional[float]]:
         follows.append(AFTER.index(last if sim.world.k * s.dt - since < RECENT_S else 'none'))
     sim.step(integrate=False)
     m = sim.result().metrics
-    t, rc, connected = m[:, 1], m[:, 2], m[:, 3] > 0
-    ok = (rc >= 0.95) & connected
-    out: dict[str, Optional[float]] = {'converged': None, 'connected': None, 'outage': None, 'rc': None,
-                                       'recovery': None, 'ends_ok': None, **{f'split_{c}': None for c in CUT},
+    out: dict[str, Optional[float]] = {**figures(m, s.dt, event), **{f'split_{c}': None for c in CUT},
                                        **{f'piece_after_{a}': None for a in AFTER}}
-    held = int(round(HELD_S / s.dt))
-    out['ends_ok'] = float(ok[-held:].all())
-    out['end_rc'], out['end_components'] = float(rc[-1]), float(m[-1, 5])
-    if event is not None:
-        after = np.flatnonzero(ok & (t >= event + s.dt / 2))
-        out['recovery'] = float(t[after[0]] - event) if len(after) else None
+    ok = (m[:, 2] >= 0.95) & (m[:, 3] > 0)
     if ok.any():
         first = int(np.argmax(ok))
-        out.update(converged=float(t[first]), connected=float(connected[first:].mean()),
-                   outage=outage_s(~connected[first:], s.dt), rc=float(rc[first:].mean()))
         out.update({f'split_{c}': float(x) for c, x in zip(CUT, np.sum(cut[first:], axis=0) * s.dt)})
         piece = np.array(cut)[first:, CUT.index('piece')] > 0
         out.update({f'piece_after_{a}': float(np.sum(piece & (np.array(follows[first:]) == i)) * s.dt)

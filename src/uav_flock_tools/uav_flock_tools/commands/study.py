@@ -1,0 +1,64 @@
+"""`uav-flock study`: a grid of runs (layouts x seeds x kinds x variants) as Dask tasks, into one Parquet
+table; `--summary` says what it holds (docs/studies.md)."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from .options import UsageError, positive_int
+
+SUMMARY = 'many runs of a grid, on Dask (a local cluster or a scheduler\'s workers), into results.parquet'
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument('spec', help='a study spec (YAML; studies/*.yaml, docs/studies.md), or with --summary a study folder')
+    p.add_argument('--out', type=Path, help='the study folder: results.parquet, and the summary beside it')
+    p.add_argument('--scheduler', metavar='tcp://HOST:PORT',
+                   help='run on the workers of this Dask scheduler (default: a local cluster, one worker a core)')
+    p.add_argument('--workers', type=positive_int, help='local cluster: worker processes (default: one a core)')
+    p.add_argument('--summary', action='store_true', help='only summarise the study folder SPEC: summary.md, .csv, connected.png')
+
+
+def _progress(done: int, total: int, elapsed: float) -> None:
+    eta = f', about {elapsed / done * (total - done) / 60:.0f} min left' if done else ''
+    print(f'  {done}/{total} runs, {elapsed:.0f} s{eta}', file=sys.stderr, flush=True)
+
+
+def handle(args: argparse.Namespace) -> int:
+    from ..study import engine, summary
+    from ..study.spec import SpecError, load, runs
+    if args.summary:
+        folder = Path(args.spec)
+        if not (folder / engine.RESULTS).exists():
+            raise UsageError(f'study: {folder}: no {engine.RESULTS} (run the study first)')
+        for path in summary.write(engine.finished(folder), folder):
+            print(path)
+        return 0
+    if args.out is None:
+        raise UsageError('study: give --out DIR, the study folder')
+    try:
+        grid = runs(load(Path(args.spec)))
+    except SpecError as exc:
+        raise UsageError(f'study: {args.spec}: {exc}') from None
+    if args.scheduler:
+        _reach(args.scheduler)
+    print(f'study: {len(grid)} runs into {args.out / engine.RESULTS}'
+          f' on {args.scheduler or "a local cluster"}', file=sys.stderr, flush=True)
+    done, total = engine.study(grid, args.out, args.scheduler, args.workers, _progress)
+    errors = sum(r['error'] is not None for r in engine.finished(args.out))
+    print(f'{args.out / engine.RESULTS}: {total} runs ({done} computed now{f", {errors} with an error" if errors else ""})')
+    return 0
+
+
+def _reach(address: str) -> None:
+    """A scheduler that is not there is one line and exit 2, not a Dask timeout's traceback."""
+    import socket
+    from urllib.parse import urlparse
+    url = urlparse(address)
+    if url.scheme != 'tcp' or not url.hostname or not url.port:
+        raise UsageError(f'study: --scheduler {address!r}: expected tcp://HOST:PORT')
+    try:
+        socket.create_connection((url.hostname, url.port), timeout=5).close()
+    except OSError as exc:
+        raise UsageError(f'study: --scheduler {address}: no scheduler there ({exc.strerror or exc})') from None

@@ -1,0 +1,120 @@
+"""The kinds of motion and loss a run of a study (and benchmarks/bench_motion.py) flies on a layout, and the
+figures one run yields: one place for both, so that a study reproduces the benchmark run by run."""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Optional
+
+import numpy as np
+
+from uav_agent.core.clusters import mst_edges
+from uav_agent.core.state import M1
+from world_sim.core import layouts
+from world_sim.core.scenario import Cluster, Scenario
+
+from ..batch import BatchSimulator
+
+EVENT_S = {'loss': 45.0, 'wipeout': 45.0, 'arrival': 40.0}
+HELD_S = 10.0  # a run "ends covered and connected" when it is so over its last HELD_S
+# The figures of one run (figures()): its first step covered (R_c >= 95 %) and connected, the share of time
+# connected after it, the longest outage after it, mean R_c after it, time from the event to covered and
+# connected again, whether it ends covered and connected over HELD_S, and R_c and components at the end.
+FIGURES = ('converged', 'connected', 'outage', 'rc', 'recovery', 'ends_ok', 'end_rc', 'end_components')
+
+
+def lb_along(s: Scenario, until: float) -> int:
+    """The largest floor LB of the layout as its drifting clusters move, sampled every 5 s."""
+    most = 0
+    for t in np.arange(0.0, until + 1e-9, 5.0):
+        moved = tuple(dataclasses.replace(c, center=(c.center[0] + c.velocity[0] * t, c.center[1] + c.velocity[1] * t))
+                      for c in s.clusters)
+        most = max(most, layouts.floor(dataclasses.replace(s, clusters=moved)).total)
+    return most
+
+
+def case(kind: str, lay: Scenario, seed: int, rng: np.random.Generator, value: Optional[float] = None) -> Scenario:
+    """The scenario of one run of a kind on a layout, its random choices drawn from rng, N by the kind's rule.
+
+    kind: drift (value: speed, m/s), crossing, arrival, loss (value: the share of MAPs that fail), wipeout;
+    bench_motion's drift1/2/3 are drift at 1, 2, 3 m/s.
+    """
+    if kind.startswith('drift') and kind != 'drift':
+        kind, value = 'drift', float(kind[len('drift'):])
+    s = dataclasses.replace(lay, seed=seed, survey='online')
+    clusters = list(s.clusters)
+    if kind == 'drift':
+        heading = rng.uniform(0, 2 * math.pi)
+        speed = 2.0 if value is None else value
+        c = int(rng.integers(len(clusters)))
+        clusters[c] = dataclasses.replace(clusters[c], velocity=(round(speed * math.cos(heading), 3),
+                                                                 round(speed * math.sin(heading), 3)))
+    elif kind == 'crossing':
+        a, b = mst_edges(np.array([c.center for c in clusters]))[int(rng.integers(len(clusters) - 1))]
+        ca, cb = np.array(clusters[a].center), np.array(clusters[b].center)
+        v = (cb - ca) * 2.0 / 90.0  # each is at the other's place at 45 s and as far beyond by 90 s
+        clusters[a] = dataclasses.replace(clusters[a], velocity=(round(v[0], 3), round(v[1], 3)))
+        clusters[b] = dataclasses.replace(clusters[b], velocity=(round(-v[0], 3), round(-v[1], 3)))
+    elif kind == 'arrival':
+        xy = np.array([c.center for c in clusters])
+        mid = xy.mean(axis=0)
+        heading = rng.uniform(0, 2 * math.pi)
+        u = np.array([math.cos(heading), math.sin(heading)])
+        far = float(np.max(xy @ u - mid @ u))
+        at = mid + u * (far + rng.uniform(100.0, 150.0))
+        clusters.append(Cluster(center=(round(at[0], 1), round(at[1], 1)), spread=14.0, size=300,
+                                start=EVENT_S['arrival']))
+    s = dataclasses.replace(s, clusters=tuple(clusters))
+    if kind in ('loss', 'wipeout'):
+        s = dataclasses.replace(s, duration=120.0, maps=math.ceil(1.8 * layouts.floor(s).total))
+        if kind == 'loss':
+            s = dataclasses.replace(s, fail_at=EVENT_S['loss'], fail_fraction=0.3 if value is None else value)
+        return s
+    if kind == 'arrival':
+        return dataclasses.replace(s, duration=100.0, maps=math.ceil(1.5 * layouts.floor(s).total))
+    return dataclasses.replace(s, duration=90.0, maps=math.ceil(1.5 * lb_along(s, 90.0)))
+
+
+def wipe_out(sim: BatchSimulator, rng: np.random.Generator) -> int:
+    """Drop every live MAP of one role picked at random: a cluster's servers or an edge's relays."""
+    roles: dict[tuple, list[int]] = {}
+    for i in np.flatnonzero(sim.alive).tolist():
+        m = sim.memory[i]
+        roles.setdefault(('edge', m.bridge) if m.mode == M1 and m.bridge else ('cluster', m.goal), []).append(i)
+    keys = sorted(roles, key=str)
+    ids = roles[keys[int(rng.integers(len(keys)))]]
+    sim.world.drop(np.array(ids))
+    return len(ids)
+
+
+def wipe_at(kind: str, sim: BatchSimulator, rng: np.random.Generator) -> None:
+    """Before a step: the wipe-out of a wipeout run, at its time."""
+    if kind == 'wipeout' and abs(sim.world.k * sim.scenario.dt - EVENT_S['wipeout']) < sim.scenario.dt / 2:
+        wipe_out(sim, rng)
+
+
+def outage_s(down: np.ndarray, dt: float) -> float:
+    """The longest run of True in down, in seconds."""
+    longest = run = 0
+    for d in down.tolist():
+        run = run + 1 if d else 0
+        longest = max(longest, run)
+    return longest * dt
+
+
+def figures(m: np.ndarray, dt: float, event: Optional[float]) -> dict[str, Optional[float]]:
+    """FIGURES of one run from its metrics rows (world_sim.core.records.METRICS_COLUMNS); None where a run
+    that never converged, or has no event, has none."""
+    t, rc, connected = m[:, 1], m[:, 2], m[:, 3] > 0
+    ok = (rc >= 0.95) & connected
+    out: dict[str, Optional[float]] = dict.fromkeys(FIGURES)
+    out['ends_ok'] = float(ok[-int(round(HELD_S / dt)):].all())
+    out['end_rc'], out['end_components'] = float(rc[-1]), float(m[-1, 5])
+    if event is not None:
+        after = np.flatnonzero(ok & (t >= event + dt / 2))
+        out['recovery'] = float(t[after[0]] - event) if len(after) else None
+    if ok.any():
+        first = int(np.argmax(ok))
+        out.update(converged=float(t[first]), connected=float(connected[first:].mean()),
+                   outage=outage_s(~connected[first:], dt), rc=float(rc[first:].mean()))
+    return out

@@ -1,0 +1,135 @@
+"""A study's runs as Dask tasks, their rows streamed into one Parquet table as they finish.
+
+Each finished run is written at once as its own part (parts/<key>.parquet); the parts are gathered into
+results.parquet when the study ends, is interrupted or fails, and the same command again computes only the
+runs whose key is in neither. The runs go to a LocalCluster sized to the machine, or to the workers of an
+existing scheduler (`dask scheduler`, `dask worker` on any host with uav-flock installed).
+"""
+from __future__ import annotations
+
+import os
+import socket
+import time
+import traceback
+from pathlib import Path
+from typing import Any, Callable, Optional
+
+import numpy as np
+
+from .cases import EVENT_S, FIGURES, wipe_at
+from .spec import Run
+
+RESULTS = 'results.parquet'
+PARTS = 'parts'
+GRID = ('key', 'layout', 'seed', 'kind', 'variant', 'maps', 'duration')
+COLUMNS = (*GRID, *FIGURES, 'error', 'wall_s', 'host')  # wall_s and host: where and how long, not what
+
+
+def execute(run: Run) -> dict[str, Any]:
+    """One run, on a worker: its row. A run that raises is a row with its error, never a lost study."""
+    from ..batch import BatchSimulator
+    from .cases import figures
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {'key': run.key, 'layout': run.layout, 'seed': run.seed, 'kind': run.kind,
+                           'variant': run.variant, 'maps': None, 'duration': None, **dict.fromkeys(FIGURES), 'error': None}
+    try:
+        s = run.scenario()
+        row.update(maps=s.maps, duration=s.duration)
+        sim, rng = BatchSimulator(s), np.random.default_rng(run.draw_seed)
+        kind = run.kind.partition(':')[0]
+        for _ in range(s.steps):
+            wipe_at(kind, sim, rng)
+            sim.step()
+        sim.step(integrate=False)
+        row.update(figures(sim.result().metrics, s.dt, EVENT_S.get(kind)))
+    except Exception as exc:  # noqa: BLE001 -- the row carries it
+        row['error'] = f'{type(exc).__name__}: {exc} | {traceback.format_exc(limit=-1).strip().splitlines()[-2].strip()}'
+    row.update(wall_s=time.perf_counter() - t0, host=socket.gethostname())
+    return row
+
+
+def failed(run: Run, exc: BaseException) -> dict[str, Any]:
+    """The row of a run that never came back from the workers."""
+    return {'key': run.key, 'layout': run.layout, 'seed': run.seed, 'kind': run.kind, 'variant': run.variant,
+            'error': f'{type(exc).__name__}: {exc}'}
+
+
+def _table(rows: list[dict[str, Any]]):  # -> pyarrow.Table
+    import pyarrow as pa
+    return pa.Table.from_pylist([{c: r.get(c) for c in COLUMNS} for r in rows], schema=schema())
+
+
+def schema():  # -> pyarrow.Schema
+    import pyarrow as pa
+    types = {'key': pa.string(), 'layout': pa.int64(), 'seed': pa.int64(), 'kind': pa.string(),
+             'variant': pa.string(), 'maps': pa.int64(), 'error': pa.string(), 'host': pa.string()}
+    return pa.schema([(c, types.get(c, pa.float64())) for c in COLUMNS])
+
+
+def finished(out: Path) -> list[dict[str, Any]]:
+    """The rows a study folder holds: results.parquet and the parts not yet gathered into it."""
+    import pyarrow.parquet as pq
+    rows: list[dict[str, Any]] = []
+    if (out / RESULTS).exists():
+        rows += pq.read_table(out / RESULTS).to_pylist()
+    have = {r['key'] for r in rows}
+    for part in sorted((out / PARTS).glob('*.parquet')) if (out / PARTS).exists() else []:
+        rows += [r for r in pq.read_table(part).to_pylist() if r['key'] not in have]
+    return rows
+
+
+def gather(out: Path, order: list[str]) -> Path:
+    """results.parquet from everything finished, rows in the spec's grid order; the parts then go."""
+    import pyarrow.parquet as pq
+    rows = finished(out)
+    at = {k: i for i, k in enumerate(order)}
+    rows.sort(key=lambda r: at.get(r['key'], len(at)))
+    tmp = out / (RESULTS + '.tmp')
+    pq.write_table(_table(rows), tmp)
+    tmp.replace(out / RESULTS)
+    for part in (out / PARTS).glob('*.parquet') if (out / PARTS).exists() else []:
+        part.unlink()
+    return out / RESULTS
+
+
+def client_for(scheduler: Optional[str], workers: Optional[int]):  # -> (Client, Optional[LocalCluster])
+    """A client of the scheduler named, or of a LocalCluster of one single-threaded worker process a core."""
+    from dask.distributed import Client, LocalCluster
+    if scheduler:
+        return Client(scheduler, timeout='10s'), None
+    cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                           dashboard_address=None)
+    return Client(cluster), cluster
+
+
+def study(runs: list[Run], out: Path, scheduler: Optional[str] = None, workers: Optional[int] = None,
+          progress: Callable[[int, int, float], None] = lambda done, total, elapsed: None) -> tuple[int, int]:
+    """Compute the runs the folder does not hold yet; (runs computed now, runs in all)."""
+    import pyarrow.parquet as pq
+    from dask.distributed import as_completed
+    out.mkdir(parents=True, exist_ok=True)
+    (out / PARTS).mkdir(exist_ok=True)
+    have = {r['key'] for r in finished(out)}
+    todo = [r for r in runs if r.key not in have]
+    done, t0 = 0, time.monotonic()
+    if todo:
+        client, cluster = client_for(scheduler, workers)
+        try:
+            futures = {client.submit(execute, r, key=f'uav-flock-run-{r.key}', pure=False): r for r in todo}
+            progress(0, len(todo), 0.0)
+            for fut in as_completed(futures):
+                try:
+                    row = fut.result()
+                except Exception as exc:  # noqa: BLE001 -- e.g. a run whose workers all died under it
+                    row = failed(futures[fut], exc)
+                pq.write_table(_table([row]), out / PARTS / f'{row["key"]}.parquet')
+                done += 1
+                progress(done, len(todo), time.monotonic() - t0)
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+            gather(out, [r.key for r in runs])
+    else:
+        gather(out, [r.key for r in runs])
+    return done, len(runs)

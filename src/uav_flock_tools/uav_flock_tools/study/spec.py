@@ -1,0 +1,179 @@
+"""A study's spec (a YAML file, docs/studies.md) and the runs it names: layouts x seeds x kinds x variants."""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import hashlib
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+import yaml
+
+from world_sim.core import layouts
+from world_sim.core.scenario import Scenario, ScenarioError, parse, to_doc
+
+from .cases import case, lb_along
+
+KEYS = {'layouts', 'scenario', 'seeds', 'kinds', 'maps', 'duration', 'variants'}
+KINDS = ('static', 'drift', 'crossing', 'arrival', 'loss', 'wipeout')
+VALUED = {'drift': 'speed (m/s)', 'loss': 'share of the MAPs that fail'}
+# Each kind's own stream of random draws (the case's choices), as benchmarks/bench_motion.py numbers them,
+# so that a study's runs equal the benchmark's run by run; drift at 1, 2 or 3 m/s each has its own.
+DRAW = {'drift1': 0, 'drift2': 1, 'drift3': 2, 'crossing': 3, 'loss': 4, 'wipeout': 5, 'arrival': 6, 'static': 9}
+STATIC_S = 60.0
+
+
+class SpecError(ValueError):
+    """A spec that names no study: its message is one line, naming the key."""
+
+
+@dataclass(frozen=True)
+class Run:
+    """One run of a study: where it sits in the grid, and the scenario it flies (as a document, so that any
+    worker reads it the same). key: a hash of the resolved scenario, the kind and its draws."""
+
+    key: str
+    layout: int
+    seed: int
+    kind: str
+    variant: str
+    doc: dict[str, Any]
+    draw_seed: int
+
+    def scenario(self) -> Scenario:
+        return parse(copy.deepcopy(self.doc))
+
+
+@dataclass(frozen=True)
+class Spec:
+    layouts: tuple[Scenario, ...]
+    seeds: tuple[int, ...]
+    kinds: tuple[tuple[str, Optional[float]], ...]
+    maps: Optional[float]
+    duration: Optional[float]
+    variants: dict[str, dict[str, Any]]
+
+
+def kind_name(kind: str, value: Optional[float]) -> str:
+    return kind if value is None else f'{kind}:{value:g}'
+
+
+def _kind(text: Any) -> tuple[str, Optional[float]]:
+    name, _, value = str(text).partition(':')
+    if name not in KINDS:
+        raise SpecError(f'kinds: {text!r}: expected one of {", ".join(KINDS)} (drift:SPEED, loss:SHARE)')
+    if not value:
+        return name, None
+    if name not in VALUED:
+        raise SpecError(f'kinds: {text!r}: {name} takes no value')
+    try:
+        v = float(value)
+    except ValueError:
+        raise SpecError(f'kinds: {text!r}: the {VALUED[name]} must be a number') from None
+    if not (v > 0 and (name != 'loss' or v < 1)):
+        raise SpecError(f'kinds: {text!r}: the {VALUED[name]} must be {"in (0, 1)" if name == "loss" else "positive"}')
+    return name, v
+
+
+def _layouts(doc: dict[str, Any]) -> tuple[Scenario, ...]:
+    from ..layouts import draw, policy_sets
+    from ..simrun import load_scenario
+    if ('layouts' in doc) == ('scenario' in doc):
+        raise SpecError('layouts: give either layouts (the random-layout generator) or scenario, not both')
+    if 'scenario' in doc:
+        return (load_scenario(str(doc['scenario'])),)
+    gen = doc['layouts']
+    if not isinstance(gen, dict) or set(gen) - {'count', 'clusters', 'seed'} or 'count' not in gen:
+        raise SpecError('layouts: expected {count: N, clusters: [LO, HI], seed: S}')
+    lo, hi = gen.get('clusters', [3, 6])
+    drawn = draw('paper', int(gen['count']), (int(lo), int(hi)), int(gen.get('seed', 0)))
+    flock = policy_sets(load_scenario('paper'))['default']
+    return tuple(dataclasses.replace(lay, flock=flock) for lay in drawn)
+
+
+def load(path: Path) -> Spec:
+    """Read and check a spec; SpecError (one line) naming what is wrong."""
+    try:
+        doc = yaml.safe_load(Path(path).read_text())
+    except FileNotFoundError:
+        raise SpecError(f'{path}: no such spec file') from None
+    except yaml.YAMLError as exc:
+        raise SpecError(f'{path}: not YAML ({str(exc).splitlines()[0]})') from None
+    if not isinstance(doc, dict):
+        raise SpecError(f'{path}: expected a mapping of study keys')
+    unknown = sorted(set(doc) - KEYS)
+    if unknown:
+        raise SpecError(f'{unknown[0]}: unknown key (keys: {", ".join(sorted(KEYS))})')
+    seeds = doc.get('seeds', [0])
+    seeds = list(range(seeds)) if isinstance(seeds, int) else seeds
+    kinds = doc.get('kinds', ['static'])
+    variants = doc.get('variants') or {'base': {}}
+    if not isinstance(seeds, list) or not all(isinstance(x, int) for x in seeds):
+        raise SpecError('seeds: expected a count or a list of integers')
+    if not isinstance(kinds, list):
+        raise SpecError('kinds: expected a list')
+    if not isinstance(variants, dict) or not all(isinstance(v, dict) for v in variants.values()):
+        raise SpecError('variants: expected a mapping of name: {dotted.key: value, ...}')
+    maps, duration = doc.get('maps'), doc.get('duration')
+    for key, v in (('maps', maps), ('duration', duration)):
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or v <= 0):
+            raise SpecError(f'{key}: expected a positive number')
+    spec = Spec(_layouts(doc), tuple(seeds), tuple(_kind(k) for k in kinds), maps, duration,
+                {str(k): v for k, v in variants.items()})
+    if not spec.layouts or not spec.seeds or not spec.kinds:
+        raise SpecError('the grid is empty: give at least one layout, seed and kind')
+    return spec
+
+
+def _override(doc: dict[str, Any], dotted: str, value: Any) -> None:
+    *path, last = dotted.split('.')
+    node = doc
+    for part in path:
+        node = node.setdefault(part, {})
+        if not isinstance(node, dict):
+            raise ScenarioError(f'{dotted}: {part} is not a section')
+    node[last] = value
+
+
+def _flown(spec: Spec, lay: Scenario, n: int, seed: int, kind: str, value: Optional[float]) -> tuple[Scenario, int]:
+    """The run's scenario before its variant, and the seed of its draws."""
+    index = DRAW.get(f'drift{2.0 if value is None else value:g}', DRAW['drift2']) if kind == 'drift' else DRAW[kind]
+    draw_seed = n * 1000 + seed * 10 + index
+    if kind == 'static':
+        s = dataclasses.replace(lay, seed=seed, survey='online', duration=STATIC_S)
+        s = dataclasses.replace(s, maps=math.ceil(1.5 * layouts.floor(s).total))
+    else:
+        s = case(kind, lay, seed, np.random.default_rng(draw_seed), value)
+    if spec.duration is not None:
+        s = dataclasses.replace(s, duration=float(spec.duration))
+    if isinstance(spec.maps, int):
+        s = dataclasses.replace(s, maps=spec.maps)
+    elif spec.maps is not None:
+        lb = lb_along(s, s.duration) if kind in ('drift', 'crossing') else layouts.floor(s).total
+        s = dataclasses.replace(s, maps=math.ceil(spec.maps * lb))
+    return s, draw_seed
+
+
+def runs(spec: Spec) -> list[Run]:
+    """Every run the spec names, in grid order; ScenarioError if a variant sets a key no scenario has."""
+    out = []
+    for n, lay in enumerate(spec.layouts):
+        for seed in spec.seeds:
+            for kind, value in spec.kinds:
+                base, draw_seed = _flown(spec, lay, n, seed, kind, value)
+                for name, overrides in spec.variants.items():
+                    doc = to_doc(base)
+                    for dotted, v in overrides.items():
+                        _override(doc, str(dotted), v)
+                    try:
+                        doc = to_doc(parse(copy.deepcopy(doc)))  # checked, and resolved as every worker reads it
+                    except ScenarioError as exc:
+                        raise SpecError(f'variants: {name}: {exc}') from None
+                    label = kind_name(kind, value)
+                    key = hashlib.sha256(json.dumps([doc, label, draw_seed], sort_keys=True).encode()).hexdigest()[:16]
+                    out.append(Run(key, n, seed, label, name, doc, draw_seed))
+    return out

@@ -1,0 +1,99 @@
+"""What a study's table says: per cell (kind x variant) the figures' mean, 10th percentile, worst and a
+bootstrap 95 % interval; each variant against the first, paired by run; a strip plot of the runs."""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FIGURE = 'connected'  # the share of time connected after convergence (0 for a run that never converged)
+
+
+def _interval(v: np.ndarray) -> tuple[float, float]:
+    if len(v) < 2 or np.all(v == v[0]):
+        return float(v.mean()), float(v.mean())
+    from scipy.stats import bootstrap
+    ci = bootstrap((v,), np.mean, confidence_level=0.95, n_resamples=2000, random_state=0).confidence_interval
+    return float(ci.low), float(ci.high)
+
+
+def _value(r: dict[str, Any]) -> float:
+    return float(r[FIGURE]) if r.get(FIGURE) is not None else 0.0
+
+
+def cells(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One line per (kind, variant), in the order they first appear; paired change against the first variant."""
+    kinds = list(dict.fromkeys(r['kind'] for r in rows))
+    variants = list(dict.fromkeys(r['variant'] for r in rows))
+    by = {(r['kind'], r['variant'], r['layout'], r['seed']): r for r in rows}
+    out = []
+    for kind in kinds:
+        for variant in variants:
+            cell = [r for r in rows if r['kind'] == kind and r['variant'] == variant]
+            if not cell:
+                continue
+            v = np.array([_value(r) for r in cell])
+            lo, hi = _interval(v)
+            line = {'kind': kind, 'variant': variant, 'runs': len(cell), 'errors': sum(r['error'] is not None for r in cell),
+                    'converged': sum(r['converged'] is not None for r in cell), 'mean': v.mean(), 'low': lo, 'high': hi,
+                    'p10': float(np.percentile(v, 10)), 'worst': float(v.min()),
+                    'ends_ok': int(sum(r['ends_ok'] or 0 for r in cell)), 'change': None, 'change_low': None, 'change_high': None}
+            if variant != variants[0]:
+                pairs = [(_value(r), _value(by[(kind, variants[0], r['layout'], r['seed'])])) for r in cell
+                         if (kind, variants[0], r['layout'], r['seed']) in by]
+                if pairs:
+                    d = np.array([a - b for a, b in pairs])
+                    line['change'], (line['change_low'], line['change_high']) = float(d.mean()), _interval(d)
+            out.append(line)
+    return out
+
+
+def _pct(x: Any) -> str:
+    return '—' if x is None else f'{100 * x:.1f}'
+
+
+def markdown(lines: list[dict[str, Any]], base: str) -> str:
+    head = ('| kind | variant | runs | converged | connected after convergence: mean [95 %] | 10th pct | worst | '
+            f'ends covered and connected | change against {base}, paired [95 %] |\n|---|---|---|---|---|---|---|---|---|')
+    body = [f"| {c['kind']} | {c['variant']} | {c['runs']}{' (' + str(c['errors']) + ' errors)' if c['errors'] else ''} | "
+            f"{c['converged']}/{c['runs']} | {_pct(c['mean'])} [{_pct(c['low'])}, {_pct(c['high'])}] | {_pct(c['p10'])} | "
+            f"{_pct(c['worst'])} | {c['ends_ok']}/{c['runs']} | "
+            + ('' if c['change'] is None else f"{100 * c['change']:+.2f} [{100 * c['change_low']:+.2f}, {100 * c['change_high']:+.2f}]")
+            + ' |' for c in lines]
+    return '\n'.join([head, *body]) + '\n'
+
+
+def write(rows: list[dict[str, Any]], out: Path) -> list[Path]:
+    """summary.md, summary.csv and connected.png beside the table."""
+    lines = cells(rows)
+    base = lines[0]['variant'] if lines else ''
+    (out / 'summary.md').write_text(f'# Study: {len(rows)} runs\n\n"Connected" is the share of time lambda2 > 0 after the '
+                                    'first step covered (R_c >= 95 %) and connected, 0 for a run that never got there.\n\n'
+                                    + markdown(lines, base))
+    with open(out / 'summary.csv', 'w', newline='') as f:
+        w = csv.DictWriter(f, fieldnames=list(lines[0]) if lines else ['kind'])
+        w.writeheader()
+        w.writerows(lines)
+    return [out / 'summary.md', out / 'summary.csv', strip_plot(rows, lines, out / 'connected.png')]
+
+
+def strip_plot(rows: list[dict[str, Any]], lines: list[dict[str, Any]], path: Path) -> Path:
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(max(4.0, 1.2 * len(lines) + 1), 4.0))
+    rng = np.random.default_rng(0)
+    for x, c in enumerate(lines):
+        v = np.array([_value(r) for r in rows if r['kind'] == c['kind'] and r['variant'] == c['variant']]) * 100
+        ax.scatter(x + rng.uniform(-0.15, 0.15, len(v)), v, s=12, alpha=0.6)
+        ax.errorbar(x, 100 * c['mean'], yerr=[[100 * (c['mean'] - c['low'])], [100 * (c['high'] - c['mean'])]],
+                    fmt='_', color='k', capsize=6, markersize=20)
+    ax.set_xticks(range(len(lines)), [f"{c['kind']}\n{c['variant']}" for c in lines], fontsize=8)
+    ax.set_ylabel('connected after convergence (%)')
+    ax.set_title('each run, and the mean with its 95 % interval')
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,134 @@
+"""`uav-flock study` (uav_flock_tools/study/): a grid of runs as Dask tasks into results.parquet, the same on a
+local cluster and on a scheduler's worker processes; a killed worker, a Ctrl-C and a bad spec lose nothing."""
+from __future__ import annotations
+
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pyarrow.parquet as pq
+import pytest
+import yaml
+
+SMOKE = Path(__file__).resolve().parents[2] / 'studies' / 'smoke.yaml'
+WHERE = ('wall_s', 'host')  # how long and on which host a run took: not what it found
+
+
+def study(*args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'study', *args],
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def rows(folder: Path) -> list[dict[str, Any]]:
+    return [{k: v for k, v in r.items() if k not in WHERE} for r in pq.read_table(folder / 'results.parquet').to_pylist()]
+
+
+def parts(folder: Path) -> int:
+    return len(list((folder / 'parts').glob('*.parquet'))) if (folder / 'parts').exists() else 0
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+def wait_for(check, timeout: float, what: str) -> None:
+    end = time.monotonic() + timeout
+    while not check():
+        assert time.monotonic() < end, f'timed out waiting for {what}'
+        time.sleep(0.2)
+
+
+@pytest.fixture(scope='module')
+def local(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The smoke study on the default local cluster (two workers here)."""
+    out = tmp_path_factory.mktemp('local')
+    proc = study(str(SMOKE), '--out', str(out), '--workers', '2')
+    assert proc.returncode == 0, proc.stderr
+    assert '12 runs (12 computed now)' in proc.stdout
+    return out
+
+
+def test_the_smoke_study_is_twelve_rows_with_the_figures_of_each_run(local: Path) -> None:
+    got = rows(local)
+    assert len(got) == 12 and len({r['key'] for r in got}) == 12
+    assert [(r['layout'], r['seed'], r['variant']) for r in got[:4]] == \
+        [(0, 0, 'demand'), (0, 0, 'algorithm2'), (0, 1, 'demand'), (0, 1, 'algorithm2')], 'the spec\'s grid order'
+    assert all(r['error'] is None and r['duration'] == 30.0 for r in got)
+    demand = [r for r in got if r['variant'] == 'demand']
+    assert all(r['converged'] is not None and 0 < r['connected'] <= 1 for r in demand), demand
+    again = study(str(SMOKE), '--out', str(local))
+    assert again.returncode == 0 and '(0 computed now)' in again.stdout, 'a second call computes nothing'
+    summary = study(str(local), '--summary')
+    assert summary.returncode == 0, summary.stderr
+    text = (local / 'summary.md').read_text()
+    assert '| static | demand | 6 |' in text and '| static | algorithm2 | 6 |' in text
+    assert (local / 'connected.png').stat().st_size > 0
+
+
+def test_on_a_scheduler_and_two_worker_processes_a_killed_worker_loses_no_row(local: Path, tmp_path: Path) -> None:
+    port = free_port()
+    address = f'tcp://127.0.0.1:{port}'
+    procs = [subprocess.Popen([sys.executable, '-m', 'dask', 'scheduler', '--host', '127.0.0.1', '--port', str(port),
+                               '--no-dashboard'], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        wait_for(lambda: socket.socket().connect_ex(('127.0.0.1', port)) == 0, 60, 'the scheduler')
+        workers = [subprocess.Popen([sys.executable, '-m', 'dask', 'worker', address, '--nthreads', '1',
+                                     '--no-dashboard'], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                   for _ in range(2)]
+        procs += workers
+        out = tmp_path / 'on-scheduler'
+        run = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'study', str(SMOKE), '--out', str(out),
+                                '--scheduler', address], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        procs.append(run)
+        wait_for(lambda: parts(out) >= 2 or run.poll() is not None, 300, 'the first rows')
+        assert run.poll() is None, 'the study ended before a worker could be killed'
+        workers[0].kill()  # SIGKILL: its run, if any, goes to the other worker
+        stdout, stderr = run.communicate(timeout=600)
+        assert run.returncode == 0, stderr
+        assert rows(out) == rows(local), 'row by row, the same as on the local cluster'
+    finally:
+        for p in procs:
+            p.kill()
+            p.wait()
+
+
+def test_an_interrupted_study_keeps_its_rows_and_the_next_call_computes_only_the_rest(local: Path, tmp_path: Path) -> None:
+    out = tmp_path / 'interrupted'
+    run = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'study', str(SMOKE), '--out', str(out),
+                            '--workers', '1'], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    wait_for(lambda: parts(out) >= 3 or run.poll() is not None, 300, 'three rows')
+    run.send_signal(signal.SIGINT)
+    run.communicate(timeout=120)
+    assert run.returncode == 130
+    kept = rows(out)
+    assert 3 <= len(kept) < 12 and parts(out) == 0, 'every finished row gathered into results.parquet'
+    rest = study(str(SMOKE), '--out', str(out), '--workers', '2')
+    assert rest.returncode == 0, rest.stderr
+    assert f'12 runs ({12 - len(kept)} computed now)' in rest.stdout
+    assert rows(out) == rows(local)
+
+
+@pytest.mark.parametrize('spec, says', [
+    ({'layouts': {'count': 1}, 'colour': 'red'}, 'colour: unknown key'),
+    ({'layouts': {'count': 1}, 'seeds': []}, 'the grid is empty'),
+    ({'layouts': {'count': 1}, 'kinds': ['drift:fast']}, 'must be a number'),
+    ({'layouts': {'count': 1}, 'kinds': ['hover']}, "'hover': expected one of"),
+    ({'layouts': {'count': 1}, 'variants': {'odd': {'flock.nope': 1}}}, 'variants: odd: '),
+    ({'scenario': 'paper', 'layouts': {'count': 1}}, 'either layouts'),
+])
+def test_a_bad_spec_is_one_line_and_exit_2(tmp_path: Path, spec: dict, says: str) -> None:
+    (tmp_path / 'bad.yaml').write_text(yaml.safe_dump(spec))
+    proc = study(str(tmp_path / 'bad.yaml'), '--out', str(tmp_path / 'out'))
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and says in proc.stderr, proc.stderr
+    assert not (tmp_path / 'out').exists()
+
+
+def test_a_scheduler_that_is_not_there_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    proc = study(str(SMOKE), '--out', str(tmp_path / 'out'), '--scheduler', f'tcp://127.0.0.1:{free_port()}')
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and 'no scheduler there' in proc.stderr, proc.stderr
