@@ -2,6 +2,7 @@
 local cluster and on a scheduler's worker processes; a killed worker, a Ctrl-C and a bad spec lose nothing."""
 from __future__ import annotations
 
+import os
 import signal
 import socket
 import subprocess
@@ -101,13 +102,16 @@ def test_on_a_scheduler_and_two_worker_processes_a_killed_worker_loses_no_row(lo
 def test_an_interrupted_study_keeps_its_rows_and_the_next_call_computes_only_the_rest(local: Path, tmp_path: Path) -> None:
     out = tmp_path / 'interrupted'
     run = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'study', str(SMOKE), '--out', str(out),
-                            '--workers', '1'], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            '--workers', '1'], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                           start_new_session=True)
     wait_for(lambda: parts(out) >= 3 or run.poll() is not None, 300, 'three rows')
-    run.send_signal(signal.SIGINT)
-    run.communicate(timeout=120)
-    assert run.returncode == 130
+    assert run.poll() is None, 'the study ended before it could be interrupted'
+    os.killpg(run.pid, signal.SIGINT)  # Ctrl-C in a terminal: the study and its local workers alike
+    _, stderr = run.communicate(timeout=120)
+    assert run.returncode == 130, stderr
     kept = rows(out)
     assert 3 <= len(kept) < 12 and parts(out) == 0, 'every finished row gathered into results.parquet'
+    assert all(r['error'] is None for r in kept), 'no run counted finished that the interrupt cut short'
     rest = study(str(SMOKE), '--out', str(out), '--workers', '2')
     assert rest.returncode == 0, rest.stderr
     assert f'12 runs ({12 - len(kept)} computed now)' in rest.stdout

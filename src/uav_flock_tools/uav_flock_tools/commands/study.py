@@ -45,7 +45,11 @@ def handle(args: argparse.Namespace) -> int:
         _reach(args.scheduler)
     print(f'study: {len(grid)} runs into {args.out / engine.RESULTS}'
           f' on {args.scheduler or "a local cluster"}', file=sys.stderr, flush=True)
-    done, total = engine.study(grid, args.out, args.scheduler, args.workers, _progress)
+    try:
+        done, total = engine.study(grid, args.out, args.scheduler, args.workers, _progress)
+    except engine.StudyError as exc:
+        print(f'uav-flock: error: study: {exc}', file=sys.stderr)
+        return 1
     errors = sum(r['error'] is not None for r in engine.finished(args.out))
     print(f'{args.out / engine.RESULTS}: {total} runs ({done} computed now{f", {errors} with an error" if errors else ""})')
     return 0

@@ -8,11 +8,14 @@ existing scheduler (`dask scheduler`, `dask worker` on any host with uav-flock i
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import time
 import traceback
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Optional
+from types import FrameType
+from typing import Any, Callable, Iterator, Optional
 
 import numpy as np
 
@@ -46,12 +49,6 @@ def execute(run: Run) -> dict[str, Any]:
         row['error'] = f'{type(exc).__name__}: {exc} | {traceback.format_exc(limit=-1).strip().splitlines()[-2].strip()}'
     row.update(wall_s=time.perf_counter() - t0, host=socket.gethostname())
     return row
-
-
-def failed(run: Run, exc: BaseException) -> dict[str, Any]:
-    """The row of a run that never came back from the workers."""
-    return {'key': run.key, 'layout': run.layout, 'seed': run.seed, 'kind': run.kind, 'variant': run.variant,
-            'error': f'{type(exc).__name__}: {exc}'}
 
 
 def _table(rows: list[dict[str, Any]]):  # -> pyarrow.Table
@@ -102,6 +99,26 @@ def client_for(scheduler: Optional[str], workers: Optional[int]):  # -> (Client,
     return Client(cluster), cluster
 
 
+@contextmanager
+def _interruptible() -> Iterator[Callable[[], bool]]:
+    """Ctrl-C or SIGTERM stops the study even where Dask's waiting swallows the KeyboardInterrupt (a callback,
+    a finalizer): the signal is also remembered, and asked after each run that comes back and at the end."""
+    seen: list[int] = []
+
+    def stop(signum: int, frame: Optional[FrameType]) -> None:
+        seen.append(signum)
+        raise KeyboardInterrupt
+
+    old = {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield lambda: bool(seen)
+        if seen:
+            raise KeyboardInterrupt
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
 def study(runs: list[Run], out: Path, scheduler: Optional[str] = None, workers: Optional[int] = None,
           progress: Callable[[int, int, float], None] = lambda done, total, elapsed: None) -> tuple[int, int]:
     """Compute the runs the folder does not hold yet; (runs computed now, runs in all)."""
@@ -111,20 +128,24 @@ def study(runs: list[Run], out: Path, scheduler: Optional[str] = None, workers: 
     (out / PARTS).mkdir(exist_ok=True)
     have = {r['key'] for r in finished(out)}
     todo = [r for r in runs if r.key not in have]
-    done, t0 = 0, time.monotonic()
+    done, t0, lost = 0, time.monotonic(), []
     if todo:
         client, cluster = client_for(scheduler, workers)
         try:
             futures = {client.submit(execute, r, key=f'uav-flock-run-{r.key}', pure=False): r for r in todo}
             progress(0, len(todo), 0.0)
-            for fut in as_completed(futures):
-                try:
-                    row = fut.result()
-                except Exception as exc:  # noqa: BLE001 -- e.g. a run whose workers all died under it
-                    row = failed(futures[fut], exc)
-                pq.write_table(_table([row]), out / PARTS / f'{row["key"]}.parquet')
-                done += 1
-                progress(done, len(todo), time.monotonic() - t0)
+            with _interruptible() as stopped:
+                for fut in as_completed(futures):
+                    if stopped():
+                        raise KeyboardInterrupt
+                    try:
+                        row = fut.result()
+                    except Exception as exc:  # noqa: BLE001 -- its workers died under it, or it was cancelled
+                        lost.append(f'{futures[fut].key} ({type(exc).__name__})')
+                        continue  # not a finished run: the next call computes it again
+                    pq.write_table(_table([row]), out / PARTS / f'{row["key"]}.parquet')
+                    done += 1
+                    progress(done, len(todo), time.monotonic() - t0)
         finally:
             client.close()
             if cluster is not None:
@@ -132,4 +153,10 @@ def study(runs: list[Run], out: Path, scheduler: Optional[str] = None, workers: 
             gather(out, [r.key for r in runs])
     else:
         gather(out, [r.key for r in runs])
+    if lost:
+        raise StudyError(f'{len(lost)} runs came back from no worker (the same command computes them): {", ".join(lost[:3])}')
     return done, len(runs)
+
+
+class StudyError(RuntimeError):
+    """Runs the workers never finished: the study is incomplete, its finished rows kept."""
