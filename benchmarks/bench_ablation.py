@@ -22,6 +22,7 @@ import bench_motion
 import resumable
 from uav_agent.core import ablation
 from uav_flock_tools.layouts import draw, policy_sets
+from uav_flock_tools.study import cases
 from world_sim.core import layouts
 from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario
@@ -45,8 +46,8 @@ def scenario_of(kind: str, n: int, lay: Scenario) -> tuple[Scenario, int]:
     """The run of a kind on layout n and the seed of its own draws, as bench_motion draws them."""
     if kind == 'static12':
         return static12(lay), n * 1000 + len(bench_motion.KINDS) + 7
-    draw_seed = n * 1000 + bench_motion.KINDS.index(kind)
-    return bench_motion.case(kind, lay, 0, np.random.default_rng(draw_seed)), draw_seed + 7
+    draw_seed = cases.draws(n, 0, kind)
+    return cases.case(kind, lay, 0, np.random.default_rng(draw_seed)), draw_seed + cases.IN_FLIGHT
 
 
 def run(job: tuple[str, str, int, Scenario, int]) -> dict[str, object]:

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import os
 import re
 from pathlib import Path
@@ -36,7 +35,7 @@ import resumable
 from uav_agent.core import ablation, links
 from uav_flock_tools.batch import BatchSimulator
 from uav_flock_tools.layouts import draw, policy_sets
-from world_sim.core import layouts
+from uav_flock_tools.study import cases
 from world_sim.core.records import METRICS_COLUMNS
 from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario
@@ -68,12 +67,8 @@ def scenario_of(kind: str, n: int, lay: Scenario, seed: int, name: str) -> tuple
         if kind == 'paper_demand':
             s = dataclasses.replace(s, flock=lay.flock)
         return dataclasses.replace(s, links=channel(name)), n
-    if kind == 'static':
-        s = dataclasses.replace(lay, seed=seed, survey='online', duration=60.0)
-        s, draw_seed = dataclasses.replace(s, maps=math.ceil(1.5 * layouts.floor(s).total)), n * 1000 + seed * 10 + 9
-    else:
-        draw_seed = n * 1000 + seed * 10 + bench_motion.KINDS.index(kind)
-        s = bench_motion.case(kind, lay, seed, np.random.default_rng(draw_seed))
+    draw_seed = cases.draws(n, seed, kind)
+    s = cases.case(kind, lay, seed, np.random.default_rng(draw_seed))
     return dataclasses.replace(s, links=channel(name)), draw_seed
 
 

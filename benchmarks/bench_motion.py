@@ -39,7 +39,7 @@ import numpy as np
 from uav_agent.core.state import M1, Told
 from uav_flock_tools.layouts import draw, policy_sets
 from uav_flock_tools.batch import BatchSimulator
-from uav_flock_tools.study.cases import EVENT_S, HELD_S, case, figures, outage_s, wipe_at  # noqa: F401 (case, outage_s: bench_links)
+from uav_flock_tools.study.cases import EVENT_S, HELD_S, IN_FLIGHT, case, draws, figures, outage_s, wipe_at  # noqa: F401 (case, outage_s: bench_links)
 from world_sim.core import physics
 from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario
@@ -173,9 +173,9 @@ def main() -> int:
         lay = dataclasses.replace(lay, flock=flock)
         for seed in range(args.seeds):
             for kind in kinds:
-                draw_seed = n * 1000 + seed * 10 + KINDS.index(kind)  # the case's own draws, reproducible
+                draw_seed = draws(n, seed, kind)  # the case's own draws, reproducible
                 rng = np.random.default_rng(draw_seed)
-                jobs.append((kind, case(kind, lay, seed, rng), draw_seed + 7))
+                jobs.append((kind, case(kind, lay, seed, rng), draw_seed + IN_FLIGHT))
                 where.append((kind, n, seed))
     print(f'{len(jobs)} runs: {args.layouts} layouts x {args.seeds} seeds x {len(kinds)} kinds, '
           f'{args.workers} processes', flush=True)

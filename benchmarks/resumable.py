@@ -9,8 +9,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any, Callable, Sequence
 
-import numpy as np
-from scipy.stats import bootstrap
+from uav_flock_tools.study.summary import interval  # noqa: F401 (the benchmarks' interval, resumable.interval)
 
 
 def rows(path: str) -> list[dict[str, str]]:
@@ -48,11 +47,3 @@ def sweep(path: str, fields: Sequence[str], jobs: Sequence[Any], run: Callable[[
             print(f'interrupted: {len(done)} rows kept in {path}; the same command goes on from there')
             raise SystemExit(130)
     return done
-
-
-def interval(d: np.ndarray) -> tuple[float, float]:
-    """The bootstrap 95 % interval of the mean of d (scipy.stats.bootstrap); the mean itself when d does not vary."""
-    if len(d) < 2 or np.all(d == d[0]):
-        return float(np.mean(d)), float(np.mean(d))
-    ci = bootstrap((d,), np.mean, confidence_level=0.95, n_resamples=4000, random_state=0).confidence_interval
-    return float(ci.low), float(ci.high)

@@ -67,12 +67,13 @@ class Heard(NamedTuple):
     said: Said
 
 
-def _flown_on(held: Sequence[tuple[int, int, Heard]], dt: float) -> np.ndarray:
-    """Where each held state's sender is now (rule 'predict': flown on at its velocity then for its age)."""
+def _placed(held: Sequence[tuple[int, int, Heard]], dt: float, here: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where each held state's sender is now (rule 'predict': flown on at its velocity then for its age), and
+    how far that is from `here`."""
     q = np.array([h.q for _, _, h in held], dtype=float).reshape(-1, 3)
     if on('predict') and len(held):
         q = q + np.array([age * dt for _, age, _ in held])[:, None] * np.array([h.p for _, _, h in held])
-    return q
+    return q, np.linalg.norm(q - here, axis=1)
 
 
 def heard_from(held: Sequence[tuple[int, int, Heard]], dt: float, here: np.ndarray, r: float) -> Neighbourhood:
@@ -83,8 +84,13 @@ def heard_from(held: Sequence[tuple[int, int, Heard]], dt: float, here: np.ndarr
     'predict'); one whose sender is so placed beyond r is taken for gone (rule 'gone'): out of range, its
     messages stop as lost ones do, and its old place would pull the MAP towards where it no longer is.
     """
-    states, q = [h for _, _, h in held], _flown_on(held, dt)
-    keep = np.linalg.norm(q - here, axis=1) <= r if on('gone') else np.ones(len(states), dtype=bool)
+    return _within(held, *_placed(held, dt, here), r)
+
+
+def _within(held: Sequence[tuple[int, int, Heard]], q: np.ndarray, dist: np.ndarray, r: float) -> Neighbourhood:
+    """heard_from's neighbourhood from where the held states' senders are placed and how far they are."""
+    states = [h for _, _, h in held]
+    keep = dist <= r if on('gone') else np.ones(len(states), dtype=bool)
     return Neighbourhood.hearing(q[keep], np.array([h.p for h in states]).reshape(-1, 3)[keep],
                                  np.array([h.n_users for h in states])[keep], [h.said for h, k in zip(states, keep) if k])
 
@@ -108,9 +114,9 @@ class Hearing(Inbox[Heard]):
         One whose latest state places it near the rim or beyond is let go: it may be leaving.
         """
         held = self.usable(k)
-        hood = heard_from(held, dt, here, r)
-        inside = np.linalg.norm(_flown_on(held, dt) - here, axis=1) <= r - STILL_MARGIN
-        for (j, age, _), well in zip(held, inside):
+        q, dist = _placed(held, dt, here)
+        hood = _within(held, q, dist, r)
+        for (j, age, _), well in zip(held, dist <= r - STILL_MARGIN):
             if well:
                 self.placed[j] = k - age
             else:

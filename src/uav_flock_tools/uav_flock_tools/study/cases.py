@@ -16,6 +16,12 @@ from world_sim.core.scenario import Cluster, Scenario
 from ..batch import BatchSimulator
 
 EVENT_S = {'loss': 45.0, 'wipeout': 45.0, 'arrival': 40.0}
+STATIC_S = 60.0
+# Each kind's own stream of random draws, numbered as the benchmarks always numbered them, so that a study
+# and a benchmark fly the same runs: the case's choices come from draws(...), those made in flight (the role
+# a wipe-out takes) from draws(...) + IN_FLIGHT. Drift at 1, 2 or 3 m/s each has its own; other speeds 2's.
+DRAW = {'drift1': 0, 'drift2': 1, 'drift3': 2, 'crossing': 3, 'loss': 4, 'wipeout': 5, 'arrival': 6, 'static': 9}
+IN_FLIGHT = 7
 HELD_S = 10.0  # a run "ends covered and connected" when it is so over its last HELD_S
 # The figures of one run (figures()): its first step covered (R_c >= 95 %) and connected, the share of time
 # connected after it, the longest outage after it, mean R_c after it, time from the event to covered and
@@ -33,15 +39,25 @@ def lb_along(s: Scenario, until: float) -> int:
     return most
 
 
+def draws(layout: int, seed: int, kind: str, value: Optional[float] = None) -> int:
+    """The seed of a run's own draws: layout n, run seed, kind (drift with value: its speed)."""
+    if kind == 'drift':
+        kind = f'drift{2.0 if value is None else value:g}'
+    return layout * 1000 + seed * 10 + DRAW.get(kind, DRAW['drift2'])
+
+
 def case(kind: str, lay: Scenario, seed: int, rng: np.random.Generator, value: Optional[float] = None) -> Scenario:
     """The scenario of one run of a kind on a layout, its random choices drawn from rng, N by the kind's rule.
 
-    kind: drift (value: speed, m/s), crossing, arrival, loss (value: the share of MAPs that fail), wipeout;
-    bench_motion's drift1/2/3 are drift at 1, 2, 3 m/s.
+    kind: static (the layout still, STATIC_S, N = ceil(1.5 x LB)), drift (value: speed, m/s), crossing,
+    arrival, loss (value: the share of MAPs that fail), wipeout; bench_motion's drift1/2/3 are drift at 1, 2, 3 m/s.
     """
     if kind.startswith('drift') and kind != 'drift':
         kind, value = 'drift', float(kind[len('drift'):])
     s = dataclasses.replace(lay, seed=seed, survey='online')
+    if kind == 'static':
+        s = dataclasses.replace(s, duration=STATIC_S)
+        return dataclasses.replace(s, maps=math.ceil(1.5 * layouts.floor(s).total))
     clusters = list(s.clusters)
     if kind == 'drift':
         heading = rng.uniform(0, 2 * math.pi)

@@ -19,7 +19,7 @@ from typing import Any, Callable, Iterator, Optional
 
 import numpy as np
 
-from .cases import EVENT_S, FIGURES, wipe_at
+from .cases import EVENT_S, FIGURES, IN_FLIGHT, wipe_at
 from .spec import Run
 
 RESULTS = 'results.parquet'
@@ -38,7 +38,7 @@ def execute(run: Run) -> dict[str, Any]:
     try:
         s = run.scenario()
         row.update(maps=s.maps, duration=s.duration)
-        sim, rng = BatchSimulator(s), np.random.default_rng(run.draw_seed)
+        sim, rng = BatchSimulator(s), np.random.default_rng(run.draw_seed + IN_FLIGHT)
         kind = run.kind.partition(':')[0]
         for _ in range(s.steps):
             wipe_at(kind, sim, rng)

@@ -16,15 +16,11 @@ import yaml
 from world_sim.core import layouts
 from world_sim.core.scenario import Scenario, ScenarioError, parse, to_doc
 
-from .cases import case, lb_along
+from .cases import case, draws, lb_along
 
 KEYS = {'layouts', 'scenario', 'seeds', 'kinds', 'maps', 'duration', 'variants'}
 KINDS = ('static', 'drift', 'crossing', 'arrival', 'loss', 'wipeout')
 VALUED = {'drift': 'speed (m/s)', 'loss': 'share of the MAPs that fail'}
-# Each kind's own stream of random draws (the case's choices), as benchmarks/bench_motion.py numbers them,
-# so that a study's runs equal the benchmark's run by run; drift at 1, 2 or 3 m/s each has its own.
-DRAW = {'drift1': 0, 'drift2': 1, 'drift3': 2, 'crossing': 3, 'loss': 4, 'wipeout': 5, 'arrival': 6, 'static': 9}
-STATIC_S = 60.0
 
 
 class SpecError(ValueError):
@@ -141,13 +137,8 @@ def _override(doc: dict[str, Any], dotted: str, value: Any) -> None:
 
 def _flown(spec: Spec, lay: Scenario, n: int, seed: int, kind: str, value: Optional[float]) -> tuple[Scenario, int]:
     """The run's scenario before its variant, and the seed of its draws."""
-    index = DRAW.get(f'drift{2.0 if value is None else value:g}', DRAW['drift2']) if kind == 'drift' else DRAW[kind]
-    draw_seed = n * 1000 + seed * 10 + index
-    if kind == 'static':
-        s = dataclasses.replace(lay, seed=seed, survey='online', duration=STATIC_S)
-        s = dataclasses.replace(s, maps=math.ceil(1.5 * layouts.floor(s).total))
-    else:
-        s = case(kind, lay, seed, np.random.default_rng(draw_seed), value)
+    draw_seed = draws(n, seed, kind, value)
+    s = case(kind, lay, seed, np.random.default_rng(draw_seed), value)
     if spec.duration is not None:
         s = dataclasses.replace(s, duration=float(spec.duration))
     if isinstance(spec.maps, int):

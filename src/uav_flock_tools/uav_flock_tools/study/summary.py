@@ -11,11 +11,13 @@ import numpy as np
 FIGURE = 'connected'  # the share of time connected after convergence (0 for a run that never converged)
 
 
-def _interval(v: np.ndarray) -> tuple[float, float]:
-    if len(v) < 2 or np.all(v == v[0]):
-        return float(v.mean()), float(v.mean())
+def interval(d: np.ndarray) -> tuple[float, float]:
+    """The bootstrap 95 % interval of the mean of d (scipy.stats.bootstrap); the mean itself when d does not
+    vary. The one interval uav-flock puts on a mean over runs (the study's summary and the benchmarks)."""
+    if len(d) < 2 or np.all(d == d[0]):
+        return float(np.mean(d)), float(np.mean(d))
     from scipy.stats import bootstrap
-    ci = bootstrap((v,), np.mean, confidence_level=0.95, n_resamples=2000, random_state=0).confidence_interval
+    ci = bootstrap((d,), np.mean, confidence_level=0.95, n_resamples=4000, random_state=0).confidence_interval
     return float(ci.low), float(ci.high)
 
 
@@ -35,7 +37,7 @@ def cells(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             if not cell:
                 continue
             v = np.array([_value(r) for r in cell])
-            lo, hi = _interval(v)
+            lo, hi = interval(v)
             line = {'kind': kind, 'variant': variant, 'runs': len(cell), 'errors': sum(r['error'] is not None for r in cell),
                     'converged': sum(r['converged'] is not None for r in cell), 'mean': v.mean(), 'low': lo, 'high': hi,
                     'p10': float(np.percentile(v, 10)), 'worst': float(v.min()),
@@ -45,7 +47,7 @@ def cells(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                          if (kind, variants[0], r['layout'], r['seed']) in by]
                 if pairs:
                     d = np.array([a - b for a, b in pairs])
-                    line['change'], (line['change_low'], line['change_high']) = float(d.mean()), _interval(d)
+                    line['change'], (line['change_low'], line['change_high']) = float(d.mean()), interval(d)
             out.append(line)
     return out
 
