@@ -43,17 +43,18 @@ def ids(n: int = 12) -> Any:
     return st.lists(st.integers(0, 500), max_size=n, unique=True).map(lambda v: np.array(sorted(v), dtype=np.intp))
 
 
+STATE = (U32, st.integers(0, 2**63), VEC, VEC, U32, st.integers(0, 2), st.integers(-1, 99),
+         st.one_of(st.none(), st.tuples(st.integers(0, 99), st.integers(0, 99))),
+         st.lists(st.integers(0, 99), unique=True).map(lambda v: tuple(sorted(v))),
+         st.one_of(st.none(), st.builds(
+             convert.RoleGossipData, st.booleans(),
+             st.dictionaries(st.integers(0, 4095), st.integers(0, 2**63), max_size=12).map(lambda d: tuple(sorted(d.items()))),
+             st.lists(st.tuples(st.floats(0, 1), st.floats(0, 1)), max_size=6).map(tuple),
+             st.dictionaries(st.integers(0, 4095), st.integers(0, 2**32 - 1), max_size=12).map(
+                 lambda d: tuple(sorted(d.items()))))))
 VALUES = {
-    convert.AgentStateData: st.builds(
-        convert.AgentStateData, U32, st.integers(0, 2**63), VEC, VEC, U32, st.integers(0, 2), st.integers(-1, 99),
-        st.one_of(st.none(), st.tuples(st.integers(0, 99), st.integers(0, 99))),
-        st.lists(st.integers(0, 99), unique=True).map(lambda v: tuple(sorted(v))),
-        st.one_of(st.none(), st.builds(
-            convert.RoleGossipData, st.booleans(),
-            st.dictionaries(st.integers(0, 4095), st.integers(0, 2**63), max_size=12).map(lambda d: tuple(sorted(d.items()))),
-            st.lists(st.tuples(st.floats(0, 1), st.floats(0, 1)), max_size=6).map(tuple),
-            st.dictionaries(st.integers(0, 4095), st.integers(0, 2**32 - 1), max_size=12).map(
-                lambda d: tuple(sorted(d.items())))))),
+    convert.AgentStateData: st.builds(convert.AgentStateData, *STATE,
+                                      st.lists(st.builds(convert.PassedData, *STATE), max_size=8).map(tuple)),
     convert.CommandData: st.builds(convert.CommandData, U32, st.integers(0, 2**63), VEC, st.integers(0, 2),
                                    st.integers(-1, 99)),
     convert.SensingData: ids().flatmap(lambda n: st.builds(
@@ -80,6 +81,8 @@ VALUES = {
 def same(a: NamedTuple, b: NamedTuple) -> bool:
     return type(a) is type(b) and all(
         (x is None and y is None) or (hasattr(x, '_fields') and same(x, y))
+        or (isinstance(x, tuple) and any(hasattr(e, '_fields') for e in x)
+            and len(x) == len(y) and all(same(e, f) for e, f in zip(x, y)))
         or (x is not None and y is not None and np.array_equal(x, y)) for x, y in zip(a, b))
 
 

@@ -13,7 +13,8 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from uav_agent.core.agent import Heard, Hearing, Said, heard_from, still
+from uav_agent.core import ablation
+from uav_agent.core.agent import PASSED_ON, Heard, Hearing, Passed, Said, heard_from, still
 from uav_agent.core.links import USABLE, Inbox, Links, delivery, heard, lost, reach
 from uav_agent.core.potentials import bump
 from uav_agent.core.state import M1, M2, PASSING, Memory, Reference, Told
@@ -131,15 +132,72 @@ def test_a_neighbour_forgotten_well_inside_range_is_silent_until_hush_and_one_at
     """Rule 'still' (agent.Hearing): silence counts from the neighbour's last state, for hush steps; a
     neighbour last placed near r may be leaving and is never counted silent."""
     said, here = Said(0, Told(M2, 0, None)), np.array([0.0, 0, 20])
-    hearing = Hearing(Links(loss=0.3, burst=20.0, ttl=3))
+    hearing = Hearing(Links(loss=0.3, burst=20.0, ttl=3), 0)
     hearing.receive(0, [1, 2], [Heard(np.array([10.0, 0, 20]), np.zeros(3), 0.0, said),
                                 Heard(np.array([23.0, 0, 20]), np.zeros(3), 0.0, said)])
     silent = [hearing.neighbourhood(k, 0.1, here, R, hush=8).silent for k in range(12)]
     assert silent == [False] * 4 + [True] * 5 + [False] * 3, 'heard until ttl 3, silent from 4 to hush 8'
     hearing.receive(12, [1], [Heard(np.array([10.0, 0, 20]), np.zeros(3), 0.0, said)])
     assert not hearing.neighbourhood(12, 0.1, here, R, hush=8).silent, 'heard again'
-    perfect = [Hearing(Links(loss=0.3)).neighbourhood(k, 0.1, here, R, hush=0).silent for k in range(3)]
+    perfect = [Hearing(Links(loss=0.3), 0).neighbourhood(k, 0.1, here, R, hush=0).silent for k in range(3)]
     assert perfect == [False] * 3
+
+
+def test_a_neighbour_whose_own_states_are_lost_is_heard_through_another_as_old_as_its_step() -> None:
+    """Rule 'hearsay' (agent.Hearing.hear_passed): a MAP passes on its nearest neighbours' states; a receiver uses one it
+    holds nothing newer of, aged from the state's own step, usable `latency` steps after the message that
+    carried it; of itself it takes nothing."""
+    said, here = Said(0, Told(M2, 0, None)), np.array([0.0, 0, 20])
+    a = Hearing(Links(loss=0.3, burst=20.0, latency=1, ttl=5), 1)
+    a.receive(0, [2, 3], [Heard(np.array([10.0, 0, 20]), np.zeros(3), 0.0, said),
+                          Heard(np.array([30.0, 0, 20]), np.zeros(3), 0.0, said)])
+    assert a.neighbourhood(0, 0.1, here, R, hush=0).q.shape == (0, 3), 'latency 1: nothing usable yet'
+    a.neighbourhood(1, 0.1, here, R, hush=0)
+    assert [(p.id, p.step) for p in a.passed] == [(2, 0)], 'MAP 3 lies beyond r: not passed on'
+    b = Hearing(Links(loss=0.3, burst=20.0, latency=1, ttl=5), 2)
+    b.hear_passed(2, a.passed + [Passed(1, 2, Heard(np.array([5.0, 0, 20]), np.zeros(3), 0.0, said))])
+    assert b.held == {1: [(2, 2, b.held[1][0][2])]}, 'its own state passed back is not taken'
+    assert b.neighbourhood(2, 0.1, here, R, hush=0).q.shape == (0, 3), 'usable a step after the message'
+    assert [(j, age) for j, age, _ in b.usable(3)] == [(1, 1)]
+    c = Hearing(Links(loss=0.3, burst=20.0, latency=1, ttl=5), 3)
+    c.receive(4, [2], [Heard(np.array([12.0, 0, 20]), np.zeros(3), 0.0, said)])
+    c.hear_passed(4, a.passed)
+    assert [at for _, at, _ in c.held[2]] == [4], 'an older state passed on is ignored'
+    c.hear_passed(5, [Passed(7, 3, Heard(np.array([1.0, 0, 20]), np.zeros(3), 0.0, said))])
+    assert [(j, age) for j, age, _ in c.usable(6)] == [(2, 2), (7, 3)], 'aged from its own step (3), not 5'
+    assert [j for j, _, _ in c.usable(9)] == [2], 'the state of step 3 forgotten once older than ttl (5)'
+    ablation.OFF.add('hearsay')
+    try:
+        d = Hearing(Links(loss=0.3), 4)
+        d.hear_passed(0, a.passed)
+        assert d.held == {}
+    finally:
+        ablation.OFF.discard('hearsay')
+
+
+def test_what_neighbours_pass_on_changes_a_run_only_under_a_lossy_channel() -> None:
+    """The batch simulator delivers what each heard message passes on (the lockstep test in tests/ros holds the
+    agent nodes to the same run): with rule 'hearsay' off the same lossy run differs; over the paper's channel
+    nothing is passed on at all."""
+    s = dataclasses.replace(load_scenario('paper').with_overrides(maps=30, duration=6.0),
+                            links=Links(loss=0.3, burst=5.0, latency=1, ttl=4))
+    on = BatchSimulator(s).run().trajectory
+    ablation.OFF.add('hearsay')
+    try:
+        off = BatchSimulator(s).run().trajectory
+    finally:
+        ablation.OFF.discard('hearsay')
+    assert not np.array_equal(on, off)
+    assert BatchSimulator(load_scenario('paper').with_overrides(maps=30, duration=1.0)).inboxes is None
+
+
+def test_a_map_passes_on_its_nearest_neighbours_only() -> None:
+    said, here = Said(0, Told(M2, 0, None)), np.array([0.0, 0, 20])
+    hearing = Hearing(Links(loss=0.3), 0)
+    ids = list(range(1, PASSED_ON + 3))
+    hearing.receive(0, ids, [Heard(np.array([2.0 * j, 0, 20]), np.zeros(3), 0.0, said) for j in reversed(ids)])
+    hearing.neighbourhood(0, 0.1, here, R, hush=0)
+    assert [p.id for p in hearing.passed] == ids[2:], 'the PASSED_ON nearest (ids listed farthest first), ascending id'
 
 
 def test_a_map_that_hears_a_neighbour_fall_silent_holds_where_it_is() -> None:

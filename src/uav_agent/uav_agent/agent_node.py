@@ -32,7 +32,7 @@ from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, make_executor
 from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STEP_QOS, is_realtime
 
 from .core import links
-from .core.agent import Heard, Hearing, Neighbourhood, Said, agent_step
+from .core.agent import Heard, Hearing, Neighbourhood, Passed, Said, agent_step
 from .core.clusters import NO_GOAL, ClusterMap, ids_of, mask_of
 from .core.state import Memory, Told
 from .core.checks import check_fields
@@ -127,7 +127,7 @@ class AgentNode(Node):
                                                 for f in fields(links.Links)}), lambda name: f'parameter links.{name}')
         self.seed = int(self.get_parameter('seed').value)  # the run's: every channel decision draws from it
         self.dt = float(self.get_parameter('dt').value)  # the run's step (s): how far a stale state is flown on
-        self.inbox: Optional[Hearing] = None if self.links.perfect else Hearing(self.links)
+        self.inbox: Optional[Hearing] = None if self.links.perfect else Hearing(self.links, self.map_id)
         self.own_at: dict[int, np.ndarray] = {}  # realtime: this MAP's position at its recent steps
         self.discarded = 0  # realtime: neighbour states the channel lost
         self.links_log = None
@@ -229,7 +229,7 @@ class AgentNode(Node):
         if msg.id != sender:
             self.reject(source, f'sender id {msg.id} on the topic of MAP {sender}')
             return
-        if not convert.finite(raw.position, raw.velocity):
+        if not convert.finite(raw.position, raw.velocity, *(v for r in raw.passed_on for v in (r.position, r.velocity))):
             self.reject(source, 'non-finite position or velocity')
             return
         known = self.latest.get(sender)
@@ -260,6 +260,7 @@ class AgentNode(Node):
             self.discarded += 1
             return False
         self.inbox.receive(msg.step, [msg.id], [Heard(msg.q, msg.p, float(msg.n_users), said(msg))])  # type: ignore[union-attr]
+        self.inbox.hear_passed(msg.step, passed(msg))  # type: ignore[union-attr]
         return True
 
     # ------------------------------------------------------------------ neighbours
@@ -295,8 +296,11 @@ class AgentNode(Node):
     def publish_state(self, s: convert.SensingData) -> None:
         mem = self.memory
         told = Told.of(mem)
+        passed_on = tuple(convert.PassedData(j, at, h.q, h.p, int(h.n_users), h.said.told.mode, h.said.told.goal,
+                                             h.said.told.bridge, tuple(ids_of(h.said.achieved)), h.said.told.block)
+                          for j, at, h in (self.inbox.passed if self.inbox is not None else ()))
         msg = convert.AgentStateData(self.map_id, s.step, s.q, s.p, s.n_users, mem.mode, mem.goal, mem.bridge,
-                                     tuple(ids_of(mem.achieved)), told.block).to_msg(self.pending_header)
+                                     tuple(ids_of(mem.achieved)), told.block, passed_on).to_msg(self.pending_header)
         self.state_pub.publish(msg)
         self.last_state = msg
 
@@ -342,6 +346,8 @@ class AgentNode(Node):
                          np.array([m.q for m in states]).reshape(-1, 3), self.params.r)
         self.inbox.receive(s.step, [m.id for m, o in zip(states, ok) if o],  # type: ignore[union-attr]
                            [Heard(m.q, m.p, float(m.n_users), said(m)) for m, o in zip(states, ok) if o])
+        for m in (m for m, o in zip(states, ok) if o):
+            self.inbox.hear_passed(s.step, passed(m))  # type: ignore[union-attr]
 
     def unheard(self, s: convert.SensingData) -> list[int]:
         """The live neighbours listed for step s whose state of that step has not come in."""
@@ -415,9 +421,14 @@ class AgentNode(Node):
         return take_waiting(self.neighbour_subs[j], handle)
 
 
-def said(m: convert.AgentStateData) -> Said:
+def said(m: convert.AgentStateData | convert.PassedData) -> Said:
     """What a neighbour's state message says, as the step reads it (core.agent.Neighbourhood.hearing)."""
     return Said(mask_of(m.achieved), Told(m.mode, m.goal, m.bridge, m.roles))
+
+
+def passed(m: convert.AgentStateData) -> list[Passed]:
+    """The neighbour states a message passes on (AgentState.passed_on), as the MAP's Hearing takes them."""
+    return [Passed(r.id, r.step, Heard(r.q, r.p, float(r.n_users), said(r))) for r in m.passed_on]
 
 
 def parse_ids(argv: list[str]) -> list[int]:

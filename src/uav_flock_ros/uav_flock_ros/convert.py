@@ -15,7 +15,7 @@ import numpy as np
 from geometry_msgs.msg import Point, Vector3
 from std_msgs.msg import Header
 from uav_flock_msgs.msg import (AgentState, Association, Clusters, Command, FailureEvent, LinkMetrics, Metrics,
-                                 NeighborList, RoleGossip, Sensing, Users)
+                                 NeighborList, PassedState, RoleGossip, Sensing, Users)
 
 
 def point(v: np.ndarray) -> Point:
@@ -67,6 +67,43 @@ class RoleGossipData(NamedTuple):
                    tuple((int(c), int(n)) for c, n in zip(msg.roles_short, msg.roles_short_by)))
 
 
+class PassedData(NamedTuple):
+    """A neighbour's state of step `step` as a MAP passes it on (PassedState; AgentStateData.passed_on)."""
+
+    id: int
+    step: int
+    q: np.ndarray                   # (3,) m
+    p: np.ndarray                   # (3,) m/s
+    n_users: int
+    mode: int
+    goal: int
+    bridge: Optional[tuple[int, int]]  # the two clusters an M1 MAP connects, None otherwise
+    achieved: tuple[int, ...]       # cluster indices known as achieved, ascending
+    roles: Optional[RoleGossipData] = None  # what its allocation adds (the demand allocation's), if anything
+
+    def fields(self) -> dict[str, Any]:
+        """The message fields a state and a state passed on share."""
+        return dict(id=int(self.id), step=int(self.step), position=point(self.q), velocity=vector(self.p),
+                    user_count=int(self.n_users), mode=int(self.mode), goal=int(self.goal),
+                    bridge=list(self.bridge) if self.bridge else [], achieved_goals=[int(k) for k in self.achieved],
+                    roles=[RoleGossipData(*self.roles).to_msg()] if self.roles is not None else [])
+
+    @classmethod
+    def values(cls, msg: Any) -> tuple[Any, ...]:
+        bridge = tuple(int(c) for c in msg.bridge)
+        return (int(msg.id), int(msg.step), xyz(msg.position), xyz(msg.velocity), int(msg.user_count),
+                int(msg.mode), int(msg.goal), (bridge[0], bridge[1]) if len(bridge) == 2 else None,
+                tuple(int(k) for k in msg.achieved_goals),
+                RoleGossipData.from_msg(msg.roles[0]) if len(msg.roles) else None)
+
+    def to_msg(self) -> PassedState:
+        return PassedState(**self.fields())
+
+    @classmethod
+    def from_msg(cls, msg: Any) -> 'PassedData':
+        return cls(*cls.values(msg))
+
+
 class AgentStateData(NamedTuple):
     """/map_<id>/state: what a MAP tells its neighbours at step k."""
 
@@ -80,21 +117,15 @@ class AgentStateData(NamedTuple):
     bridge: Optional[tuple[int, int]]  # the two clusters an M1 MAP connects, None otherwise
     achieved: tuple[int, ...]       # cluster indices known as achieved, ascending
     roles: Optional[RoleGossipData] = None  # what its allocation adds (the demand allocation's), if anything
+    passed_on: tuple[PassedData, ...] = ()  # its nearest neighbours' states it passes on (a lossy channel only)
 
     def to_msg(self, header: Header) -> AgentState:
-        return AgentState(header=header, id=int(self.id), step=int(self.step), position=point(self.q),
-                          velocity=vector(self.p), user_count=int(self.n_users), mode=int(self.mode),
-                          goal=int(self.goal), bridge=list(self.bridge) if self.bridge else [],
-                          achieved_goals=[int(k) for k in self.achieved],
-                          roles=[RoleGossipData(*self.roles).to_msg()] if self.roles is not None else [])
+        return AgentState(header=header, **PassedData(*self[:len(PassedData._fields)]).fields(),
+                          passed_on=[r.to_msg() for r in self.passed_on])
 
     @classmethod
     def from_msg(cls, msg: Any) -> 'AgentStateData':
-        bridge = tuple(int(c) for c in msg.bridge)
-        return cls(int(msg.id), int(msg.step), xyz(msg.position), xyz(msg.velocity), int(msg.user_count),
-                   int(msg.mode), int(msg.goal), (bridge[0], bridge[1]) if len(bridge) == 2 else None,
-                   tuple(int(k) for k in msg.achieved_goals),
-                   RoleGossipData.from_msg(msg.roles[0]) if len(msg.roles) else None)
+        return cls(*PassedData.values(msg), tuple(PassedData.from_msg(r) for r in msg.passed_on))
 
 
 class CommandData(NamedTuple):

@@ -28,7 +28,7 @@ class BatchSimulator:
         self.memory = [Memory() for _ in range(scenario.maps)]
         # What each MAP holds of its neighbours' states, under a channel that is not the paper's (links.py).
         self.inboxes: Optional[list[Hearing]] = \
-            None if scenario.links.perfect else [Hearing(scenario.links) for _ in range(scenario.maps)]
+            None if scenario.links.perfect else [Hearing(scenario.links, i) for i in range(scenario.maps)]
 
     # Views kept for callers that inspect the run as it goes.
     users = property(lambda self: self.world.users)
@@ -76,16 +76,20 @@ class BatchSimulator:
 
     def hear(self, sensed: Sensed, said: list[Said]) -> tuple[list[Neighbourhood], np.ndarray, Neighbourhood]:
         """hear_all through the scenario's channel: each MAP decides which neighbour states of step k it hears
-        (links.heard, as its agent node does) and uses the latest one of each it may use now (links.Inbox)."""
+        (links.heard, as its agent node does), with the states each heard one passes on (Hearing.hear_passed), and
+        uses the latest one of each neighbour it may use now (links.Inbox)."""
         assert self.inboxes is not None
         s, pairs, rows = self.scenario, sensed.pairs, sensed.ids
         ok = links.heard(s.links, s.seed, sensed.k, rows[pairs[:, 0]], rows[pairs[:, 1]], sensed.q[pairs[:, 0]],
                          sensed.q[pairs[:, 1]], s.flock.r)
         hoods, owner = [], []
+        passed = [self.inboxes[i].passed for i in rows.tolist()]  # what each message of step k passes on
         for n, i in enumerate(rows.tolist()):
             js = pairs[sensed.bounds[n]:sensed.bounds[n + 1], 1][ok[sensed.bounds[n]:sensed.bounds[n + 1]]]
             self.inboxes[i].receive(sensed.k, rows[js].tolist(), [Heard(sensed.q[j].copy(), sensed.p[j].copy(),
                                                                         float(sensed.n_users[j]), said[j]) for j in js])
+            for j in js.tolist():
+                self.inboxes[i].hear_passed(sensed.k, passed[j])
             hoods.append(self.inboxes[i].neighbourhood(sensed.k, s.dt, sensed.q[n], s.flock.r, s.flock.hush))
             owner += [n] * len(hoods[-1].q)
         return hoods, np.array(owner, dtype=np.intp), Neighbourhood(

@@ -95,23 +95,52 @@ def _within(held: Sequence[tuple[int, int, Heard]], q: np.ndarray, dist: np.ndar
                                  np.array([h.n_users for h in states])[keep], [h.said for h, k in zip(states, keep) if k])
 
 
+PASSED_ON = 8  # neighbour states a MAP passes on in its own message, its nearest (rule 'hearsay'; AgentState.passed_on)
+
+
+class Passed(NamedTuple):
+    """A neighbour's state as another MAP passes it on: whose, of which step, and the state."""
+
+    id: int
+    step: int
+    heard: Heard
+
+
 class Hearing(Inbox[Heard]):
-    """What one MAP holds of its neighbours under a channel that is not the paper's: their states (links.Inbox)
-    and, for rule 'still', the step of the latest state of each that placed it well inside r (STILL_MARGIN).
+    """What one MAP holds of its neighbours under a channel that is not the paper's: their states (links.Inbox),
+    the step of the latest state of each that placed it well inside r (rule 'still', STILL_MARGIN), and the
+    states it passes on to its neighbours (rule 'hearsay').
 
     The agent node holds one for its MAP, the batch simulator one per MAP.
     """
 
-    def __init__(self, channel: Links) -> None:
+    def __init__(self, channel: Links, me: int) -> None:
         super().__init__(channel)
+        self.me = me
         self.placed: dict[int, int] = {}
+        self.passed: list[Passed] = []  # what this MAP's next state message passes on (neighbourhood)
+
+    def hear_passed(self, k: int, passed: Sequence[Passed]) -> None:
+        """Rule 'hearsay': the states a neighbour passed on in its message of step k, heard with it.
+
+        Under bursts a link stays silent for seconds while the MAPs at both ends hear a third: what that third
+        passes on keeps each end's neighbour from vanishing, and with it the forces that hold the formation
+        (docs/links.md). A state passed on is as old as its own step says; its latency runs from step k, when
+        the message that carried it was sent. One not newer than what the MAP holds is ignored.
+        """
+        if not on('hearsay'):
+            return
+        for j, at, heard in passed:
+            if j != self.me and at > self.newest(j):
+                self.passed_on(k, j, at, heard)
 
     def neighbourhood(self, k: int, dt: float, here: np.ndarray, r: float, hush: int) -> Neighbourhood:
         """heard_from of the states usable at step k, and whether a neighbour fell silent (Neighbourhood.silent).
 
         A neighbour forgotten (past ttl) whose last state placed it well inside r has most likely not left
         but lost its states in a burst; for up to `hush` steps after that state the MAP counts it silent.
-        One whose latest state places it near the rim or beyond is let go: it may be leaving.
+        One whose latest state places it near the rim or beyond is let go: it may be leaving. The PASSED_ON
+        nearest states held are what the MAP passes on next.
         """
         held = self.usable(k)
         q, dist = _placed(held, dt, here)
@@ -125,6 +154,8 @@ class Hearing(Inbox[Heard]):
         for j in [j for j, at in self.placed.items() if k - at > hush]:
             del self.placed[j]
         hood.silent = on('still') and any(j not in now for j in self.placed)
+        nearest = sorted((n for n in range(len(held)) if dist[n] <= r), key=lambda n: (dist[n], held[n][0]))[:PASSED_ON]
+        self.passed = [Passed(held[n][0], k - held[n][1], held[n][2]) for n in sorted(nearest, key=lambda n: held[n][0])]
         return hood
 
 

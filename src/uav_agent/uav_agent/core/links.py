@@ -160,17 +160,27 @@ P = TypeVar('P')
 
 class Inbox(Generic[P]):
     """What one MAP holds of its neighbours' states: each heard state, from the step it may be used at
-    (latency) until ttl steps after its step. The agent node holds one for its MAP, the batch simulator one
-    per MAP; both keep the state messages (payloads) as they read them."""
+    (latency after the step of the message that brought it) until ttl steps after its own step. The agent node
+    holds one for its MAP, the batch simulator one per MAP; both keep the state messages (payloads) as they
+    read them."""
 
     def __init__(self, links: Links) -> None:
         self.links = links
-        self.held: dict[int, list[tuple[int, P]]] = {}
+        # neighbour id -> (step of the message that brought it, step of the state, state), in arrival order
+        self.held: dict[int, list[tuple[int, int, P]]] = {}
 
     def receive(self, k: int, ids: list[int], payloads: list[P]) -> None:
         """States of step k heard from ids."""
         for j, payload in zip(ids, payloads):
-            self.held.setdefault(j, []).append((k, payload))
+            self.held.setdefault(j, []).append((k, k, payload))
+
+    def passed_on(self, k: int, j: int, at: int, payload: P) -> None:
+        """j's state of step `at`, heard at step k in another MAP's message (agent.Hearing.relay)."""
+        self.held.setdefault(j, []).append((k, at, payload))
+
+    def newest(self, j: int) -> int:
+        """The step of the newest state held from j (-1: none)."""
+        return max((at for _, at, _ in self.held.get(j, ())), default=-1)
 
     def usable(self, k: int) -> list[tuple[int, int, P]]:
         """(neighbour id, age in steps, its latest state usable at step k), in ascending id; states too old to
@@ -180,11 +190,12 @@ class Inbox(Generic[P]):
         for j in sorted(self.held):
             states = self.held[j]
             ready = [s for s in states if s[0] <= ready_by]
-            keep = ([ready[-1]] if ready and ready[-1][0] >= oldest else []) + [s for s in states if s[0] > ready_by]
+            best = max(ready, key=lambda s: s[1]) if ready else None
+            keep = ([best] if best is not None and best[1] >= oldest else []) + [s for s in states if s[0] > ready_by]
             if keep:
                 self.held[j] = keep
             else:
                 del self.held[j]
-            if ready and ready[-1][0] >= oldest:
-                out.append((j, k - ready[-1][0], ready[-1][1]))
+            if best is not None and best[1] >= oldest:
+                out.append((j, k - best[1], best[2]))
         return out
