@@ -175,13 +175,16 @@ def test_a_neighbour_whose_own_states_are_lost_is_heard_through_another_as_old_a
         ablation.OFF.discard('hearsay')
 
 
-def test_what_neighbours_pass_on_changes_a_run_only_under_a_lossy_channel() -> None:
+def test_what_neighbours_pass_on_changes_a_run_only_under_a_lossy_channel_and_the_demand_allocation() -> None:
     """The batch simulator delivers what each heard message passes on (the lockstep test in tests/ros holds the
     agent nodes to the same run): with rule 'hearsay' off the same lossy run differs; over the paper's channel
-    nothing is passed on at all."""
-    s = dataclasses.replace(load_scenario('paper').with_overrides(maps=30, duration=6.0),
-                            links=Links(loss=0.3, burst=5.0, latency=1, ttl=4))
-    on = BatchSimulator(s).run().trajectory
+    nothing is passed on at all, nor under Algorithm 2 (policies.hearsay)."""
+    paper = dataclasses.replace(load_scenario('paper').with_overrides(maps=30, duration=6.0),
+                                links=Links(loss=0.3, burst=5.0, latency=1, ttl=4))
+    s = dataclasses.replace(paper, flock=dataclasses.replace(paper.flock, allocation='demand'))
+    sim = BatchSimulator(s)
+    on = sim.run().trajectory
+    assert any(inbox.passed for inbox in sim.inboxes or [])
     ablation.OFF.add('hearsay')
     try:
         off = BatchSimulator(s).run().trajectory
@@ -189,6 +192,10 @@ def test_what_neighbours_pass_on_changes_a_run_only_under_a_lossy_channel() -> N
         ablation.OFF.discard('hearsay')
     assert not np.array_equal(on, off)
     assert BatchSimulator(load_scenario('paper').with_overrides(maps=30, duration=1.0)).inboxes is None
+    assert paper.flock.allocation == 'algorithm2'
+    alg2 = BatchSimulator(dataclasses.replace(paper, duration=2.0))
+    alg2.run()
+    assert not any(inbox.passed for inbox in alg2.inboxes or [])
 
 
 def test_a_map_passes_on_its_nearest_neighbours_only() -> None:

@@ -38,6 +38,7 @@ from .core.state import Memory, Told
 from .core.checks import check_fields
 from .core.params import AgentNodeParams, FlockParams
 from .core.policies import check as check_params
+from .core.policies import hearsay
 
 WATCH_PERIOD_S = 1.0
 WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long (after it was seen): it is gone
@@ -127,7 +128,8 @@ class AgentNode(Node):
                                                 for f in fields(links.Links)}), lambda name: f'parameter links.{name}')
         self.seed = int(self.get_parameter('seed').value)  # the run's: every channel decision draws from it
         self.dt = float(self.get_parameter('dt').value)  # the run's step (s): how far a stale state is flown on
-        self.inbox: Optional[Hearing] = None if self.links.perfect else Hearing(self.links, self.map_id)
+        self.inbox: Optional[Hearing] = \
+            None if self.links.perfect else Hearing(self.links, self.map_id, hearsay(self.params))
         self.own_at: dict[int, np.ndarray] = {}  # realtime: this MAP's position at its recent steps
         self.discarded = 0  # realtime: neighbour states the channel lost
         self.links_log = None

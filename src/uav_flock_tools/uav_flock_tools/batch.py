@@ -13,6 +13,7 @@ import numpy as np
 from uav_agent.core import links
 from uav_agent.core.agent import Heard, Hearing, Neighbourhood, Said, plan
 from uav_agent.core.control import control_input
+from uav_agent.core.policies import hearsay
 from uav_agent.core.state import Memory
 
 from world_sim.core.model import RunResult, Sensed, World
@@ -28,7 +29,7 @@ class BatchSimulator:
         self.memory = [Memory() for _ in range(scenario.maps)]
         # What each MAP holds of its neighbours' states, under a channel that is not the paper's (links.py).
         self.inboxes: Optional[list[Hearing]] = \
-            None if scenario.links.perfect else [Hearing(scenario.links, i) for i in range(scenario.maps)]
+            None if scenario.links.perfect else [Hearing(scenario.links, i, hearsay(scenario.flock)) for i in range(scenario.maps)]
 
     # Views kept for callers that inspect the run as it goes.
     users = property(lambda self: self.world.users)

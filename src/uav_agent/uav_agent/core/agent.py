@@ -114,9 +114,10 @@ class Hearing(Inbox[Heard]):
     The agent node holds one for its MAP, the batch simulator one per MAP.
     """
 
-    def __init__(self, channel: Links, me: int) -> None:
+    def __init__(self, channel: Links, me: int, hearsay: bool = True) -> None:
         super().__init__(channel)
         self.me = me
+        self.hearsay = hearsay  # whether this MAP passes on what it holds (policies.hearsay)
         self.placed: dict[int, int] = {}
         self.passed: list[Passed] = []  # what this MAP's next state message passes on (neighbourhood)
 
@@ -154,6 +155,8 @@ class Hearing(Inbox[Heard]):
         for j in [j for j, at in self.placed.items() if k - at > hush]:
             del self.placed[j]
         hood.silent = on('still') and any(j not in now for j in self.placed)
+        if not self.hearsay:
+            return hood
         nearest = sorted((n for n in range(len(held)) if dist[n] <= r), key=lambda n: (dist[n], held[n][0]))[:PASSED_ON]
         self.passed = [Passed(held[n][0], k - held[n][1], held[n][2]) for n in sorted(nearest, key=lambda n: held[n][0])]
         return hood

@@ -22,6 +22,10 @@ from .state import NOBODY, Memory, Near, Reference, Told
 class Allocation(Protocol):
     """One MAP's discrete update and goal under an allocation, from its own sensing and its neighbours' words."""
 
+    # Whether its MAPs pass on the neighbour states they hold under a lossy channel (rule 'hearsay',
+    # agent.Hearing): measured per allocation, since what holds one formation together can split another.
+    hearsay: bool
+
     def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
                fp: FlockParams, step: int = 0, near: Near = NOBODY) -> Memory:
         """Mode, goal and bridge after this step's gossip (Algorithm 2's place in Algorithm 1), at step k, with
@@ -71,3 +75,8 @@ def links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[int]:
     """For each neighbour heard, what its link to this MAP (as decided this step) is to the flocking terms."""
     own, allocation = Told.of(mem), ALLOCATIONS[fp.allocation]
     return [allocation.link(own, t) for t in heard]
+
+
+def hearsay(fp: FlockParams) -> bool:
+    """Whether the scenario's allocation passes on what its MAPs hear (Allocation.hearsay)."""
+    return ALLOCATIONS[fp.allocation].hearsay

@@ -69,6 +69,10 @@ def choose_bridge(mem: Memory, agent_id: int, q: np.ndarray, clusters: ClusterMa
 class Algorithm2:
     """Algorithm 2 as an allocation (policies.Allocation)."""
 
+    # Every neighbour attracts in its lattice: with states passed on, the paper layout split for good in one
+    # seed of eight under either channel (docs/links.md, "Hearsay").
+    hearsay = False
+
     def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
                fp: FlockParams, step: int = 0, near: Near = NOBODY) -> Memory:
         mem = mode_switch(mem, n_users, r_g, q, clusters, fp)

@@ -332,6 +332,8 @@ def leg_aim(q: np.ndarray, hop: int, clusters: ClusterMap, fp: FlockParams, achi
 class Demand:
     """The demand allocation as an allocation (policies.Allocation)."""
 
+    hearsay = True  # its chains and servers hold through a silent link by what a third MAP passes on
+
     def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
                fp: FlockParams, step: int = 0, near: Near = NOBODY) -> Memory:
         """Gossip first (the roles heard of, keys lost, roles short: vacancy.py), then the role and mode."""
