@@ -14,10 +14,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from uav_agent.core import ablation
-from uav_agent.core.agent import PASSED_ON, Heard, Hearing, Passed, Said, heard_from, still
+from uav_agent.core.agent import PASSED_ON, Heard, Hearing, Passed, Said, heard_from
 from uav_agent.core.links import USABLE, Inbox, Links, delivery, heard, lost, reach
 from uav_agent.core.potentials import bump
-from uav_agent.core.state import M1, M2, PASSING, Memory, Reference, Told
+from uav_agent.core.state import M2, Told
 from uav_flock_tools.batch import BatchSimulator
 from world_sim.core.hearing import LINK_COLUMNS
 from world_sim.core.records import METRICS_COLUMNS
@@ -128,21 +128,6 @@ def test_a_stale_state_stands_where_its_sender_flew_on_and_one_gone_out_of_range
     assert far.q[:, 0].tolist() == [10.0, 12.0], 'MAP 8, flown on to 27 m away, is taken for gone'
 
 
-def test_a_neighbour_forgotten_well_inside_range_is_silent_until_hush_and_one_at_the_rim_is_let_go() -> None:
-    """Rule 'still' (agent.Hearing): silence counts from the neighbour's last state, for hush steps; a
-    neighbour last placed near r may be leaving and is never counted silent."""
-    said, here = Said(0, Told(M2, 0, None)), np.array([0.0, 0, 20])
-    hearing = Hearing(Links(loss=0.3, burst=20.0, ttl=3), 0)
-    hearing.receive(0, [1, 2], [Heard(np.array([10.0, 0, 20]), np.zeros(3), 0.0, said),
-                                Heard(np.array([23.0, 0, 20]), np.zeros(3), 0.0, said)])
-    silent = [hearing.neighbourhood(k, 0.1, here, R, hush=8).silent for k in range(12)]
-    assert silent == [False] * 4 + [True] * 5 + [False] * 3, 'heard until ttl 3, silent from 4 to hush 8'
-    hearing.receive(12, [1], [Heard(np.array([10.0, 0, 20]), np.zeros(3), 0.0, said)])
-    assert not hearing.neighbourhood(12, 0.1, here, R, hush=8).silent, 'heard again'
-    perfect = [Hearing(Links(loss=0.3), 0).neighbourhood(k, 0.1, here, R, hush=0).silent for k in range(3)]
-    assert perfect == [False] * 3
-
-
 def test_a_neighbour_whose_own_states_are_lost_is_heard_through_another_as_old_as_its_step() -> None:
     """Rule 'hearsay' (agent.Hearing.hear_passed): a MAP passes on its nearest neighbours' states; a receiver uses one it
     holds nothing newer of, aged from the state's own step, usable `latency` steps after the message that
@@ -151,13 +136,13 @@ def test_a_neighbour_whose_own_states_are_lost_is_heard_through_another_as_old_a
     a = Hearing(Links(loss=0.3, burst=20.0, latency=1, ttl=5), 1)
     a.receive(0, [2, 3], [Heard(np.array([10.0, 0, 20]), np.zeros(3), 0.0, said),
                           Heard(np.array([30.0, 0, 20]), np.zeros(3), 0.0, said)])
-    assert a.neighbourhood(0, 0.1, here, R, hush=0).q.shape == (0, 3), 'latency 1: nothing usable yet'
-    a.neighbourhood(1, 0.1, here, R, hush=0)
+    assert a.neighbourhood(0, 0.1, here, R).q.shape == (0, 3), 'latency 1: nothing usable yet'
+    a.neighbourhood(1, 0.1, here, R)
     assert [(p.id, p.step) for p in a.passed] == [(2, 0)], 'MAP 3 lies beyond r: not passed on'
     b = Hearing(Links(loss=0.3, burst=20.0, latency=1, ttl=5), 2)
     b.hear_passed(2, a.passed + [Passed(1, 2, Heard(np.array([5.0, 0, 20]), np.zeros(3), 0.0, said))])
     assert b.held == {1: [(2, 2, b.held[1][0][2])]}, 'its own state passed back is not taken'
-    assert b.neighbourhood(2, 0.1, here, R, hush=0).q.shape == (0, 3), 'usable a step after the message'
+    assert b.neighbourhood(2, 0.1, here, R).q.shape == (0, 3), 'usable a step after the message'
     assert [(j, age) for j, age, _ in b.usable(3)] == [(1, 1)]
     c = Hearing(Links(loss=0.3, burst=20.0, latency=1, ttl=5), 3)
     c.receive(4, [2], [Heard(np.array([12.0, 0, 20]), np.zeros(3), 0.0, said)])
@@ -203,20 +188,8 @@ def test_a_map_passes_on_its_nearest_neighbours_only() -> None:
     hearing = Hearing(Links(loss=0.3), 0)
     ids = list(range(1, PASSED_ON + 3))
     hearing.receive(0, ids, [Heard(np.array([2.0 * j, 0, 20]), np.zeros(3), 0.0, said) for j in reversed(ids)])
-    hearing.neighbourhood(0, 0.1, here, R, hush=0)
+    hearing.neighbourhood(0, 0.1, here, R)
     assert [p.id for p in hearing.passed] == ids[2:], 'the PASSED_ON nearest (ids listed farthest first), ascending id'
-
-
-def test_a_map_that_hears_a_neighbour_fall_silent_holds_where_it_is() -> None:
-    """agent.still: its goal term aims where it is, moving as its goal moves, and its neighbours only repel
-    within d/2; a relay (M1) holds like a server, at its slot's velocity."""
-    q, v = np.array([3.0, 4.0, 20.0]), np.array([[1.0, 0, 0], [0, 2.0, 0], [0, 2.0, 0]])
-    relay = Memory(mode=M1, goal=0, bridge=(0, 1))
-    ref = Reference(np.zeros(3), np.zeros(3), np.ones(3), M1, v)
-    held = still(relay, q, ref, heard=3)
-    assert held.memory == relay and held.links == [PASSING] * 3
-    assert held.reference.mode == M2 and np.array_equal(held.reference.target, q)
-    assert np.array_equal(held.reference.velocity, np.tile([0, 2.0, 0], (3, 1))), 'the slot\'s velocity'
 
 
 def test_chains_are_laid_inside_what_the_channel_delivers() -> None:

@@ -323,7 +323,7 @@ class AgentNode(Node):
         if self.inbox is not None:
             if not self.realtime:
                 self.through_channel(s, heard)
-            hood = self.inbox.neighbourhood(s.step, self.dt, s.q, self.params.r, self.params.hush)
+            hood = self.inbox.neighbourhood(s.step, self.dt, s.q, self.params.r)
         else:
             hood = Neighbourhood.hearing(np.array([m.q for m in heard]), np.array([m.p for m in heard]),
                                          np.array([float(m.n_users) for m in heard]), [said(m) for m in heard])

@@ -91,7 +91,7 @@ class BatchSimulator:
                                                                         float(sensed.n_users[j]), said[j]) for j in js])
             for j in js.tolist():
                 self.inboxes[i].hear_passed(sensed.k, passed[j])
-            hoods.append(self.inboxes[i].neighbourhood(sensed.k, s.dt, sensed.q[n], s.flock.r, s.flock.hush))
+            hoods.append(self.inboxes[i].neighbourhood(sensed.k, s.dt, sensed.q[n], s.flock.r))
             owner += [n] * len(hoods[-1].q)
         return hoods, np.array(owner, dtype=np.intp), Neighbourhood(
             np.concatenate([np.zeros((0, 3)), *(h.q for h in hoods)]), np.concatenate([np.zeros((0, 3)), *(h.p for h in hoods)]),

@@ -21,8 +21,6 @@ RULES.update({
     'predict': 'a stale neighbour state stands for where its sender is now, flown on at its velocity then',
     'gone': 'a neighbour whose state so predicted lies beyond r is taken for gone',
     'inside': 'relay chains laid on links no longer than the channel still delivers half over (demand.reach_of)',
-    'still': 'a MAP at its role that hears a neighbour fall silent holds where it is, with repulsion within d/2 '
-             'alone (agent.still)',
     'hearsay': 'a MAP passes on the states it holds of its nearest neighbours; one heard through them stands for a '
              'neighbour whose own states are lost (agent.Hearing.hear_passed)',
     'hold': 'a relay that hears one side of its chain, or a server no relay of its cluster, for no longer than '

@@ -17,10 +17,7 @@ from .control import control_input
 from .links import Inbox, Links
 from .params import FlockParams
 from .policies import decide, links, reference
-from .state import M0, M1, PASSING, Memory, Near, Reference, Told, hold
-
-STILL_MARGIN = 2.0  # m inside r: a neighbour last placed nearer than that to r may be leaving (rule 'still')
-
+from .state import Memory, Near, Reference, Told
 
 class Said(NamedTuple):
     """What a MAP's state message of step k tells its neighbours besides q, p and N_u: the goals it knows
@@ -44,7 +41,6 @@ class Neighbourhood:
     n_users: np.ndarray    # (n,) N_u^j
     achieved: list[int]    # achieved-goal masks
     told: list[Told]       # what each one stated of its role, and its allocation's block
-    silent: bool = False   # a neighbour fell silent that is most likely still there (Hearing.neighbourhood)
 
     @classmethod
     def empty(cls) -> 'Neighbourhood':
@@ -108,8 +104,7 @@ class Passed(NamedTuple):
 
 class Hearing(Inbox[Heard]):
     """What one MAP holds of its neighbours under a channel that is not the paper's: their states (links.Inbox),
-    the step of the latest state of each that placed it well inside r (rule 'still', STILL_MARGIN), and the
-    states it passes on to its neighbours (rule 'hearsay').
+    and the states it passes on to its neighbours (rule 'hearsay').
 
     The agent node holds one for its MAP, the batch simulator one per MAP.
     """
@@ -118,7 +113,6 @@ class Hearing(Inbox[Heard]):
         super().__init__(channel)
         self.me = me
         self.hearsay = hearsay  # whether this MAP passes on what it holds (policies.hearsay)
-        self.placed: dict[int, int] = {}
         self.passed: list[Passed] = []  # what this MAP's next state message passes on (neighbourhood)
 
     def hear_passed(self, k: int, passed: Sequence[Passed]) -> None:
@@ -135,30 +129,16 @@ class Hearing(Inbox[Heard]):
             if j != self.me and at > self.newest(j):
                 self.passed_on(k, j, at, heard)
 
-    def neighbourhood(self, k: int, dt: float, here: np.ndarray, r: float, hush: int) -> Neighbourhood:
-        """heard_from of the states usable at step k, and whether a neighbour fell silent (Neighbourhood.silent).
-
-        A neighbour forgotten (past ttl) whose last state placed it well inside r has most likely not left
-        but lost its states in a burst; for up to `hush` steps after that state the MAP counts it silent.
-        One whose latest state places it near the rim or beyond is let go: it may be leaving. The PASSED_ON
-        nearest states held are what the MAP passes on next.
-        """
+    def neighbourhood(self, k: int, dt: float, here: np.ndarray, r: float) -> Neighbourhood:
+        """heard_from of the states usable at step k; the PASSED_ON nearest of them within r are what the MAP
+        passes on next."""
         held = self.usable(k)
         q, dist = _placed(held, dt, here)
         hood = _within(held, q, dist, r)
-        for (j, age, _), well in zip(held, dist <= r - STILL_MARGIN):
-            if well:
-                self.placed[j] = k - age
-            else:
-                self.placed.pop(j, None)
-        now = {j for j, _, _ in held}
-        for j in [j for j, at in self.placed.items() if k - at > hush]:
-            del self.placed[j]
-        hood.silent = on('still') and any(j not in now for j in self.placed)
-        if not self.hearsay:
-            return hood
-        nearest = sorted((n for n in range(len(held)) if dist[n] <= r), key=lambda n: (dist[n], held[n][0]))[:PASSED_ON]
-        self.passed = [Passed(held[n][0], k - held[n][1], held[n][2]) for n in sorted(nearest, key=lambda n: held[n][0])]
+        if self.hearsay:
+            nearest = sorted((n for n in range(len(held)) if dist[n] <= r), key=lambda n: (dist[n], held[n][0]))
+            self.passed = [Passed(held[n][0], k - held[n][1], held[n][2])
+                           for n in sorted(nearest[:PASSED_ON], key=lambda n: held[n][0])]
         return hood
 
 
@@ -177,21 +157,7 @@ def plan(mem: Memory, agent_id: int, q: np.ndarray, n_users: int, cluster_covera
     mem = decide(mem, agent_id, n_users, cluster_coverage, q, nbrs.achieved, clusters, params, step,
                  Near(nbrs.q, nbrs.told))
     ref = reference(mem, agent_id, q, nbrs.q, nbrs.told, clusters, params)
-    if nbrs.silent and ref.mode != M0:
-        return still(mem, q, ref, len(nbrs.told))
     return Plan(mem, ref, links(mem, nbrs.told, params))
-
-
-def still(mem: Memory, q: np.ndarray, ref: Reference, heard: int) -> Plan:
-    """Rule 'still': a MAP at its role (M1 or M2) that hears a neighbour fall silent holds where it is, moving
-    only as its goal does, and keeps from its neighbours the repulsion within d/2 alone.
-
-    Under bursts of losses, a neighbour forgotten mid-burst takes its forces with it and gives them back when
-    it is heard again: the formation, pushed each time, never came to rest and swayed its links past r and
-    its users out of reach (docs/links.md). Held still, a MAP owes its place to no neighbour's message.
-    """
-    v = ref.velocity[1] if ref.mode == M1 else ref.velocity[0]
-    return Plan(mem, hold(mem, np.asarray(q, dtype=float), v), [PASSING] * heard)
 
 
 def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_users: int, cluster_coverage: np.ndarray,
