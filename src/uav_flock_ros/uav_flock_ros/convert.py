@@ -104,24 +104,19 @@ class PassedData(NamedTuple):
         return cls(*cls.values(msg))
 
 
-class AgentStateData(NamedTuple):
-    """/map_<id>/state: what a MAP tells its neighbours at step k."""
+# /map_<id>/state's values: a state's fields (PassedData's), then the states it passes on.
+_State = NamedTuple('_State', [*PassedData.__annotations__.items(), ('passed_on', 'tuple[PassedData, ...]')])
+_State.__new__.__defaults__ = (None, ())
 
-    id: int
-    step: int
-    q: np.ndarray                   # (3,) m
-    p: np.ndarray                   # (3,) m/s
-    n_users: int
-    mode: int
-    goal: int
-    bridge: Optional[tuple[int, int]]  # the two clusters an M1 MAP connects, None otherwise
-    achieved: tuple[int, ...]       # cluster indices known as achieved, ascending
-    roles: Optional[RoleGossipData] = None  # what its allocation adds (the demand allocation's), if anything
-    passed_on: tuple[PassedData, ...] = ()  # its nearest neighbours' states it passes on (a lossy channel only)
+
+class AgentStateData(_State):
+    """/map_<id>/state: what a MAP tells its neighbours at step k (PassedData's fields), and the neighbour
+    states it passes on (passed_on: a lossy channel only)."""
+
+    __slots__ = ()
 
     def to_msg(self, header: Header) -> AgentState:
-        return AgentState(header=header, **PassedData(*self[:len(PassedData._fields)]).fields(),
-                          passed_on=[r.to_msg() for r in self.passed_on])
+        return AgentState(header=header, **PassedData(*self[:-1]).fields(), passed_on=[r.to_msg() for r in self.passed_on])
 
     @classmethod
     def from_msg(cls, msg: Any) -> 'AgentStateData':
