@@ -87,6 +87,8 @@ def test_a_relay_aims_midway_between_the_chain_members_it_hears() -> None:
     # so is a relay of this edge still flying in, farther than d from the edge
     assert relay_place(5, q, edge, np.array([[40.0, 0.0, 20.0], [100.0, 2 * P.d, 20.0]]), [servers_of_0, relay],
                        clusters, P) == 40.0 + reach
+    # rule 'stay': a settled relay under a lossy channel that hears no one stays where it is along its edge
+    assert alone != 80.0 and relay_place(5, q, edge, heard[:0], [], clusters, P, stay=True) == 80.0
 
 
 def test_a_map_in_transit_neither_attracts_a_relay_nor_drags_it_along() -> None:

@@ -23,6 +23,8 @@ RULES.update({
     'inside': 'relay chains laid on links no longer than the channel still delivers half over (demand.reach_of)',
     'hearsay': 'a MAP passes on the states it holds of its nearest neighbours; one heard through them stands for a '
              'neighbour whose own states are lost (agent.Hearing.hear_passed)',
+    'stay': 'a settled relay that hears no member of its chain under a lossy channel stays where it is along its '
+            'edge (demand.relay_place)',
     'hold': 'a relay that hears one side of its chain, or a server no relay of its cluster, for no longer than '
             'the channel\'s losses last takes it for lost states and holds its place (demand.hushed, demand.anchored)',
 })

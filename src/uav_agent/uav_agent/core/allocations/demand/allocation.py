@@ -158,7 +158,7 @@ def swing_place(swing: tuple[int, float], edge: Edge, clusters: ClusterMap, fp: 
 
 def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, told: Sequence[Told],
                 clusters: ClusterMap, fp: FlockParams, lost: tuple[keys.Span, ...] = (),
-                short: tuple[tuple[int, int], ...] = ()) -> float:
+                short: tuple[tuple[int, int], ...] = (), stay: bool = False) -> float:
     """Where along its edge a relay aims (m from the first cluster's centre): midway along its chain.
 
     The chain of an edge (a, b) is its relays and the servers of a and b. Servers of a lie on the a side
@@ -166,8 +166,9 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
     A relay that hears a chain member on each side aims midway between the nearest two, so the chain
     relaxes to even spacing between the clusters' outermost servers wherever they are; with one side
     silent it reaches r - 1 m beyond the other towards the silent side (a chain short of relays still spans
-    its gap if r per link does); hearing none, it takes its own place in
-    the gap by its key.
+    its gap if r per link does); hearing none, it takes its own place in the gap by its key, unless it
+    should `stay` (rule 'stay': a settled relay under a lossy channel, whose chain is most likely there
+    unheard; flying to its place by key it left a gap behind it, docs/links.md).
     """
     here, below, above = _chain(q, edge, nbr_q, told, clusters, fp)
     length = clusters.axis(edge)[2]
@@ -177,6 +178,8 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
         return min(below + reach_of(fp) - 1.0, length)
     if math.isfinite(above):
         return max(above - reach_of(fp) + 1.0, 0.0)
+    if stay:
+        return here
     roles, key = role_of(agent_id, lost, clusters, fp, short)
     start, stop = clusters.gap(edge, fp.d / 2)
     at = roles.place(key, clusters.count + roles.edges.index(edge))
@@ -355,7 +358,8 @@ class Demand:
             va, vb = clusters.velocities[mine.bridge[0]], clusters.velocities[mine.bridge[1]]
             place = swing_place(mine.swing, mine.bridge, clusters, fp) if mine.swing is not None else \
                 mine.hold[0] if mine.hold is not None else \
-                relay_place(agent_id, q, mine.bridge, nbr_q, told, clusters, fp, mine.lost, mine.short)
+                relay_place(agent_id, q, mine.bridge, nbr_q, told, clusters, fp, mine.lost, mine.short,
+                            stay=mine.settled and not mine.transit and fp.hush > 0 and on('stay'))
             q1, q2 = relay_slot(place, mine.bridge, clusters, fp)
             # The slot moves as its point of the edge does: at the velocity interpolated between the ends.
             length = clusters.axis(mine.bridge)[2]
