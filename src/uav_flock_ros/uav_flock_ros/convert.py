@@ -120,7 +120,8 @@ class AgentStateData(_State):
 
     @classmethod
     def from_msg(cls, msg: Any) -> 'AgentStateData':
-        return cls(*PassedData.values(msg), tuple(PassedData.from_msg(r) for r in msg.passed_on))
+        """A state recorded before states were passed on (a bag of an older uav-flock) passes on none."""
+        return cls(*PassedData.values(msg), tuple(PassedData.from_msg(r) for r in getattr(msg, 'passed_on', ())))
 
 
 class CommandData(NamedTuple):
