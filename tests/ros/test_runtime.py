@@ -259,8 +259,11 @@ def test_ctrl_c_twice_during_start_up_still_ends_cleanly(tmp_path: Path, ros_env
 
 
 def test_rogue_state_messages_change_nothing(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    """NaN, a wrong sender id and stale steps on /map_3/state from another process: every agent ignores them."""
-    args = ('--maps', '10', '--seed', '2', '--duration', '20')
+    """NaN, a wrong sender id and stale steps on /map_3/state from another process: every agent ignores them.
+
+    60 s of simulated time (a few seconds of wall time): in a run of 20 s the rogue's discovery of the agents'
+    readers, in another process, did not always complete before the run ended."""
+    args = ('--maps', '10', '--seed', '2', '--duration', '60')
     rogue = helper('rogue', '3', env=ros_env)
     try:
         run = cli('up', *args, '--domain-id', ros_env['ROS_DOMAIN_ID'], '--out', str(tmp_path / 'up'), env=ros_env)
