@@ -261,8 +261,8 @@ class AgentNode(Node):
         if not ok:
             self.discarded += 1
             return False
-        self.inbox.receive(msg.step, [msg.id], [Heard(msg.q, msg.p, float(msg.n_users), said(msg))])  # type: ignore[union-attr]
-        self.inbox.hear_passed(msg.step, passed(msg))  # type: ignore[union-attr]
+        self.inbox.hear(msg.step, [msg.id], [Heard(msg.q, msg.p, float(msg.n_users), said(msg))],  # type: ignore[union-attr]
+                        [passed(msg)])
         return True
 
     # ------------------------------------------------------------------ neighbours
@@ -346,10 +346,9 @@ class AgentNode(Node):
         ok = links.heard(self.links, self.seed, s.step, np.full(len(states), self.map_id),
                          np.array([m.id for m in states], dtype=np.int64), np.tile(s.q, (len(states), 1)),
                          np.array([m.q for m in states]).reshape(-1, 3), self.params.r)
-        self.inbox.receive(s.step, [m.id for m, o in zip(states, ok) if o],  # type: ignore[union-attr]
-                           [Heard(m.q, m.p, float(m.n_users), said(m)) for m, o in zip(states, ok) if o])
-        for m in (m for m, o in zip(states, ok) if o):
-            self.inbox.hear_passed(s.step, passed(m))  # type: ignore[union-attr]
+        delivered = [m for m, o in zip(states, ok) if o]
+        self.inbox.hear(s.step, [m.id for m in delivered],  # type: ignore[union-attr]
+                        [Heard(m.q, m.p, float(m.n_users), said(m)) for m in delivered], [passed(m) for m in delivered])
 
     def unheard(self, s: convert.SensingData) -> list[int]:
         """The live neighbours listed for step s whose state of that step has not come in."""

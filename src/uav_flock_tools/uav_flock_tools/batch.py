@@ -77,7 +77,7 @@ class BatchSimulator:
 
     def hear(self, sensed: Sensed, said: list[Said]) -> tuple[list[Neighbourhood], np.ndarray, Neighbourhood]:
         """hear_all through the scenario's channel: each MAP decides which neighbour states of step k it hears
-        (links.heard, as its agent node does), with the states each heard one passes on (Hearing.hear_passed), and
+        (links.heard, as its agent node does), with the states each heard one passes on (Hearing.hear), and
         uses the latest one of each neighbour it may use now (links.Inbox)."""
         assert self.inboxes is not None
         s, pairs, rows = self.scenario, sensed.pairs, sensed.ids
@@ -87,10 +87,9 @@ class BatchSimulator:
         passed = [self.inboxes[i].passed for i in rows.tolist()]  # what each message of step k passes on
         for n, i in enumerate(rows.tolist()):
             js = pairs[sensed.bounds[n]:sensed.bounds[n + 1], 1][ok[sensed.bounds[n]:sensed.bounds[n + 1]]]
-            self.inboxes[i].receive(sensed.k, rows[js].tolist(), [Heard(sensed.q[j].copy(), sensed.p[j].copy(),
-                                                                        float(sensed.n_users[j]), said[j]) for j in js])
-            for j in js.tolist():
-                self.inboxes[i].hear_passed(sensed.k, passed[j])
+            self.inboxes[i].hear(sensed.k, rows[js].tolist(), [Heard(sensed.q[j].copy(), sensed.p[j].copy(),
+                                                                     float(sensed.n_users[j]), said[j]) for j in js],
+                                 [passed[j] for j in js])
             hoods.append(self.inboxes[i].neighbourhood(sensed.k, s.dt, sensed.q[n], s.flock.r))
             owner += [n] * len(hoods[-1].q)
         return hoods, np.array(owner, dtype=np.intp), Neighbourhood(

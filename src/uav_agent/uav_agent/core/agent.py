@@ -19,6 +19,7 @@ from .params import FlockParams
 from .policies import decide, links, reference
 from .state import Memory, Near, Reference, Told
 
+
 class Said(NamedTuple):
     """What a MAP's state message of step k tells its neighbours besides q, p and N_u: the goals it knows
     achieved (a mask), and its role with what its allocation adds (Told)."""
@@ -114,6 +115,13 @@ class Hearing(Inbox[Heard]):
         self.me = me
         self.hearsay = hearsay  # whether this MAP passes on what it holds (policies.hearsay)
         self.passed: list[Passed] = []  # what this MAP's next state message passes on (neighbourhood)
+
+    def hear(self, k: int, ids: list[int], states: list[Heard], passed: Sequence[Sequence[Passed]]) -> None:
+        """The state messages of step k the channel delivered: each sender's state, then what it passed on
+        (rows alike). The batch simulator and the agent node both take what they heard here."""
+        self.receive(k, ids, states)
+        for each in passed:
+            self.hear_passed(k, each)
 
     def hear_passed(self, k: int, passed: Sequence[Passed]) -> None:
         """Rule 'hearsay': the states a neighbour passed on in its message of step k, heard with it.

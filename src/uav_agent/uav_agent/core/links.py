@@ -175,7 +175,7 @@ class Inbox(Generic[P]):
             self.held.setdefault(j, []).append((k, k, payload))
 
     def passed_on(self, k: int, j: int, at: int, payload: P) -> None:
-        """j's state of step `at`, heard at step k in another MAP's message (agent.Hearing.relay)."""
+        """j's state of step `at`, heard at step k in another MAP's message (agent.Hearing.hear_passed)."""
         self.held.setdefault(j, []).append((k, at, payload))
 
     def newest(self, j: int) -> int:
