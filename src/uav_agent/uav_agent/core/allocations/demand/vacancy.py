@@ -17,6 +17,7 @@ A message carries O(roles) numbers, never O(MAPs).
 """
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 from typing import TYPE_CHECKING, Iterable, Optional, Sequence
 
@@ -57,9 +58,10 @@ Heard = tuple[Sequence[Seen], Sequence[Sequence[keys.Span]], Sequence[Short]]
 def _latest(mine: Iterable[tuple[int, int]], heard: Iterable[Iterable[tuple[int, int]]]) -> dict[int, int]:
     """(role code, value) pairs merged by the larger value: the one merge of the step heard and the count."""
     out = dict(mine)
+    get = out.get  # the loop below is the allocation's hottest with a thousand MAPs (bench_sim, the city)
     for told in heard:
         for c, k in told:
-            if k > out.get(c, -1):
+            if k > get(c, -1):
                 out[c] = k
     return out
 
@@ -116,11 +118,10 @@ def vacate(mem: Mine, step: int, q: np.ndarray, clusters: ClusterMap, fp: FlockP
     formation not yet joined to this one, have twice that to arrive before it can be declared again.
     """
     roles = view(layout.roles(clusters, fp.d), mem.lost, mem.short)
-    current = [r for r in (*range(clusters.count), *roles.edges) if roles.share[roles.index(r)] > 0]
-    codes = {code(r) for r in current}
+    current, codes = _current(roles)
     seen = {c: k for c, k in mem.seen if c in codes}  # roles that left the layout are forgotten
     short = tuple((c, n) for c, n in mem.short if c in codes)
-    stale = [r for r in current if code(r) not in seen or step - seen[code(r)] > VACANT_STEPS]
+    stale = [r for r, c in current if step - seen.get(c, -math.inf) > VACANT_STEPS]
     lost = mem.lost
     fresh = len(current) - len(stale)
     if on('vacate') and mem.since >= 0 and not mem.transit and stale and fresh >= 2 and len(stale) <= 2 * fresh:
@@ -133,6 +134,15 @@ def vacate(mem: Mine, step: int, q: np.ndarray, clusters: ClusterMap, fp: FlockP
     if new == mem.seen and lost == mem.lost and short == mem.short:
         return mem
     return mem._replace(seen=new, lost=lost, short=short)
+
+
+@lru_cache(maxsize=64)
+def _current(roles: Roles) -> tuple[tuple[tuple[keys.RoleId, int], ...], frozenset[int]]:
+    """The roles with a share, each with its code, and those codes: the same for every MAP that laid out the
+    same roles, so worked out once for all of them."""
+    count = len(roles.demand) - len(roles.edges)
+    current = tuple((r, code(r)) for r in (*range(count), *roles.edges) if roles.share[roles.index(r)] > 0)
+    return current, frozenset(c for _, c in current)
 
 
 def _at(q: np.ndarray, role: keys.RoleId, clusters: ClusterMap, fp: FlockParams) -> bool:
