@@ -32,6 +32,7 @@ KINDS_OF = {  # the kinds each rule was made for, then static12 where it acts on
     'kept': ('drift2', 'arrival'), 'standing': ('drift2', 'crossing'),
     'swing': ('drift2',), 'tree': ('drift2', 'arrival'), 'chain': ('drift2',), 'passing': ('drift2', 'static12'),
     'straight': ('drift2',), 'vacate': ('wipeout', 'static12'), 'short': ('loss', 'static12'),
+    'offset': ('drift2', 'static12'),
 }
 EVERY_KIND = ('drift2', 'crossing', 'arrival', 'loss', 'wipeout', 'static12')
 FIELDS = ('connected', 'end_rc', 'ends_ok', 'converged')

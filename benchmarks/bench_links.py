@@ -97,6 +97,12 @@ def off(variant: str) -> set[str]:
     return set() if variant == 'all' else set(variant.split('+'))
 
 
+def acts(variant: str, name: str) -> bool:
+    """Whether a variant can differ from `all` over channel `name`: the channel's rules do nothing under the
+    paper's channel, so those runs would only repeat `all`."""
+    return variant == 'all' or not (channel(name).perfect and off(variant) <= set(ablation.CHANNEL_RULES))
+
+
 def interval(v: np.ndarray) -> str:
     low, high = resumable.interval(v)
     return f'{100 * v.mean():.1f}' if low == high else f'{100 * v.mean():.1f} [{100 * low:.1f}, {100 * high:.1f}]'
@@ -200,7 +206,7 @@ def sweep(args: argparse.Namespace, kinds: list[str], names: list[str], variants
         for seed in range(args.seeds):
             for kind in kinds:
                 jobs += [(v, kind, c, n, seed, scenario_of(kind, n, lay, seed, c)[0]) for c in names for v in variants
-                         if (v, kind, c, n, seed) not in have and (not channel(c).perfect or v == 'all')]
+                         if (v, kind, c, n, seed) not in have and acts(v, c)]
     return resumable.sweep(args.csv, ['variant', 'kind', 'channel', 'layout', 'seed', *FIELDS], jobs, run, args.workers, done)
 
 

@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 from uav_agent.core.agent import Neighbourhood, agent_step
 from uav_agent.core.allocations.algorithm2 import mode_switch
 from uav_agent.core.allocations.demand import layout
-from uav_agent.core.allocations.demand.allocation import (anchored, demand_switch, en_route, hushed, pivot,
-                                                          relay_place, swing_place)
+from uav_agent.core.allocations.demand.allocation import (Chain, anchored, demand_switch, en_route,
+                                                          hushed, pivot, relay_place, swing_place)
 from uav_agent.core.allocations.demand.memory import Gossip, Mine
 from uav_agent.core.clusters import NO_GOAL, ClusterMap, key_of, mst_edges
 from uav_agent.core.params import FlockParams
@@ -89,6 +89,11 @@ def test_a_relay_aims_midway_between_the_chain_members_it_hears() -> None:
                        clusters, P) == 40.0 + reach
     # rule 'stay': a settled relay under a lossy channel that hears no one stays where it is along its edge
     assert alone != 80.0 and relay_place(5, q, edge, heard[:0], [], clusters, P, stay=True) == 80.0
+    # rule 'offset': the last server heard 15 m off the edge's line: r - 1 m in the plane, less along the edge
+    aside = np.array([[30.0, 15.0, 20.0]])
+    place = relay_place(5, q, edge, aside, [servers_of_0], clusters, P)
+    assert place == pytest.approx(30.0 + math.sqrt(reach ** 2 - 15.0 ** 2))
+    assert math.hypot(place - 30.0, 15.0) == pytest.approx(reach)
 
 
 def test_a_map_in_transit_neither_attracts_a_relay_nor_drags_it_along() -> None:
@@ -296,12 +301,12 @@ def test_under_a_lossy_channel_a_map_holds_its_place_through_a_silence_no_longer
     within fp.hush steps keeps the place it had when the silence began; past hush it acts as before."""
     lossy = replace(P, hush=30)
     relay = Mine(mode=M1, goal=0, bridge=(0, 1), settled=True, since=100)
-    both, one_side = (150.0, 130.0, 170.0), (152.0, 130.0, math.inf)
+    both, one_side = Chain(150.0, 130.0, 170.0), Chain(152.0, 130.0, math.inf)
     heard = hushed(relay, both, 200, lossy)
     assert (heard.whole, heard.hold) == (200, None)
     silent = hushed(heard, one_side, 210, lossy)
     assert silent.hold == (152.0,), 'where it was when the side fell silent'
-    assert hushed(silent, (155.0, *one_side[1:]), 230, lossy).hold == (152.0,), 'and there it stays'
+    assert hushed(silent, one_side._replace(here=155.0), 230, lossy).hold == (152.0,), 'and there it stays'
     assert hushed(silent, one_side, 231, lossy).hold is None, 'silent past hush: an empty side, reached for'
     assert hushed(heard, both, 231, lossy).hold is None
     assert hushed(relay, one_side, 210, P) == relay, 'the paper\'s channel: silence is absence'

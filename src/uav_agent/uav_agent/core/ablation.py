@@ -15,9 +15,12 @@ RULES = {
     'straight': 'released relays of a standing chain fly straight along it (demand.demand_switch)',
     'vacate': 'vacated roles: a role heard of by nobody for VACANT_STEPS is declared lost (vacancy.vacate)',
     'short': 'short roles: a relay that finds its chain taut asks for more MAPs (demand.tally)',
+    'offset': 'a relay reaching past the last member it hears on one side reaches r - 1 m in the plane, not along '
+              'the edge (demand._reach_along)',
 }
-# The channel's (core/agent.heard_from): what a MAP makes of a neighbour state that is not of this step.
-RULES.update({
+# The channel's (core/agent.heard_from): what a MAP makes of a neighbour state that is not of this step. None of
+# them acts under the paper's channel.
+CHANNEL_RULES = {
     'predict': 'a stale neighbour state stands for where its sender is now, flown on at its velocity then',
     'gone': 'a neighbour whose state so predicted lies beyond r is taken for gone',
     'inside': 'relay chains laid on links no longer than the channel still delivers half over (demand.reach_of)',
@@ -27,7 +30,8 @@ RULES.update({
             'edge (demand.relay_place)',
     'hold': 'a relay that hears one side of its chain, or a server no relay of its cluster, for no longer than '
             'the channel\'s losses last takes it for lost states and holds its place (demand.hushed, demand.anchored)',
-})
+}
+RULES.update(CHANNEL_RULES)
 OFF: set[str] = set()
 
 

@@ -5,7 +5,7 @@ gap, swing about a shared cluster when the tree changes, and a MAP sent to a new
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Optional, Sequence
+from typing import TYPE_CHECKING, NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -80,7 +80,7 @@ def demand_switch(mem: Mine, agent_id: int, r_g: float, q: np.ndarray, clusters:
     return mem
 
 
-def hushed(mem: Mine, chain: tuple[float, float, float], step: int, fp: FlockParams) -> Mine:
+def hushed(mem: Mine, chain: Chain, step: int, fp: FlockParams) -> Mine:
     """Whether a relay that hears one side of its chain no more holds its place (Mine.hold: its place along
     the edge).
 
@@ -89,8 +89,7 @@ def hushed(mem: Mine, chain: tuple[float, float, float], step: int, fp: FlockPar
     side fell silent, instead of reaching r - 1 m beyond the other side (relay_place). Reaching, it would pull
     its chain towards the silent side, and the chain crawls until it breaks on the other (docs/links.md).
     """
-    here, below, above = chain
-    return _hushed(mem, math.isfinite(below) and math.isfinite(above), (here,), step, fp)
+    return _hushed(mem, math.isfinite(chain.below) and math.isfinite(chain.above), (chain.here,), step, fp)
 
 
 def anchored(mem: Mine, q: np.ndarray, near: Near, clusters: ClusterMap, step: int, fp: FlockParams) -> Mine:
@@ -170,14 +169,14 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
     should `stay` (rule 'stay': a settled relay under a lossy channel, whose chain is most likely there
     unheard; flying to its place by key it left a gap behind it, docs/links.md).
     """
-    here, below, above = _chain(q, edge, nbr_q, told, clusters, fp)
+    here, below, above, below_aside, above_aside = _chain(q, edge, nbr_q, told, clusters, fp)
     length = clusters.axis(edge)[2]
     if math.isfinite(below) and math.isfinite(above):
         return (below + above) / 2.0
     if math.isfinite(below):
-        return min(below + reach_of(fp) - 1.0, length)
+        return min(below + _reach_along(below_aside, fp), length)
     if math.isfinite(above):
-        return max(above - reach_of(fp) + 1.0, 0.0)
+        return max(above - _reach_along(above_aside, fp), 0.0)
     if stay:
         return here
     roles, key = role_of(agent_id, lost, clusters, fp, short)
@@ -186,31 +185,53 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
     return start + at * (stop - start)
 
 
+class Chain(NamedTuple):
+    """A relay's chain as it hears it, in m along the edge from its first centre: where the relay is, the
+    nearest member heard below it and above it (±inf: that side silent), and how far those two lie off the
+    edge's line."""
+
+    here: float
+    below: float
+    above: float
+    below_aside: float = 0.0
+    above_aside: float = 0.0
+
+
 def _chain(q: np.ndarray, edge: Edge, nbr_q: np.ndarray, told: Sequence[Told], clusters: ClusterMap,
-           fp: FlockParams) -> tuple[float, float, float]:
-    """A relay's chain as it hears it, in m along the edge from its first centre: (where the relay is, the
-    nearest member heard below it, above it (±inf: that side silent))."""
+           fp: FlockParams) -> Chain:
     a, u, length = clusters.axis(edge)
     here = float(np.dot(np.asarray(q, dtype=float)[:2] - a, u))
-    below, above = -math.inf, math.inf
+    chain = Chain(here, -math.inf, math.inf)
     for qj, tj in zip(nbr_q, told):
         if not _in_place(qj, tj, edge, clusters, fp):
             continue
         at = float(np.dot(qj[:2] - a, u))
+        aside = abs(float(u[0] * (qj[1] - a[1]) - u[1] * (qj[0] - a[0])))
         if tj.mode != M1 and tj.goal == edge[0] or tj.mode == M1 and tj.bridge == edge and at < here:
-            below = max(below, at)
+            if at > chain.below:
+                chain = chain._replace(below=at, below_aside=aside)
         elif tj.mode != M1 and tj.goal == edge[1] or tj.mode == M1 and tj.bridge == edge and at > here:
-            above = min(above, at)
-    return here, below, above
+            if at < chain.above:
+                chain = chain._replace(above=at, above_aside=aside)
+    return chain
 
 
-def taut(mem: Mine, chain: tuple[float, float, float], fp: FlockParams) -> bool:
+def _reach_along(aside: float, fp: FlockParams) -> float:
+    """How far along the edge a relay reaches past the last member it hears on one side, that member `aside`
+    m off the edge's line: r - 1 m in the plane (rule 'offset'). Measured along the line alone, the reach
+    from a server at the side of its disc put the relay out of its range (docs/dynamics.md, "Reaching in the
+    plane")."""
+    reach = reach_of(fp) - 1.0
+    return math.sqrt(max(reach * reach - aside * aside, 0.0)) if on('offset') else reach
+
+
+def taut(mem: Mine, chain: Chain, fp: FlockParams) -> bool:
     """Whether a settled relay's chain (_chain) is stretched past what holds: the members it hears on either
     side are more than d + r apart (links longer than (d + r) / 2 break as the MAPs sway), or one side is
     silent though its cluster was heard of since the relay settled (the chain was whole and no longer reaches)
     and the relay does not take the silence for lost states (hushed)."""
     assert mem.bridge is not None
-    _, below, above = chain
+    below, above = chain.below, chain.above
     if math.isfinite(below) and math.isfinite(above):
         return above - below > fp.d + reach_of(fp)
     if math.isfinite(below) == math.isfinite(above) or mem.hold is not None:
