@@ -94,6 +94,8 @@ def test_a_relay_aims_midway_between_the_chain_members_it_hears() -> None:
     place = relay_place(5, q, edge, aside, [servers_of_0], clusters, P)
     assert place == pytest.approx(30.0 + math.sqrt(reach ** 2 - 15.0 ** 2))
     assert math.hypot(place - 30.0, 15.0) == pytest.approx(reach)
+    lossy = replace(P, hush=30)
+    assert relay_place(5, q, edge, aside, [servers_of_0], clusters, lossy) == 30.0 + reach, 'along the line'
 
 
 def test_a_map_in_transit_neither_attracts_a_relay_nor_drags_it_along() -> None:

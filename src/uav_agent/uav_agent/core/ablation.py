@@ -16,7 +16,7 @@ RULES = {
     'vacate': 'vacated roles: a role heard of by nobody for VACANT_STEPS is declared lost (vacancy.vacate)',
     'short': 'short roles: a relay that finds its chain taut asks for more MAPs (demand.tally)',
     'offset': 'a relay reaching past the last member it hears on one side reaches r - 1 m in the plane, not along '
-              'the edge (demand._reach_along)',
+              'the edge, under the paper\'s channel (demand._reach_past)',
 }
 # The channel's (core/agent.heard_from): what a MAP makes of a neighbour state that is not of this step. None of
 # them acts under the paper's channel.
