@@ -43,7 +43,7 @@ def _pairs(edges: list[tuple[int, int]]) -> np.ndarray:
     return np.array(sorted(both), dtype=np.intp).reshape(-1, 2)
 
 
-@pytest.mark.parametrize('n', [2, 3, 5, 10])
+@pytest.mark.parametrize('n', [2, 3, 5, 10, physics.SPARSE_FROM + 100])
 def test_fiedler_of_a_path(n: int) -> None:
     assert physics.fiedler(_pairs([(i, i + 1) for i in range(n - 1)]), n) == pytest.approx(2 * (1 - np.cos(np.pi / n)))
 
@@ -51,6 +51,19 @@ def test_fiedler_of_a_path(n: int) -> None:
 @pytest.mark.parametrize('n', [2, 4, 7])
 def test_fiedler_of_a_complete_graph(n: int) -> None:
     assert physics.fiedler(_pairs([(i, j) for i in range(n) for j in range(i + 1, n)]), n) == pytest.approx(n)
+
+
+def test_fiedler_of_a_large_formation_is_the_dense_value() -> None:
+    """Above SPARSE_FROM MAPs lambda2 comes from the sparse Laplacian: the same value as the dense solver's to
+    1e-9 relative, and the same bits on every call."""
+    rng = np.random.default_rng(3)
+    n = physics.SPARSE_FROM + 200
+    q = np.column_stack([rng.uniform(0, 300, n), rng.uniform(0, 300, n), np.zeros(n)])
+    pairs = physics.neighbour_pairs(q, 24.0)
+    assert physics.components(pairs, n) == 1, 'a connected draw'
+    dense = np.linalg.eigvalsh(physics.laplacian(pairs, n))[1]
+    assert physics.fiedler(pairs, n) == pytest.approx(dense, rel=1e-9)
+    assert physics.fiedler(pairs, n) == physics.fiedler(pairs, n)
 
 
 def test_fiedler_of_a_disconnected_graph_is_zero() -> None:
