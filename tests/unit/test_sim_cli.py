@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from world_sim.core.records import METRICS_COLUMNS, TRAJECTORY_COLUMNS, read_csv
+from world_sim.core.records import METRICS_COLUMNS, TRAJECTORY_COLUMNS, read_csv, read_trajectory
 
 
 GOLDEN_BAG = Path(__file__).resolve().parents[1] / 'golden' / 'bag'
@@ -32,6 +32,9 @@ def test_single_run_writes_csvs_and_plots(tmp_path: Path) -> None:
     assert (tmp_path / 'trajectory.csv').read_text().splitlines()[0] == ','.join(TRAJECTORY_COLUMNS)
     m, t = read_csv(tmp_path / 'metrics.csv'), read_csv(tmp_path / 'trajectory.csv')
     assert len(m['step']) == 31 and len(t['step']) == 31 * 12
+    by_column = read_trajectory(tmp_path)
+    for c in TRAJECTORY_COLUMNS:  # the same rows by column; t as computed, where the CSV prints 10 digits
+        assert np.array_equal(by_column[c], t[c]) if c != 't' else np.allclose(by_column[c], t[c], rtol=1e-9), c
     assert np.all((m['coverage_ratio'] >= 0) & (m['coverage_ratio'] <= 1))
     assert np.all(m['mode0'] + m['mode1'] + m['mode2'] == m['alive'])
     for png in ('coverage.png', 'fiedler.png', 'modes.png', 'formation.png'):

@@ -123,7 +123,7 @@ def read_run(run: Path, scenario: Scenario) -> Optional[RunResult]:
     m = records.read_csv(run / 'metrics.csv')
     if len(m['step']) == 0:
         return None
-    t = records.read_csv(run / 'trajectory.csv')
+    t = records.read_trajectory(run)
     metrics = records.rows(m, records.METRICS_COLUMNS + (LINK_COLUMNS if LINK_COLUMNS[0] in m else ()))
     traj = records.rows(t, records.TRAJECTORY_COLUMNS)
     failed, fail_step, events = records.read_failures(run / records.FAILURES_FILE)

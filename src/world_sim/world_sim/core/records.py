@@ -1,4 +1,5 @@
-"""The run records every runner writes: metrics.csv and trajectory.csv, one column set for all."""
+"""The run records every runner writes: metrics.csv and trajectory.csv, one column set for all, and the
+trajectory again by column (trajectory.npz), what a reader of a large run loads in a blink."""
 from __future__ import annotations
 
 import json
@@ -16,6 +17,9 @@ METRICS_COLUMNS = ('step', 't', 'coverage_ratio', 'fiedler', 'alive', 'component
 TRAJECTORY_COLUMNS = ('step', 't', 'id', 'x', 'y', 'z', 'vx', 'vy', 'vz', 'mode', 'goal', 'user_count')
 _METRICS_FMT = ('%d', '%.10g', '%.10g', '%.10g', '%d', '%d', '%d', '%d', '%d')
 _TRAJECTORY_FMT = ('%d', '%.10g', '%d') + ('%.17g',) * 6 + ('%d', '%d', '%d')
+TRAJECTORY_NPZ = 'trajectory.npz'
+# trajectory.npz's column types: the CSV's values exactly (t as computed, not printed to 10 digits)
+_TRAJECTORY_TYPES = (np.int32, np.float64, np.int32) + (np.float64,) * 6 + (np.int8, np.int16, np.int32)
 
 
 def write_csv(path: Path, columns: tuple[str, ...], rows: np.ndarray, fmt: tuple[str, ...]) -> None:
@@ -34,7 +38,19 @@ def write_metrics(path: Path, rows: np.ndarray) -> None:
 
 
 def write_trajectory(path: Path, rows: np.ndarray) -> None:
+    """trajectory.csv at path, and beside it trajectory.npz: one typed array per column (np.load(...)['x'])."""
     write_csv(path, TRAJECTORY_COLUMNS, rows, _TRAJECTORY_FMT)
+    rows = np.asarray(rows, dtype=float).reshape(-1, len(TRAJECTORY_COLUMNS))
+    np.savez(path.with_name(TRAJECTORY_NPZ),
+             **{c: rows[:, i].astype(t) for i, (c, t) in enumerate(zip(TRAJECTORY_COLUMNS, _TRAJECTORY_TYPES))})
+
+
+def read_trajectory(folder: Path) -> dict[str, np.ndarray]:
+    """A run's trajectory by column: from trajectory.npz, or trajectory.csv in a run recorded before it."""
+    if (folder / TRAJECTORY_NPZ).exists():
+        with np.load(folder / TRAJECTORY_NPZ) as f:
+            return {c: f[c].astype(float) for c in TRAJECTORY_COLUMNS}
+    return read_csv(folder / 'trajectory.csv')
 
 
 def columns(rows: np.ndarray, names: tuple[str, ...] = TRAJECTORY_COLUMNS) -> dict[str, np.ndarray]:
