@@ -48,7 +48,7 @@ def test_fiedler_of_a_path(n: int) -> None:
     assert physics.fiedler(_pairs([(i, i + 1) for i in range(n - 1)]), n) == pytest.approx(2 * (1 - np.cos(np.pi / n)))
 
 
-@pytest.mark.parametrize('n', [2, 4, 7])
+@pytest.mark.parametrize('n', [2, 4, 7, physics.SPARSE_FROM + 10])
 def test_fiedler_of_a_complete_graph(n: int) -> None:
     assert physics.fiedler(_pairs([(i, j) for i in range(n) for j in range(i + 1, n)]), n) == pytest.approx(n)
 

@@ -146,13 +146,14 @@ def fiedler(pairs: NDArray[np.intp], n: int, n_components: int | None = None) ->
         n_components = components(pairs, n)
     if n_components > 1:
         return 0.0
-    value = _sparse_fiedler(pairs, n) if n > SPARSE_FROM else None
+    value = _sparse_fiedler(pairs, n) if n > SPARSE_FROM and len(pairs) <= SPARSE_DEGREE * n else None
     if value is None:
         value = eigh(laplacian(pairs, n), eigvals_only=True, subset_by_index=[1, 1])[0]
     return float(max(value, 0.0))
 
 
-SPARSE_FROM = 500  # MAPs: above, lambda2 from the sparse Laplacian (at 993 MAPs 8-16 ms a step against 65-180 ms)
+SPARSE_FROM = 500  # MAPs: above, lambda2 from the sparse Laplacian (at 993 MAPs 8-16 ms a step against 65-180 ms) ...
+SPARSE_DEGREE = 50  # ... when its mean degree is no more: a packed release square (degree 140-170) factors slower
 _SHIFT = 1e-2      # L + _SHIFT I is positive definite: its LU is what shift-invert solves with
 
 
