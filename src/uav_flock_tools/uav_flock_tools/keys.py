@@ -39,7 +39,6 @@ class HostKeys:
     folder: Path
     host: str
     ca_fingerprint: str
-    not_after: datetime.datetime
 
 
 def hosts_of(text: str) -> list[str]:
@@ -181,4 +180,4 @@ def check(folder: Path, host: Optional[str] = None, now: Optional[datetime.datet
     if key.public_key().public_bytes(serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo) != \
             cert.public_key().public_bytes(serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo):
         raise KeysError(f'--secure: {folder / KEY_FILE}: not the key of {CERT_FILE}')
-    return HostKeys(folder, names[0], fingerprint(ca), cert.not_valid_after_utc)
+    return HostKeys(folder, names[0], fingerprint(ca))

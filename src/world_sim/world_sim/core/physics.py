@@ -138,6 +138,11 @@ def components(pairs: NDArray[np.intp], n: int) -> int:
     return 0 if n == 0 else int(component_labels(pairs, n).max()) + 1
 
 
+SPARSE_FROM = 500  # MAPs: above, lambda2 from the sparse Laplacian (at 993 MAPs 8-16 ms a step against 65-180 ms) ...
+SPARSE_DEGREE = 50  # ... when its mean degree is no more: a packed release square (degree 140-170) factors slower
+_SHIFT = 1e-2      # L + _SHIFT I is positive definite: its LU is what shift-invert solves with
+
+
 def fiedler(pairs: NDArray[np.intp], n: int, n_components: int | None = None) -> float:
     """Second-smallest Laplacian eigenvalue; exactly 0 when the graph is disconnected (or n < 2)."""
     if n < 2:
@@ -150,11 +155,6 @@ def fiedler(pairs: NDArray[np.intp], n: int, n_components: int | None = None) ->
     if value is None:
         value = eigh(laplacian(pairs, n), eigvals_only=True, subset_by_index=[1, 1])[0]
     return float(max(value, 0.0))
-
-
-SPARSE_FROM = 500  # MAPs: above, lambda2 from the sparse Laplacian (at 993 MAPs 8-16 ms a step against 65-180 ms) ...
-SPARSE_DEGREE = 50  # ... when its mean degree is no more: a packed release square (degree 140-170) factors slower
-_SHIFT = 1e-2      # L + _SHIFT I is positive definite: its LU is what shift-invert solves with
 
 
 def _sparse_fiedler(pairs: NDArray[np.intp], n: int) -> float | None:

@@ -80,6 +80,18 @@ def demand_switch(mem: Mine, agent_id: int, r_g: float, q: np.ndarray, clusters:
     return mem
 
 
+class Chain(NamedTuple):
+    """A relay's chain as it hears it, in m along the edge from its first centre: where the relay is, the
+    nearest member heard below it and above it (±inf: that side silent), and how far those two lie off the
+    edge's line."""
+
+    here: float
+    below: float
+    above: float
+    below_aside: float = 0.0
+    above_aside: float = 0.0
+
+
 def hushed(mem: Mine, chain: Chain, step: int, fp: FlockParams) -> Mine:
     """Whether a relay that hears one side of its chain no more holds its place (Mine.hold: its place along
     the edge).
@@ -185,35 +197,26 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
     return start + at * (stop - start)
 
 
-class Chain(NamedTuple):
-    """A relay's chain as it hears it, in m along the edge from its first centre: where the relay is, the
-    nearest member heard below it and above it (±inf: that side silent), and how far those two lie off the
-    edge's line."""
-
-    here: float
-    below: float
-    above: float
-    below_aside: float = 0.0
-    above_aside: float = 0.0
-
-
 def _chain(q: np.ndarray, edge: Edge, nbr_q: np.ndarray, told: Sequence[Told], clusters: ClusterMap,
            fp: FlockParams) -> Chain:
     a, u, length = clusters.axis(edge)
     here = float(np.dot(np.asarray(q, dtype=float)[:2] - a, u))
-    chain = Chain(here, -math.inf, math.inf)
+    below, above = -math.inf, math.inf
+    below_q = above_q = None
     for qj, tj in zip(nbr_q, told):
         if not _in_place(qj, tj, edge, clusters, fp):
             continue
         at = float(np.dot(qj[:2] - a, u))
-        aside = abs(float(u[0] * (qj[1] - a[1]) - u[1] * (qj[0] - a[0])))
         if tj.mode != M1 and tj.goal == edge[0] or tj.mode == M1 and tj.bridge == edge and at < here:
-            if at > chain.below:
-                chain = chain._replace(below=at, below_aside=aside)
+            if at > below:
+                below, below_q = at, qj
         elif tj.mode != M1 and tj.goal == edge[1] or tj.mode == M1 and tj.bridge == edge and at > here:
-            if at < chain.above:
-                chain = chain._replace(above=at, above_aside=aside)
-    return chain
+            if at < above:
+                above, above_q = at, qj
+
+    def aside(qj: Optional[np.ndarray]) -> float:
+        return 0.0 if qj is None else abs(float(u[0] * (qj[1] - a[1]) - u[1] * (qj[0] - a[0])))
+    return Chain(here, below, above, aside(below_q), aside(above_q))
 
 
 def _reach_past(at: float, aside: float, away: int, fp: FlockParams) -> float:
@@ -225,6 +228,7 @@ def _reach_past(at: float, aside: float, away: int, fp: FlockParams) -> float:
     if on('offset') and fp.hush <= 0:
         reach = reach_of(fp) - 1.0
         return at + away * math.sqrt(max(reach * reach - aside * aside, 0.0))
+    # Summed in this order, as before the rule: runs under a lossy channel stay byte for byte what they were.
     return at + reach_of(fp) - 1.0 if away > 0 else at - reach_of(fp) + 1.0
 
 

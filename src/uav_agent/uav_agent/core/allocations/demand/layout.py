@@ -158,6 +158,11 @@ class Roles(NamedTuple):
     # Edges out of the tree kept while their replacement forms, with the surveys each has left (last in edges).
     standing: tuple[tuple[Edge, int], ...] = ()
 
+    @property
+    def ids(self) -> tuple[keys.RoleId, ...]:
+        """Every role in role order: the clusters' ids, then the edges."""
+        return (*range(len(self.demand) - len(self.edges)), *self.edges)
+
     def index(self, role: keys.RoleId) -> int:
         """Role number of a cluster id or an edge."""
         return role if isinstance(role, int) else len(self.demand) - len(self.edges) + self.edges.index(role)

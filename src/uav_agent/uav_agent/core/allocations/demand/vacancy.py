@@ -95,8 +95,7 @@ def role_of(agent_id: int, lost: tuple[keys.Span, ...], clusters: ClusterMap, fp
 
 @lru_cache(maxsize=256)
 def _squeezed_view(roles: Roles, lost: tuple[keys.Span, ...], short: tuple[tuple[int, int], ...]) -> Roles:
-    count = len(roles.demand) - len(roles.edges)
-    ids: list[keys.RoleId] = [*range(count), *roles.edges]
+    ids = roles.ids
     share = roles.share
     if short:  # a role found short of n MAPs (demand.tally) asks for n more than its demand
         extra = dict(short)
@@ -140,8 +139,7 @@ def vacate(mem: Mine, step: int, q: np.ndarray, clusters: ClusterMap, fp: FlockP
 def _current(roles: Roles) -> tuple[tuple[tuple[keys.RoleId, int], ...], frozenset[int]]:
     """The roles with a share, each with its code, and those codes: the same for every MAP that laid out the
     same roles, so worked out once for all of them."""
-    count = len(roles.demand) - len(roles.edges)
-    current = tuple((r, code(r)) for r in (*range(count), *roles.edges) if roles.share[roles.index(r)] > 0)
+    current = tuple((r, code(r)) for r, share in zip(roles.ids, roles.share) if share > 0)
     return current, frozenset(c for _, c in current)
 
 
