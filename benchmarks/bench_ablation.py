@@ -53,10 +53,8 @@ def scenario_of(kind: str, n: int, lay: Scenario) -> tuple[Scenario, int]:
 
 def run(job: tuple[str, str, int, Scenario, int]) -> dict[str, object]:
     rule, kind, n, s, draw_seed = job
-    ablation.OFF.clear()
-    if rule != 'none':
-        ablation.OFF.add(rule)
-    r = bench_motion.run((kind, s, draw_seed))
+    with ablation.switched_off([] if rule == 'none' else [rule]):
+        r = bench_motion.run((kind, s, draw_seed))
     return {'rule': rule, 'kind': kind, 'layout': n, 'connected': r['connected'] or 0.0, 'end_rc': r['end_rc'],
             'ends_ok': r['ends_ok'], 'converged': r['converged']}
 

@@ -18,7 +18,9 @@ states used as they came, before the MAP predicted them and dropped the ones gon
 The usable graph links two MAPs whose delivery probability is at least 0.5 (links.USABLE; under disc, the
 disc graph). Per run: the first step covered (R_c >= 95 %) with the usable graph connected ("convergence");
 after it, the share of time the usable graph and the disc graph are connected and the longest outage of
-the usable graph; success: covered and the usable graph connected over the last 10 s.
+the usable graph; success: covered and the usable graph connected over the last 10 s (study.cases.figures).
+studies/links.yaml and studies/links-grid.yaml fly the same runs as a study, on Dask (docs/studies.md): rows
+equal to these (connected = usable, ends_ok = success), on one machine or a cluster.
 """
 from __future__ import annotations
 
@@ -30,13 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
-import bench_motion
 import resumable
 from uav_agent.core import ablation, links
 from uav_flock_tools.batch import BatchSimulator
 from uav_flock_tools.layouts import draw, policy_sets
 from uav_flock_tools.study import cases
-from world_sim.core.records import METRICS_COLUMNS
 from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario
 
@@ -46,7 +46,6 @@ CHANNELS = ('perfect', 'alpha.3L2', 'loss.5', 'loss.3B20')
 GRID = tuple(f'{"alpha" if alpha else "loss"}{loss}{"L3" if late else ""}'
              for alpha in (False, True) for late in (False, True) for loss in ('0', '.2', '.4', '.6'))
 FIELDS = ('converged', 'usable', 'disc', 'outage', 'success', 'end_rc')
-HELD_S = 10.0
 
 
 def channel(name: str) -> links.Links:
@@ -74,22 +73,12 @@ def scenario_of(kind: str, n: int, lay: Scenario, seed: int, name: str) -> tuple
 
 def run(job: tuple[str, str, str, int, int, Scenario]) -> dict[str, object]:
     variant, kind, name, n, seed, s = job
-    ablation.OFF.clear()
-    ablation.OFF.update(off(variant))
-    m = BatchSimulator(s).run().metrics
-    # The usable graph's lambda2 (hearing.LINK_COLUMNS) under a channel; the disc graph's under the paper's.
-    usable = m[:, METRICS_COLUMNS.index('fiedler') if s.links.perfect else len(METRICS_COLUMNS)]
-    ok_usable, covered = usable > 0, m[:, 2] >= 0.95
-    held = int(round(HELD_S / s.dt))
-    out: dict[str, object] = {'variant': variant, 'kind': kind, 'channel': name, 'layout': n, 'seed': seed, 'converged': '', 'usable': 0.0,
-                              'disc': 0.0, 'outage': '', 'end_rc': float(m[-1, 2]),
-                              'success': float((covered & ok_usable)[-held:].all())}
-    both = covered & ok_usable
-    if both.any():
-        first = int(np.argmax(both))
-        out.update(converged=float(m[first, 1]), usable=float(ok_usable[first:].mean()),
-                   disc=float((m[first:, 3] > 0).mean()), outage=bench_motion.outage_s(~ok_usable[first:], s.dt))
-    return out
+    with ablation.switched_off(off(variant)):
+        f = cases.figures(BatchSimulator(s).run().metrics, s.dt, None)  # connected: the usable graph's lambda2
+    blank = {'converged': '', 'outage': ''}
+    return {'variant': variant, 'kind': kind, 'channel': name, 'layout': n, 'seed': seed,
+            **{k: blank[k] if f[k] is None else f[k] for k in blank}, 'usable': f['connected'] or 0.0,
+            'disc': f['disc'] or 0.0, 'success': f['ends_ok'], 'end_rc': f['end_rc']}
 
 
 def off(variant: str) -> set[str]:

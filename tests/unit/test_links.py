@@ -151,13 +151,10 @@ def test_a_neighbour_whose_own_states_are_lost_is_heard_through_another_as_old_a
     c.hear_passed(5, [Passed(7, 3, Heard(np.array([1.0, 0, 20]), np.zeros(3), 0.0, said))])
     assert [(j, age) for j, age, _ in c.usable(6)] == [(2, 2), (7, 3)], 'aged from its own step (3), not 5'
     assert [j for j, _, _ in c.usable(9)] == [2], 'the state of step 3 forgotten once older than ttl (5)'
-    ablation.OFF.add('hearsay')
-    try:
+    with ablation.switched_off(['hearsay']):
         d = Hearing(Links(loss=0.3), 4)
         d.hear_passed(0, a.passed)
         assert d.held == {}
-    finally:
-        ablation.OFF.discard('hearsay')
 
 
 def test_what_neighbours_pass_on_changes_a_run_only_under_a_lossy_channel_and_the_demand_allocation() -> None:
@@ -170,11 +167,8 @@ def test_what_neighbours_pass_on_changes_a_run_only_under_a_lossy_channel_and_th
     sim = BatchSimulator(s)
     on = sim.run().trajectory
     assert any(inbox.passed for inbox in sim.inboxes or [])
-    ablation.OFF.add('hearsay')
-    try:
+    with ablation.switched_off(['hearsay']):
         off = BatchSimulator(s).run().trajectory
-    finally:
-        ablation.OFF.discard('hearsay')
     assert not np.array_equal(on, off)
     assert BatchSimulator(load_scenario('paper').with_overrides(maps=30, duration=1.0)).inboxes is None
     assert paper.flock.allocation == 'algorithm2'

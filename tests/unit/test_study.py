@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import yaml
@@ -125,6 +126,7 @@ def test_an_interrupted_study_keeps_its_rows_and_the_next_call_computes_only_the
     ({'layouts': {'count': 1}, 'kinds': ['hover']}, "'hover': expected one of"),
     ({'layouts': {'count': 1}, 'variants': {'odd': {'flock.nope': 1}}}, 'variants: odd: '),
     ({'scenario': 'paper', 'layouts': {'count': 1}}, 'either layouts'),
+    ({'layouts': {'count': 1}, 'variants': {'ab': {'off': ['hold', 'nope']}}}, 'variants: ab: off: nope: no such rule'),
 ])
 def test_a_bad_spec_is_one_line_and_exit_2(tmp_path: Path, spec: dict, says: str) -> None:
     (tmp_path / 'bad.yaml').write_text(yaml.safe_dump(spec))
@@ -136,3 +138,42 @@ def test_a_bad_spec_is_one_line_and_exit_2(tmp_path: Path, spec: dict, says: str
 def test_a_scheduler_that_is_not_there_is_one_line_and_exit_2(tmp_path: Path) -> None:
     proc = study(str(SMOKE), '--out', str(tmp_path / 'out'), '--scheduler', f'tcp://127.0.0.1:{free_port()}')
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and 'no scheduler there' in proc.stderr, proc.stderr
+
+
+def test_under_a_channel_connected_is_the_usable_graph_and_disc_the_disc_graph() -> None:
+    """The issue's targets under a radio are the usable graph's (docs/links.md): a run whose disc graph holds
+    while a link that delivers less than half breaks is connected that share less, its disc figure whole."""
+    from uav_flock_tools.study.cases import figures
+    from world_sim.core.hearing import LINK_COLUMNS
+    from world_sim.core.records import METRICS_COLUMNS
+    m = np.zeros((200, len(METRICS_COLUMNS) + len(LINK_COLUMNS)))
+    m[:, 1], m[:, 2], m[:, 3], m[:, 5] = np.arange(200) * 0.1, 0.97, 0.4, 1
+    m[:, len(METRICS_COLUMNS)] = 0.2
+    m[60:80, len(METRICS_COLUMNS)] = 0.0  # 2 s of the usable graph split, the disc graph whole
+    f = figures(m, 0.1, None)
+    assert f['connected'] == pytest.approx(0.9) and f['disc'] == 1.0 and f['outage'] == pytest.approx(2.0)
+    assert f['ends_ok'] == 1.0 and f['converged'] == 0.0
+    assert figures(m[:, :len(METRICS_COLUMNS)], 0.1, None)['connected'] == 1.0, 'the paper\'s channel: the disc graph'
+
+
+def test_a_variant_flies_with_the_rules_it_switches_off_and_only_that_run(tmp_path: Path) -> None:
+    """`off:` in a variant is an ablation inside a study: the run equals the batch simulator's with those rules
+    off, its key differs from the run with every rule on, and no rule stays off after it."""
+    from uav_agent.core import ablation
+    from uav_flock_tools.batch import BatchSimulator
+    from uav_flock_tools.study import spec as specs
+    from uav_flock_tools.study.cases import FIGURES, figures
+    from uav_flock_tools.study.engine import execute
+    channel = {'links.loss': 0.3, 'links.burst': 5}
+    (tmp_path / 's.yaml').write_text(yaml.safe_dump({
+        'layouts': {'count': 1, 'clusters': [3, 3]}, 'kinds': ['static'], 'duration': 8,
+        'variants': {'all': channel, 'no_hearsay': {**channel, 'off': ['hearsay']}}}))
+    on, off = specs.runs(specs.load(tmp_path / 's.yaml'))
+    assert off.off == ('hearsay',) and on.off == () and on.key != off.key and on.doc == off.doc
+    row = execute(off)
+    assert row['error'] is None and ablation.on('hearsay')
+    s = off.scenario()
+    with ablation.switched_off(['hearsay']):
+        alone = BatchSimulator(s).run().metrics
+    assert {k: row[k] for k in FIGURES} == figures(alone, s.dt, None)
+    assert not np.array_equal(alone, BatchSimulator(on.scenario()).run().metrics), 'hearsay acts on this run'

@@ -1,8 +1,14 @@
-"""Rules by name, so that an ablation can switch one off alone (benchmarks/bench_ablation.py, bench_links.py).
+"""Rules by name, so that an ablation can switch one off alone (a study's variant `off:`, docs/studies.md;
+benchmarks/bench_ablation.py, bench_links.py).
 
-Nothing a user starts sets OFF: every rule is on. Each name is the rule's section in docs/dynamics.md.
+Every rule is on unless a run is flown inside `switched_off`. Each name is the rule's section in
+docs/dynamics.md or docs/links.md.
 """
 from __future__ import annotations
+
+from contextlib import contextmanager
+from contextvars import ContextVar
+from typing import Iterable, Iterator
 
 RULES = {
     'carry': 'keys carried across surveys: a role gives up or takes only what its share changed by (keys.carry)',
@@ -32,8 +38,27 @@ CHANNEL_RULES = {
             'the channel\'s losses last takes it for lost states and holds its place (demand.hushed, demand.anchored)',
 }
 RULES.update(CHANNEL_RULES)
-OFF: set[str] = set()
+# Per thread of control, not per process: a Dask worker flies runs of different variants on its threads at once.
+_OFF: ContextVar[frozenset[str]] = ContextVar('uav_flock_rules_off', default=frozenset())
 
 
 def on(rule: str) -> bool:
-    return rule not in OFF
+    return rule not in _OFF.get()
+
+
+def unknown(rules: Iterable[str]) -> list[str]:
+    """The names among rules that name no rule, sorted."""
+    return sorted(set(rules) - set(RULES))
+
+
+@contextmanager
+def switched_off(rules: Iterable[str]) -> Iterator[None]:
+    """Fly what runs inside with these rules off (and every other on); ValueError for a name of no rule."""
+    rules = frozenset(rules)
+    if unknown(rules):
+        raise ValueError(f'{", ".join(unknown(rules))}: not a rule of core/ablation.py')
+    token = _OFF.set(rules)
+    try:
+        yield
+    finally:
+        _OFF.reset(token)

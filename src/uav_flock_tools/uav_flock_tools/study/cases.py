@@ -11,6 +11,7 @@ import numpy as np
 from uav_agent.core.clusters import mst_edges
 from uav_agent.core.state import M1
 from world_sim.core import layouts
+from world_sim.core.records import METRICS_COLUMNS
 from world_sim.core.scenario import Cluster, Scenario
 
 from ..batch import BatchSimulator
@@ -25,8 +26,11 @@ IN_FLIGHT = 7
 HELD_S = 10.0  # a run "ends covered and connected" when it is so over its last HELD_S
 # The figures of one run (figures()): its first step covered (R_c >= 95 %) and connected, the share of time
 # connected after it, the longest outage after it, mean R_c after it, time from the event to covered and
-# connected again, whether it ends covered and connected over HELD_S, and R_c and components at the end.
-FIGURES = ('converged', 'connected', 'outage', 'rc', 'recovery', 'ends_ok', 'end_rc', 'end_components')
+# connected again, whether it ends covered and connected over HELD_S, and R_c and components at the end; and
+# the share of time after it that the disc graph is connected. Connected is lambda2 > 0 of the usable graph:
+# the disc graph under the paper's channel; under a `links:` channel the links that deliver half of what is
+# sent over them (docs/links.md), of which the disc graph is the share `disc`.
+FIGURES = ('converged', 'connected', 'outage', 'rc', 'recovery', 'ends_ok', 'end_rc', 'end_components', 'disc')
 
 
 def lb_along(s: Scenario, until: float) -> int:
@@ -119,9 +123,11 @@ def outage_s(down: np.ndarray, dt: float) -> float:
 
 
 def figures(m: np.ndarray, dt: float, event: Optional[float]) -> dict[str, Optional[float]]:
-    """FIGURES of one run from its metrics rows (world_sim.core.records.METRICS_COLUMNS); None where a run
-    that never converged, or has no event, has none."""
-    t, rc, connected = m[:, 1], m[:, 2], m[:, 3] > 0
+    """FIGURES of one run from its metrics rows (world_sim.core.records.METRICS_COLUMNS, then under a channel
+    hearing.LINK_COLUMNS, whose first is the usable graph's lambda2); None where a run that never converged, or
+    has no event, has none."""
+    t, rc, disc = m[:, 1], m[:, 2], m[:, 3] > 0
+    connected = m[:, len(METRICS_COLUMNS)] > 0 if m.shape[1] > len(METRICS_COLUMNS) else disc
     ok = (rc >= 0.95) & connected
     out: dict[str, Optional[float]] = dict.fromkeys(FIGURES)
     out['ends_ok'] = float(ok[-int(round(HELD_S / dt)):].all())
@@ -132,5 +138,5 @@ def figures(m: np.ndarray, dt: float, event: Optional[float]) -> dict[str, Optio
     if ok.any():
         first = int(np.argmax(ok))
         out.update(converged=float(t[first]), connected=float(connected[first:].mean()),
-                   outage=outage_s(~connected[first:], dt), rc=float(rc[first:].mean()))
+                   outage=outage_s(~connected[first:], dt), rc=float(rc[first:].mean()), disc=float(disc[first:].mean()))
     return out

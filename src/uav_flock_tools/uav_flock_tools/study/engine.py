@@ -30,6 +30,8 @@ COLUMNS = (*GRID, *FIGURES, 'error', 'wall_s', 'host')  # wall_s and host: where
 
 def execute(run: Run) -> dict[str, Any]:
     """One run, on a worker: its row. A run that raises is a row with its error, never a lost study."""
+    from uav_agent.core import ablation
+
     from ..batch import BatchSimulator
     from .cases import figures
     t0 = time.perf_counter()
@@ -38,12 +40,13 @@ def execute(run: Run) -> dict[str, Any]:
     try:
         s = run.scenario()
         row.update(maps=s.maps, duration=s.duration)
-        sim, rng = BatchSimulator(s), np.random.default_rng(run.draw_seed + IN_FLIGHT)
         kind = run.kind.partition(':')[0]
-        for _ in range(s.steps):
-            wipe_at(kind, sim, rng)
-            sim.step()
-        sim.step(integrate=False)
+        with ablation.switched_off(run.off):
+            sim, rng = BatchSimulator(s), np.random.default_rng(run.draw_seed + IN_FLIGHT)
+            for _ in range(s.steps):
+                wipe_at(kind, sim, rng)
+                sim.step()
+            sim.step(integrate=False)
         row.update(figures(sim.result().metrics, s.dt, EVENT_S.get(kind)))
     except Exception as exc:  # noqa: BLE001 -- the row carries it
         row['error'] = f'{type(exc).__name__}: {exc} | {traceback.format_exc(limit=-1).strip().splitlines()[-2].strip()}'

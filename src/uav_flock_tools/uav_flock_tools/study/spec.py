@@ -13,6 +13,7 @@ from typing import Any, Optional
 import numpy as np
 import yaml
 
+from uav_agent.core import ablation
 from world_sim.core import layouts
 from world_sim.core.scenario import Scenario, ScenarioError, parse, to_doc
 
@@ -20,6 +21,7 @@ from .cases import case, draws, lb_along
 
 KEYS = {'layouts', 'scenario', 'seeds', 'kinds', 'maps', 'duration', 'variants'}
 KINDS = ('static', 'drift', 'crossing', 'arrival', 'loss', 'wipeout')
+OFF = 'off'  # a variant's list of rules switched off (an ablation), beside its dotted scenario keys
 VALUED = {'drift': 'speed (m/s)', 'loss': 'share of the MAPs that fail'}
 
 
@@ -30,7 +32,7 @@ class SpecError(ValueError):
 @dataclass(frozen=True)
 class Run:
     """One run of a study: where it sits in the grid, and the scenario it flies (as a document, so that any
-    worker reads it the same). key: a hash of the resolved scenario, the kind and its draws."""
+    worker reads it the same). key: a hash of the resolved scenario, the kind, its draws and the rules off."""
 
     key: str
     layout: int
@@ -39,6 +41,7 @@ class Run:
     variant: str
     doc: dict[str, Any]
     draw_seed: int
+    off: tuple[str, ...] = ()  # rules the variant switches off (core/ablation.py)
 
     def scenario(self) -> Scenario:
         return parse(copy.deepcopy(self.doc))
@@ -114,6 +117,13 @@ def load(path: Path) -> Spec:
         raise SpecError('kinds: expected a list')
     if not isinstance(variants, dict) or not all(isinstance(v, dict) for v in variants.values()):
         raise SpecError('variants: expected a mapping of name: {dotted.key: value, ...}')
+    for name, v in variants.items():
+        off = v.get(OFF, [])
+        if not isinstance(off, list) or not all(isinstance(x, str) for x in off):
+            raise SpecError(f'variants: {name}: {OFF}: expected a list of rule names')
+        if ablation.unknown(off):
+            raise SpecError(f'variants: {name}: {OFF}: {", ".join(ablation.unknown(off))}: no such rule '
+                            f'(rules: {", ".join(ablation.RULES)})')
     maps, duration = doc.get('maps'), doc.get('duration')
     for key, v in (('maps', maps), ('duration', duration)):
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or v <= 0):
@@ -158,13 +168,16 @@ def runs(spec: Spec) -> list[Run]:
                 base, draw_seed = _flown(spec, lay, n, seed, kind, value)
                 for name, overrides in spec.variants.items():
                     doc = to_doc(base)
+                    off = tuple(sorted(set(overrides.get(OFF, []))))
                     for dotted, v in overrides.items():
-                        _override(doc, str(dotted), v)
+                        if dotted != OFF:
+                            _override(doc, str(dotted), v)
                     try:
                         doc = to_doc(parse(copy.deepcopy(doc)))  # checked, and resolved as every worker reads it
                     except ScenarioError as exc:
                         raise SpecError(f'variants: {name}: {exc}') from None
                     label = kind_name(kind, value)
-                    key = hashlib.sha256(json.dumps([doc, label, draw_seed], sort_keys=True).encode()).hexdigest()[:16]
-                    out.append(Run(key, n, seed, label, name, doc, draw_seed))
+                    what = [doc, label, draw_seed] + ([list(off)] if off else [])  # runs with every rule on: keys as before
+                    key = hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()[:16]
+                    out.append(Run(key, n, seed, label, name, doc, draw_seed, off))
     return out
