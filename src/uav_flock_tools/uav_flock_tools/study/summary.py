@@ -41,7 +41,8 @@ def cells(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             line = {'kind': kind, 'variant': variant, 'runs': len(cell), 'errors': sum(r['error'] is not None for r in cell),
                     'converged': sum(r['converged'] is not None for r in cell), 'mean': v.mean(), 'low': lo, 'high': hi,
                     'p10': float(np.percentile(v, 10)), 'worst': float(v.min()),
-                    'ends_ok': int(sum(r['ends_ok'] or 0 for r in cell)), 'change': None, 'change_low': None, 'change_high': None}
+                    'ends_ok': int(sum(r['ends_ok'] or 0 for r in cell)), 'disc': _disc(cell),
+                    'change': None, 'change_low': None, 'change_high': None}
             if variant != variants[0]:
                 pairs = [(_value(r), _value(by[(kind, variants[0], r['layout'], r['seed'])])) for r in cell
                          if (kind, variants[0], r['layout'], r['seed']) in by]
@@ -52,16 +53,25 @@ def cells(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+def _disc(cell: list[dict[str, Any]]) -> Any:
+    """The disc graph's mean share connected after convergence (0 for a run that never converged); None for a
+    table from before the column."""
+    if any(r.get('disc') is None and r.get('converged') is not None for r in cell):
+        return None
+    return float(np.mean([r['disc'] or 0.0 for r in cell]))
+
+
 def _pct(x: Any) -> str:
     return '—' if x is None else f'{100 * x:.1f}'
 
 
 def markdown(lines: list[dict[str, Any]], base: str) -> str:
     head = ('| kind | variant | runs | converged | connected after convergence: mean [95 %] | 10th pct | worst | '
-            f'ends covered and connected | change against {base}, paired [95 %] |\n|---|---|---|---|---|---|---|---|---|')
+            f'ends covered and connected | disc graph connected: mean | change against {base}, paired [95 %] |\n'
+            '|---|---|---|---|---|---|---|---|---|---|')
     body = [f"| {c['kind']} | {c['variant']} | {c['runs']}{' (' + str(c['errors']) + ' errors)' if c['errors'] else ''} | "
             f"{c['converged']}/{c['runs']} | {_pct(c['mean'])} [{_pct(c['low'])}, {_pct(c['high'])}] | {_pct(c['p10'])} | "
-            f"{_pct(c['worst'])} | {c['ends_ok']}/{c['runs']} | "
+            f"{_pct(c['worst'])} | {c['ends_ok']}/{c['runs']} | {_pct(c['disc'])} | "
             + ('' if c['change'] is None else f"{100 * c['change']:+.2f} [{100 * c['change_low']:+.2f}, {100 * c['change_high']:+.2f}]")
             + ' |' for c in lines]
     return '\n'.join([head, *body]) + '\n'
@@ -72,7 +82,8 @@ def write(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     lines = cells(rows)
     base = lines[0]['variant'] if lines else ''
     (out / 'summary.md').write_text(f'# Study: {len(rows)} runs\n\n"Connected" is the share of time lambda2 > 0 after the '
-                                    'first step covered (R_c >= 95 %) and connected, 0 for a run that never got there.\n\n'
+                                    'first step covered (R_c >= 95 %) and connected, 0 for a run that never got there; under a links: channel, '
+                                    'of the usable graph (docs/links.md).\n\n'
                                     + markdown(lines, base))
     with open(out / 'summary.csv', 'w', newline='') as f:
         w = csv.DictWriter(f, fieldnames=list(lines[0]) if lines else ['kind'])
