@@ -126,7 +126,7 @@ def test_an_interrupted_study_keeps_its_rows_and_the_next_call_computes_only_the
     ({'layouts': {'count': 1}, 'kinds': ['hover']}, "'hover': expected one of"),
     ({'layouts': {'count': 1}, 'variants': {'odd': {'flock.nope': 1}}}, 'variants: odd: '),
     ({'scenario': 'paper', 'layouts': {'count': 1}}, 'either layouts'),
-    ({'layouts': {'count': 1}, 'variants': {'ab': {'off': ['hold', 'nope']}}}, 'variants: ab: off: nope: no such rule'),
+    ({'layouts': {'count': 1}, 'variants': {'ab': {'without': ['hold', 'nope']}}}, 'variants: ab: without: nope: no such rule'),
 ])
 def test_a_bad_spec_is_one_line_and_exit_2(tmp_path: Path, spec: dict, says: str) -> None:
     (tmp_path / 'bad.yaml').write_text(yaml.safe_dump(spec))
@@ -157,17 +157,17 @@ def test_under_a_channel_connected_is_the_usable_graph_and_disc_the_disc_graph()
 
 
 def test_a_variant_flies_with_the_rules_it_switches_off_and_only_that_run(tmp_path: Path) -> None:
-    """`off:` in a variant is an ablation inside a study: the run equals the batch simulator's with those rules
+    """`without:` in a variant is an ablation inside a study: the run equals the batch simulator's with those rules
     off, its key differs from the run with every rule on, and no rule stays off after it."""
     from uav_agent.core import ablation
     from uav_flock_tools.batch import BatchSimulator
     from uav_flock_tools.study import spec as specs
     from uav_flock_tools.study.cases import FIGURES, figures
     from uav_flock_tools.study.engine import execute
-    channel = {'links.loss': 0.3, 'links.burst': 5}
-    (tmp_path / 's.yaml').write_text(yaml.safe_dump({
-        'layouts': {'count': 1, 'clusters': [3, 3]}, 'kinds': ['static'], 'duration': 8,
-        'variants': {'all': channel, 'no_hearsay': {**channel, 'off': ['hearsay']}}}))
+    (tmp_path / 's.yaml').write_text(  # as a user types it
+        'layouts: {count: 1, clusters: [3, 3]}\nkinds: [static]\nduration: 8\nvariants:\n'
+        '  all: {links.loss: 0.3, links.burst: 5}\n'
+        '  no_hearsay: {links.loss: 0.3, links.burst: 5, without: [hearsay]}\n')
     on, off = specs.runs(specs.load(tmp_path / 's.yaml'))
     assert off.off == ('hearsay',) and on.off == () and on.key != off.key and on.doc == off.doc
     row = execute(off)

@@ -1,4 +1,4 @@
-"""Rules by name, so that an ablation can switch one off alone (a study's variant `off:`, docs/studies.md;
+"""Rules by name, so that an ablation can switch one off alone (a study's variant `without:`, docs/studies.md;
 benchmarks/bench_ablation.py, bench_links.py).
 
 Every rule is on unless a run is flown inside `switched_off`. Each name is the rule's section in

@@ -21,7 +21,9 @@ from .cases import case, draws, lb_along
 
 KEYS = {'layouts', 'scenario', 'seeds', 'kinds', 'maps', 'duration', 'variants'}
 KINDS = ('static', 'drift', 'crossing', 'arrival', 'loss', 'wipeout')
-OFF = 'off'  # a variant's list of rules switched off (an ablation), beside its dotted scenario keys
+# A variant's list of rules switched off (an ablation), beside its dotted scenario keys. Not `off`: YAML reads
+# that word as false.
+OFF = 'without'
 VALUED = {'drift': 'speed (m/s)', 'loss': 'share of the MAPs that fail'}
 
 
