@@ -46,6 +46,7 @@ from .shipped import DEFAULT, load_scenario
 
 LIVENESS_PERIOD_S = 0.2  # how often the processes of MAPs we wait for are checked
 RECORDER_TIMEOUT_S = 10.0  # a recorder that writes nothing new this long while we wait for it is given up on
+SHOWN_WAITING = 12  # MAP ids a stall's log line names (a city's first step waits for hundreds)
 # A step stalled this long (every process alive) has its sensing sent again, then after twice as long, and
 # so on: step 0 of 90 processes spends ten seconds or more in discovery, and every repeat makes each MAP
 # it reaches publish its state once more, which is CPU the discovery needs.
@@ -429,9 +430,10 @@ class WorldNode(Node):
                 if i in stalled:
                     again.update(s.ids[s.neighbours(row)].tolist())
             # A delay, not a change: lockstep results do not depend on it. Logged, counted, said once at the end.
+            named = ', '.join(map(str, waiting[:SHOWN_WAITING])) + (', ...' if len(waiting) > SHOWN_WAITING else '')
             self.get_logger().info(f'step {s.k} stalled {time.monotonic() - self.step_started:.0f} s waiting for '
-                                      f'MAPs {waiting}: sensing sent again to them and their neighbours '
-                                      f'(time {self.resent})')
+                                   f'{len(waiting)} MAPs ({named}): sensing sent again to them and their '
+                                   f'neighbours (time {self.resent})')
             self.step_started = time.monotonic()
             self.publish_sensing(self.header(), again)
 
