@@ -284,9 +284,9 @@ def test_agents_listen_only_to_maps_in_radio_range(tmp_path: Path, ros_env: dict
     r, hysteresis, dt = 24.0, 2.0, 0.1
     sampler = helper('graph_sampler', '16', env=ros_env)
     try:
-        # One process per MAP: a packed run of 16 MAPs is over in a few seconds, before the sampler's discovery of
-        # the world's /metrics may have completed.
-        run = cli('up', '--maps', '16', '--seed', '5', '--duration', '12', '--agents-per-process', '1',
+        # One process per MAP, 24 s: a packed run of 16 MAPs is over in a few seconds, and with both cores busy
+        # one of 12 s ended before the sampler's discovery of the world's /metrics had completed.
+        run = cli('up', '--maps', '16', '--seed', '5', '--duration', '24', '--agents-per-process', '1',
                   '--domain-id', ros_env['ROS_DOMAIN_ID'],
                   '--out', str(tmp_path), env=ros_env)
     finally:
