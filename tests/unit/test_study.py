@@ -177,3 +177,24 @@ def test_a_variant_flies_with_the_rules_it_switches_off_and_only_that_run(tmp_pa
         alone = BatchSimulator(s).run().metrics
     assert {k: row[k] for k in FIGURES} == figures(alone, s.dt, None)
     assert not np.array_equal(alone, BatchSimulator(on.scenario()).run().metrics), 'hearsay acts on this run'
+
+
+def test_a_run_that_raised_is_named_in_one_line_and_computed_again_by_the_next_call(tmp_path: Path) -> None:
+    """A run whose code raises is a row with its error, not a lost study; the study says which and how, and the
+    same call again computes that run (the code fixed) instead of keeping the error as a finished row."""
+    import dataclasses
+
+    from uav_flock_tools.study import engine
+    from uav_flock_tools.study import spec as specs
+    (tmp_path / 's.yaml').write_text('layouts: {count: 1, clusters: [3, 3]}\nkinds: [static]\nduration: 3\n')
+    good, = specs.runs(specs.load(tmp_path / 's.yaml'))
+    broken = dataclasses.replace(good, doc={**good.doc, 'flock': {**good.doc['flock'], 'r': 'far'}})
+    out = tmp_path / 'out'
+    assert engine.study([broken], out, workers=1) == (1, 1)
+    line = engine.raised(engine.finished(out))
+    assert line is not None and line.startswith('1 of 1 runs raised') and 'layout 0 seed 0 static base' in line
+    assert '\n' not in line
+    assert engine.study([good], out, workers=1) == (1, 1), 'the run that raised is computed again'
+    row, = engine.finished(out)
+    assert row['error'] is None and row['duration'] == 3.0 and engine.raised([row]) is None
+    assert engine.study([good], out, workers=1) == (0, 1), 'a finished run is not'

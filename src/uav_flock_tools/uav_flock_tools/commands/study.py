@@ -50,8 +50,12 @@ def handle(args: argparse.Namespace) -> int:
     except engine.StudyError as exc:
         print(f'uav-flock: error: study: {exc}', file=sys.stderr)
         return 1
-    errors = sum(r['error'] is not None for r in engine.finished(args.out))
-    print(f'{args.out / engine.RESULTS}: {total} runs ({done} computed now{f", {errors} with an error" if errors else ""})')
+    print(f'{args.out / engine.RESULTS}: {total} runs ({done} computed now)')
+    keys = {r.key for r in grid}
+    failed = engine.raised([r for r in engine.finished(args.out) if r['key'] in keys])
+    if failed:
+        print(f'uav-flock: error: study: {failed}', file=sys.stderr)
+        return 1
     return 0
 
 

@@ -67,15 +67,25 @@ def schema():  # -> pyarrow.Schema
 
 
 def finished(out: Path) -> list[dict[str, Any]]:
-    """The rows a study folder holds: results.parquet and the parts not yet gathered into it."""
+    """The rows a study folder holds: results.parquet and the parts not yet gathered into it (a part is newer:
+    it replaces the row of a run that raised and was computed again)."""
     import pyarrow.parquet as pq
-    rows: list[dict[str, Any]] = []
+    rows: dict[str, dict[str, Any]] = {}
     if (out / RESULTS).exists():
-        rows += pq.read_table(out / RESULTS).to_pylist()
-    have = {r['key'] for r in rows}
+        rows.update((r['key'], r) for r in pq.read_table(out / RESULTS).to_pylist())
     for part in sorted((out / PARTS).glob('*.parquet')) if (out / PARTS).exists() else []:
-        rows += [r for r in pq.read_table(part).to_pylist() if r['key'] not in have]
-    return rows
+        rows.update((r['key'], r) for r in pq.read_table(part).to_pylist())
+    return list(rows.values())
+
+
+def raised(rows: list[dict[str, Any]]) -> Optional[str]:
+    """One line on the runs that raised (how many, and the first one's place and error), or None."""
+    bad = [r for r in rows if r['error'] is not None]
+    if not bad:
+        return None
+    r = bad[0]
+    return (f'{len(bad)} of {len(rows)} runs raised (the same command computes them again); the first, layout '
+            f'{r["layout"]} seed {r["seed"]} {r["kind"]} {r["variant"]}: {r["error"]}')
 
 
 def gather(out: Path, order: list[str]) -> Path:
@@ -129,7 +139,7 @@ def study(runs: list[Run], out: Path, scheduler: Optional[str] = None, workers: 
     from dask.distributed import as_completed
     out.mkdir(parents=True, exist_ok=True)
     (out / PARTS).mkdir(exist_ok=True)
-    have = {r['key'] for r in finished(out)}
+    have = {r['key'] for r in finished(out) if r['error'] is None}  # a run that raised is computed again
     todo = [r for r in runs if r.key not in have]
     done, t0, lost = 0, time.monotonic(), []
     if todo:
