@@ -1,8 +1,9 @@
 """One lockstep run of N MAPs spread over 1, 2 and 3 hosts (network namespaces on this machine; needs root).
 
-Run: ./uav-flock exec python benchmarks/bench_multihost.py [--maps 90 --duration 20 --hosts 1,2,3]
+Run: ./uav-flock exec python benchmarks/bench_multihost.py [--maps 90 --duration 20 --hosts 1,2,3 --transports udp,tls]
 The world host runs `up --listen` with its share of the MAPs, the others `agents --join` with theirs
-(equal shares, the world's first). Printed per host count:
+(equal shares, the world's first); under tls each with `--secure` and keys made for the run (`uav-flock keys`:
+every participant on TCP with TLS). Printed per transport and host count:
   start to first step   world_sim's wait until every MAP was matched (its "ready after" line)
   steps/s               simulated steps per wall second, once started (world_sim's last progress line)
   CPU per MAP-step      user + system CPU of every process in the hosts' namespaces from the first step
@@ -33,13 +34,22 @@ def cli_in(ns: str, args: list[str], out: Path) -> subprocess.Popen[str]:
                             stdout=open(out, 'w'), stderr=subprocess.STDOUT, text=True)
 
 
-def one(count: int, maps: int, duration: float, tmp: Path) -> dict[str, float]:
+def one(count: int, maps: int, duration: float, tmp: Path, tls: bool = False) -> dict[str, float]:
     roles = [f'h{n}' for n in range(count)]
     shares = [maps * (n + 1) // count - maps * n // count for n in range(count)]
+    tag = f'{"tls" if tls else "udp"}{count}'
+    if tls:
+        from uav_flock_tools import keys
+        keys.make(tmp / f'{tag}-keys', roles)
+
+    def secure(role: str) -> list[str]:
+        return ['--secure', str(tmp / f'{tag}-keys' / role)] if tls else []
+
     with netns.hosts(roles, SUBNET) as names:
-        world_out = tmp / f'{count}-world.out'
+        world_out = tmp / f'{tag}-world.out'
         world = cli_in(names['h0'], ['up', '--maps', str(maps), '--duration', str(duration), '--listen', f'{SUBNET}.1',
-                                     '--agents-here', str(shares[0]), '--out', str(tmp / f'{count}-world')], world_out)
+                                     '--agents-here', str(shares[0]), '--out', str(tmp / f'{tag}-world'), *secure('h0')],
+                       world_out)
         procs = [world]
         if count > 1:
             end = time.monotonic() + 120
@@ -51,7 +61,8 @@ def one(count: int, maps: int, duration: float, tmp: Path) -> dict[str, float]:
             for n in range(1, count):
                 ids = f'{first}-{first + shares[n] - 1}'
                 procs.append(cli_in(names[f'h{n}'], ['agents', '--join', m.group(1), '--ids', ids,
-                                                     '--out', str(tmp / f'{count}-h{n}')], tmp / f'{count}-h{n}.out'))
+                                                     '--out', str(tmp / f'{tag}-h{n}'), *secure(f'h{n}')],
+                                    tmp / f'{tag}-h{n}.out'))
                 first += shares[n]
         def wire() -> int:
             if count > 1:
@@ -72,7 +83,7 @@ def one(count: int, maps: int, duration: float, tmp: Path) -> dict[str, float]:
             p.wait(timeout=60)
     if world.returncode != 0:
         raise SystemExit(f'bench_multihost: the run over {count} hosts failed:\n{world_out.read_text()}')
-    log = (tmp / f'{count}-world' / 'logs' / 'world.log').read_text() + world_out.read_text()
+    log = (tmp / f'{tag}-world' / 'logs' / 'world.log').read_text() + world_out.read_text()
     ready = float(re.search(r'MAPs ready after ([\d.]+) s', log).group(1))  # type: ignore[union-attr]
     rate = float(re.findall(r'([\d.]+) steps/s', log)[-1])
     steps = round(duration / 0.1) + 1
@@ -87,29 +98,43 @@ def main() -> int:
     ap.add_argument('--maps', type=int, default=90, help='MAPs (default: 90)')
     ap.add_argument('--duration', type=float, default=20.0, help='simulated s per run (default: 20)')
     ap.add_argument('--hosts', default='1,2,3', help='host counts to run (default: 1,2,3)')
+    ap.add_argument('--transports', default='udp',
+                    help='udp (plain DDS), tls (`--secure`: TCP with TLS), or both: udp,tls (default: udp)')
     args = ap.parse_args()
-    counts = [int(h) for h in args.hosts.split(',')]
+    try:
+        counts = [int(h) for h in args.hosts.split(',')]
+    except ValueError:
+        ap.error(f'--hosts: expected counts like 1,2,3, got {args.hosts!r}')
+    transports = [t.strip() for t in args.transports.split(',') if t.strip()]
     if args.maps < 1 or args.duration <= 0 or any(not 1 <= h <= 9 for h in counts):
         ap.error('--maps must be at least 1, --duration positive, host counts 1 to 9')
+    if not transports or set(transports) - {'udp', 'tls'}:
+        ap.error(f'--transports: udp, tls or udp,tls, got {args.transports!r}')
     rows = []
     with tempfile.TemporaryDirectory(prefix='uav-flock-multihost-') as tmp:
-        for count in counts:
-            t0 = time.perf_counter()
-            try:
-                r = one(count, args.maps, args.duration, Path(tmp))
-            except netns.NetnsError as exc:
-                print(f'bench_multihost: {exc}', file=sys.stderr)
-                return 2
-            print(f'  {count} host(s): {time.perf_counter() - t0:.0f} s', flush=True)
-            rows.append((count, r))
-    print(f'\n{args.maps} MAPs, lockstep, {args.duration:g} s simulated, UDP only, hosts as network namespaces '
-          f'on one machine:\n')
-    print('| hosts | start to first step | steps/s | CPU per MAP-step | bytes per MAP-step |')
-    print('|---|---|---|---|---|')
-    for count, r in rows:
+        for transport in transports:
+            for count in counts:
+                t0 = time.perf_counter()
+                try:
+                    r = one(count, args.maps, args.duration, Path(tmp), transport == 'tls')
+                except netns.NetnsError as exc:
+                    print(f'bench_multihost: {exc}', file=sys.stderr)
+                    return 2
+                print(f'  {transport}, {count} host(s): {time.perf_counter() - t0:.0f} s', flush=True)
+                rows.append((transport, count, r))
+    print(f'\n{args.maps} MAPs, lockstep, {args.duration:g} s simulated, hosts as network namespaces on one machine; '
+          'udp: plain DDS, UDP only; tls: `--secure`, TCP with TLS only:\n')
+    print('| transport | hosts | start to first step | steps/s | CPU per MAP-step | bytes per MAP-step |')
+    print('|---|---|---|---|---|---|')
+    for transport, count, r in rows:
         where = 'on the wire' if count > 1 else 'loopback, one host'
-        print(f'| {count} | {r["start"]:.1f} s | {r["rate"]:.1f} | {1e3 * r["cpu"]:.2f} ms | '
+        print(f'| {transport} | {count} | {r["start"]:.1f} s | {r["rate"]:.1f} | {1e3 * r["cpu"]:.2f} ms | '
               f'{r["bytes"]:.0f} B ({where}) |')
+    base = {count: r for transport, count, r in rows if transport == 'udp'}
+    for transport, count, r in rows:
+        if transport == 'tls' and count in base:
+            print(f'tls against udp, {count} host(s): CPU per MAP-step x{r["cpu"] / base[count]["cpu"]:.2f}, '
+                  f'bytes per MAP-step x{r["bytes"] / base[count]["bytes"]:.2f}')
     return 0
 
 

@@ -1,4 +1,5 @@
-"""One run over three hosts: real network namespaces joined by veth pairs on a bridge, DDS over UDP only.
+"""One run over three hosts: real network namespaces joined by veth pairs on a bridge, DDS over UDP only, or over
+TCP with TLS (`--secure`) with two strangers on the LAN.
 
 The world (`up --listen`) runs in one namespace, two agent hosts (`agents --join`) in two others; each has
 its own network stack, so nothing passes by loopback or shared memory between them (the run's transport is
@@ -8,9 +9,11 @@ from __future__ import annotations
 
 import re
 import subprocess
+import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, Optional
 
 import pytest
 import yaml
@@ -19,17 +22,28 @@ from helpers import netns
 
 SUBNET = '10.231.7'
 HOSTS = ['world', 'a', 'b']  # at SUBNET.1, .2, .3
+STRANGERS = ['nocert', 'otherca']  # at SUBNET.4, .5 in the secure run: TLS that checks nothing, no or a foreign certificate
+TESTS = Path(__file__).resolve().parents[1]
+# What DDS discovery says in clear over UDP: the run's topic names ('rt/' + name) and its message types.
+IN_CLEAR = (b'rt/map_', b'uav_flock_msgs::msg::dds_::AgentState_')
 
 
-@pytest.fixture
-def hosts() -> Iterator[dict[str, str]]:
-    """Three hosts (world, a, b) at SUBNET.1-3; {role: namespace}."""
+@contextmanager
+def network(roles: list[str]) -> Iterator[dict[str, str]]:
+    """Hosts at SUBNET.1, .2, ... in the order of roles; {role: namespace}."""
     try:
-        with netns.hosts(HOSTS, SUBNET) as names:
+        with netns.hosts(roles, SUBNET) as names:
             yield names
     except netns.NetnsError as exc:
         pytest.fail(f'this test runs hosts as network namespaces, which cannot be made here: {exc}; '
                     'run the suite as root')
+
+
+@pytest.fixture
+def hosts() -> Iterator[dict[str, str]]:
+    """Three hosts (world, a, b) at SUBNET.1-3."""
+    with network(HOSTS) as names:
+        yield names
 
 
 def in_ns(ns: str, *args: str, env: dict[str, str], out: Path) -> subprocess.Popen[str]:
@@ -61,11 +75,38 @@ def small_scenario(paper_scenario_path: str, out: Path) -> Path:
     return path
 
 
+def helper_in_ns(ns: str, module: str, *args: str, env: dict[str, str]) -> subprocess.Popen[str]:
+    """A helper process (tests/helpers) in a namespace, once it has printed 'ready'."""
+    proc = subprocess.Popen(['ip', 'netns', 'exec', ns, sys.executable, '-m', f'helpers.{module}', *args], cwd=TESTS,
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    assert proc.stdout is not None
+    line = proc.stdout.readline()
+    while line and line.strip() != 'ready':
+        line = proc.stdout.readline()
+    assert line, f'{module} in {ns} ended before it was ready (exit {proc.wait()})'
+    return proc
+
+
+@contextmanager
+def captured(path: Path, env: dict[str, str]) -> Iterator[Path]:
+    """Every frame between the hosts (in the bridge's namespace, where their links end) into path."""
+    proc = helper_in_ns(netns.bridge(), 'capture', str(path), env=env)
+    try:
+        yield path
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
 def start(hosts: dict[str, str], tmp_path: Path, env: dict[str, str], scenario: Path, duration: str,
-          here: int, a: str, b: str, refuse: bool = False) -> tuple[subprocess.Popen[str], list[subprocess.Popen[str]]]:
+          here: int, a: str, b: str, refuse: bool = False,
+          keys: Optional[Path] = None) -> tuple[subprocess.Popen[str], list[subprocess.Popen[str]]]:
+    def secure(role: str) -> tuple[str, ...]:
+        return ('--secure', str(keys / role)) if keys is not None else ()
+
     world = in_ns(hosts['world'], 'up', '--scenario', str(scenario), '--maps', '12', '--duration', duration,
                   '--listen', f'{SUBNET}.1', '--agents-here', str(here), '--out', str(tmp_path / 'world'),
-                  env=env, out=tmp_path / 'world.out')
+                  *secure('world'), env=env, out=tmp_path / 'world.out')
     address = wait_for(tmp_path / 'world.out', r'--join (\S+)', world, 120).group(1)
     if refuse:  # ids the run does not leave to other hosts: one line, exit 2, while the run waits on
         wrong = subprocess.run(netns.cli(hosts['a'], 'agents', '--join', address, '--ids', '11-12',
@@ -75,7 +116,7 @@ def start(hosts: dict[str, str], tmp_path: Path, env: dict[str, str], scenario: 
             'uav-flock: error: agents: --ids: MAP 12 is not one this run waits for from other hosts (it has 12 '
             'MAPs; 4-11 join from other hosts)'], wrong.stderr
     joined = [in_ns(hosts[role], 'agents', '--join', address, '--ids', ids, '--out', str(tmp_path / role),
-                    env=env, out=tmp_path / f'{role}.out') for role, ids in (('a', a), ('b', b))]
+                    *secure(role), env=env, out=tmp_path / f'{role}.out') for role, ids in (('a', a), ('b', b))]
     return world, joined
 
 
@@ -93,19 +134,73 @@ def end(procs: list[subprocess.Popen[str]]) -> None:
 
 def test_a_run_over_three_hosts_equals_sim(hosts: dict[str, str], tmp_path: Path, ros_env: dict[str, str],
                                            paper_scenario_path: str) -> None:
+    """... and what passes between the hosts names the run's topics and types in clear (DDS discovery over UDP):
+    the control of the secure run's capture below."""
     scenario = small_scenario(paper_scenario_path, tmp_path)
-    world, joined = start(hosts, tmp_path, ros_env, scenario, '6', 4, '4-7', '8-11', refuse=True)
-    try:
-        assert world.wait(timeout=300) == 0, (tmp_path / 'world.out').read_text()
-        for role, p in zip('ab', joined):
-            assert p.wait(timeout=60) == 0, (tmp_path / f'{role}.out').read_text()
-    finally:
-        end([world, *joined])
+    with captured(tmp_path / 'lan.raw', ros_env) as lan:
+        world, joined = start(hosts, tmp_path, ros_env, scenario, '6', 4, '4-7', '8-11', refuse=True)
+        try:
+            assert world.wait(timeout=300) == 0, (tmp_path / 'world.out').read_text()
+            for role, p in zip('ab', joined):
+                assert p.wait(timeout=60) == 0, (tmp_path / f'{role}.out').read_text()
+        finally:
+            end([world, *joined])
     assert cli('sim', '--scenario', str(scenario), '--maps', '12', '--duration', '6',
                '--out', str(tmp_path / 'sim')).returncode == 0
     for name in ('trajectory.csv', 'metrics.csv'):
         assert (tmp_path / 'world' / name).read_bytes() == (tmp_path / 'sim' / name).read_bytes(), name
     assert sorted(p.name for p in (tmp_path / 'a' / 'logs').iterdir()) == [f'agents_{i}.log' for i in range(4, 8)]
+    seen = lan.read_bytes()
+    assert all(word in seen for word in IN_CLEAR), f'a plain run\'s discovery names its topics in clear ({len(seen)} bytes)'
+
+
+def test_a_secure_run_over_three_hosts_equals_sim_and_strangers_neither_join_nor_steer(
+        tmp_path: Path, ros_env: dict[str, str], paper_scenario_path: str) -> None:
+    """`up --secure` and `agents --secure` over three hosts: TCP with TLS between every participant. Two more hosts
+    on the LAN publish well-formed states of MAP 5 with a false position at every step, dialling the discovery server
+    over TLS that checks nothing itself: one with no certificate, one with a certificate of another run's CA. Neither
+    discovers the run nor is discovered, the run equals `sim` byte for byte, and no topic or type name passes in
+    clear."""
+    from helpers.stranger import lax_profile
+    from uav_flock_tools import keys, secure
+    keys.make(tmp_path / 'keys', HOSTS)
+    keys.make(tmp_path / 'other', ['otherca'])
+    scenario = small_scenario(paper_scenario_path, tmp_path)
+    strangers: list[subprocess.Popen[str]] = []
+    with network(HOSTS + STRANGERS) as hosts:
+        with captured(tmp_path / 'lan.raw', ros_env) as lan:
+            world, joined = start(hosts, tmp_path, ros_env, scenario, '6', 4, '4-7', '8-11', keys=tmp_path / 'keys')
+            try:
+                address = wait_for(tmp_path / 'world.out', r'--join (\S+)', world, 10).group(1)
+                host, port = address.rsplit(':', 1)
+                domain = str(int(port) - 11811)
+                member = secure.profile(keys.check(tmp_path / 'other' / 'otherca'), 'client', (host, int(port)))
+                for who in STRANGERS:
+                    (tmp_path / f'{who}.xml').write_text(lax_profile(member, certificate=who == 'otherca'))
+                strangers = [helper_in_ns(hosts[who], 'stranger', '5', '61', env={
+                    **ros_env, 'ROS_DOMAIN_ID': domain, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET',
+                    'FASTRTPS_DEFAULT_PROFILES_FILE': str(tmp_path / f'{who}.xml')}) for who in STRANGERS]
+                assert world.wait(timeout=300) == 0, (tmp_path / 'world.out').read_text()
+                for role, p in zip('ab', joined):
+                    assert p.wait(timeout=60) == 0, (tmp_path / f'{role}.out').read_text()
+            finally:
+                end([world, *joined])
+                for p in strangers:
+                    p.terminate()
+                said = [p.communicate(timeout=30)[0] for p in strangers]
+    assert 'secured: TCP with TLS only' in (tmp_path / 'world.out').read_text()
+    for who, text in zip(STRANGERS, said):
+        figures = re.search(r'^published (\d+) readers (\d+) nodes (\d+)$', text, re.M)
+        assert figures, f'{who} said no figures: {text[-2000:]}'
+        published, readers, nodes = (int(v) for v in figures.groups())
+        assert published > 100 and readers == 0 and nodes == 0, f'{who}: {text[-2000:]}'
+    assert cli('sim', '--scenario', str(scenario), '--maps', '12', '--duration', '6',
+               '--out', str(tmp_path / 'sim')).returncode == 0
+    for name in ('trajectory.csv', 'metrics.csv'):
+        assert (tmp_path / 'world' / name).read_bytes() == (tmp_path / 'sim' / name).read_bytes(), name
+    seen = lan.read_bytes()
+    assert len(seen) > 100_000 and not any(word in seen for word in IN_CLEAR), \
+        f'{len(seen)} bytes between the hosts: {[w for w in IN_CLEAR if w in seen]} in clear'
 
 
 def test_losing_a_host_by_kill_and_by_link_leaves_the_exact_alive_count_and_the_rest_recovers(

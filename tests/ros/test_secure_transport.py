@@ -1,6 +1,7 @@
-"""Participants on Fast DDS's TCP transport with TLS (uav_flock_tools/secure.py), keyed by `uav-flock keys`:
-real rclpy processes over real sockets. A run's member hears the run; a stranger with another CA's
-certificate fails the handshake and hears nothing."""
+"""A run's participants on Fast DDS's TCP transport with TLS (uav_flock_tools/secure.py), keyed by `uav-flock keys`:
+a discovery server and real rclpy processes over real sockets. A member of the run hears it; a stranger that dials
+in without a certificate, or with one of another CA, and checks nothing itself, is refused by the run's side of
+the handshake and hears nothing."""
 from __future__ import annotations
 
 import socket
@@ -8,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from helpers.stranger import lax_profile
 from uav_flock_tools import keys, secure
 
 TALKER = '''
@@ -36,29 +38,40 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def test_a_member_of_the_run_hears_it_and_a_stranger_fails_the_handshake(
-        tmp_path: Path, ros_env: dict[str, str]) -> None:
+def test_a_member_of_the_run_hears_it_and_strangers_fail_the_handshake(tmp_path: Path, ros_env: dict[str, str]) -> None:
     keys.make(tmp_path / 'run', ['world', 'field1'])
     keys.make(tmp_path / 'other', ['field1'])
-    port = _free_port()
-    files = {}
-    for name, folder, listen, peers in (('world', tmp_path / 'run' / 'world', port, ()),
-                                        ('member', tmp_path / 'run' / 'field1', None, (('127.0.0.1', port),)),
-                                        ('stranger', tmp_path / 'other' / 'field1', None, (('127.0.0.1', port),))):
-        files[name] = tmp_path / f'{name}.xml'
-        files[name].write_text(secure.profile(keys.check(folder), listen, peers))
-    talker = subprocess.Popen([sys.executable, '-c', TALKER, '40'], env=secure.environment(ros_env, files['world']),
+    server = ('127.0.0.1', _free_port())
+    run = secure.write_profiles(keys.check(tmp_path / 'run' / 'world'), server, tmp_path / 'world')
+    member = secure.write_profiles(keys.check(tmp_path / 'run' / 'field1'), server, tmp_path / 'member', ('client',))
+    foreign = secure.write_profiles(keys.check(tmp_path / 'other' / 'field1'), server, tmp_path / 'foreign', ('client',))
+    (tmp_path / 'foreign' / 'client.xml').write_text(lax_profile(foreign['client'].read_text(), certificate=True))
+    for name, profile, certificate in (('nocert', foreign, False), ('lax', member, True)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / 'client.xml').write_text(lax_profile(profile['client'].read_text(), certificate))
+    plain = {k: v for k, v in ros_env.items() if k != 'OPENSSL_CONF'}  # a stranger keeps its own OpenSSL defaults
+    discovery = subprocess.Popen(['fast-discovery-server', '-x', str(run['server'])],
+                                 env=secure.environment(ros_env, run['server']), stdout=subprocess.DEVNULL,
+                                 stderr=subprocess.DEVNULL)
+    talker = subprocess.Popen([sys.executable, '-c', TALKER, '60'], env=secure.environment(ros_env, run['client']),
                               stdout=subprocess.DEVNULL, stderr=open(tmp_path / 'talker.log', 'w'))
     try:
-        member = subprocess.run([sys.executable, '-c', LISTENER, '20'], env=secure.environment(ros_env, files['member']),
-                                capture_output=True, text=True, timeout=60)
-        stranger = subprocess.run([sys.executable, '-c', LISTENER, '10'],
-                                  env=secure.environment(ros_env, files['stranger']), capture_output=True, text=True,
-                                  timeout=60)
+        heard = {}
+        for who, folder in (('member', None), ('member, checking nothing', 'lax'), ('other CA', 'foreign'),
+                            ('no certificate', 'nocert')):
+            env = secure.environment(ros_env, member['client']) if folder is None else {
+                **plain, 'FASTRTPS_DEFAULT_PROFILES_FILE': str(tmp_path / folder / 'client.xml'),
+                'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'}
+            heard[who] = subprocess.run([sys.executable, '-c', LISTENER, '20' if who.startswith('member') else '10'],
+                                        env=env, capture_output=True, text=True, timeout=60)
     finally:
-        talker.terminate()
-        talker.wait(10)
-    heard = [p.stdout.strip().splitlines()[-1] if p.stdout.strip() else '' for p in (member, stranger)]
-    assert heard[0] == '5', member.stdout + member.stderr + (tmp_path / 'talker.log').read_text()
-    assert heard[1] == '0', stranger.stdout + stranger.stderr  # Fast DDS logs to stdout, the count comes last
-    assert 'Handshake failed' in stranger.stdout + stranger.stderr, 'refused at the TLS handshake, not unheard'
+        for p in (talker, discovery):
+            p.terminate()
+            p.wait(10)
+    said = {who: p.stdout + p.stderr for who, p in heard.items()}
+    counts = {who: (p.stdout.strip().splitlines() or [''])[-1] for who, p in heard.items()}  # Fast DDS logs to stdout
+    assert counts['member'] == '5', said['member'] + (tmp_path / 'talker.log').read_text()
+    # The strangers' profile itself works: with the run's certificate it hears the run. Only the certificate differs.
+    assert counts['member, checking nothing'] == '5', said['member, checking nothing']
+    assert counts['other CA'] == '0', said['other CA']
+    assert counts['no certificate'] == '0', said['no certificate']

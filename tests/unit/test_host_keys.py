@@ -132,3 +132,28 @@ def test_the_command_says_in_one_line_what_it_made(tmp_path: Path) -> None:
     again = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'keys', '--out', str(tmp_path / 'k'),
                             '--hosts', 'world'], capture_output=True, text=True, timeout=60)
     assert again.returncode == 2 and '--replace' in again.stderr
+
+
+def test_up_and_agents_refuse_a_folder_that_cannot_secure_this_host_before_anything_starts(tmp_path: Path) -> None:
+    """`--secure` takes the folder of this host (its name is the host's): missing, for another host, expired, or
+    without --listen, each is one line and exit 2 before any run folder or process is made."""
+    keys.make(tmp_path / 'k', ['world', 'field1'])
+    shutil.copytree(tmp_path / 'k' / 'field1', tmp_path / 'copied' / 'world')  # field1's keys where world's belong
+    past = datetime.datetime.now(datetime.timezone.utc) - datetime.timedelta(days=40)
+    keys.make(tmp_path / 'old', ['world'], days=30, now=past)
+    up = ('up', '--maps', '4', '--duration', '1', '--listen', '127.0.0.1')
+    cases = [
+        ((*up, '--secure', str(tmp_path / 'nowhere')), 'no such folder'),
+        ((*up, '--secure', str(tmp_path / 'copied' / 'world')), 'a certificate for field1, not for world'),
+        ((*up, '--secure', str(tmp_path / 'old' / 'world')), 'expired on'),
+        (('up', '--maps', '4', '--secure', str(tmp_path / 'k' / 'world')), 'give --listen ADDRESS too'),
+        (('agents', '--join', '127.0.0.1:11850', '--ids', '1', '--secure', str(tmp_path / 'old' / 'world')),
+         'expired on'),
+    ]
+    for n, (args, says) in enumerate(cases):
+        out = tmp_path / f'run{n}'
+        proc = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', *args, '--out', str(out)],
+                              capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and says in proc.stderr, \
+            (args, proc.stderr)
+        assert not out.exists(), f'{args}: nothing may be made before the keys are checked'

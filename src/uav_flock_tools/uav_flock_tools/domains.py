@@ -47,11 +47,14 @@ def discovery_server_address(domain_id: int, host: str = '127.0.0.1') -> str:
     return f'{host}:{DISCOVERY_BASE_PORT + domain_id}'
 
 
-def start_discovery_server(address: str, env: dict[str, str], log: Path) -> subprocess.Popen:
-    """The Fast DDS discovery server the wheels ship, on address (host:port), in its own session."""
+def start_discovery_server(address: str, env: dict[str, str], log: Path,
+                           profile: Optional[Path] = None) -> subprocess.Popen:
+    """The Fast DDS discovery server the wheels ship, on address (host:port, UDP), in its own session; or as
+    the XML profile says (secure.profile: TCP with TLS)."""
     host, port = address.rsplit(':', 1)
+    args = ['-x', str(profile)] if profile is not None else ['-i', '0', '-l', host, '-p', port]
     with open(log, 'w') as out:
-        return subprocess.Popen(['fast-discovery-server', '-i', '0', '-l', host, '-p', port],
+        return subprocess.Popen(['fast-discovery-server', *args],
                                 env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
                                 preexec_fn=dies_with_parent(signal.SIGTERM))
 

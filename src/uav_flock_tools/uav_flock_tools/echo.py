@@ -37,7 +37,10 @@ def use_domain(run: Optional[str], domain_id: Optional[int]) -> None:
             raise EchoError(f'--run: the run in {run} has ended (its world_sim is gone)')
         meta = json.loads(info.read_text())
         domain_id = int(meta['domain_id'])
-        if meta.get('discovery_server'):  # a super client sees every endpoint the server knows
+        if meta.get('secure'):  # a super client of the run over TLS, with this host's keys
+            from .secure import environment
+            os.environ.update(environment(dict(os.environ), Path(meta['secure']['super_client'])))
+        elif meta.get('discovery_server'):  # a super client sees every endpoint the server knows
             os.environ.update(ROS_DISCOVERY_SERVER=meta['discovery_server'], ROS_SUPER_CLIENT='TRUE')
         elif meta.get('discovery_range'):
             os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = meta['discovery_range']

@@ -13,11 +13,13 @@ import os
 import signal
 import time
 from pathlib import Path
-
+from typing import Optional
 
 from uav_flock_ros.processes import CRASH_DIR, LINKS_LOG_DIR, write_params
 
+from . import secure
 from .domains import DISCOVERY_BASE_PORT, ros_env
+from .keys import HostKeys
 from .spawn import ForkedAgent, start_agents, stop, write_pid_table
 
 POLL_S = 0.5
@@ -38,7 +40,7 @@ def parse_address(text: str) -> tuple[str, int]:
     return host, domain
 
 
-def fetch_run_info(address: str, env: dict[str, str], timeout: float) -> dict[str, object]:
+def fetch_run_info(address: str, env: dict[str, str], timeout: float, tls: bool = False) -> dict[str, object]:
     """The run's /run_info, read through its discovery server (env: the run's); JoinError if nothing answers
     in time."""
     os.environ.update(env)
@@ -65,8 +67,13 @@ def fetch_run_info(address: str, env: dict[str, str], timeout: float) -> dict[st
     finally:
         rclpy.try_shutdown()
     if not got:
+        port = address.rpartition(':')[2]
+        if tls:
+            raise JoinError(f'no run answers at {address}: nothing on /run_info within {timeout:g} s (is `up --listen '
+                            f'--secure` running there with keys of the same `uav-flock keys`, and TCP port {port} '
+                            f'open to this host?)')
         raise JoinError(f'no run answers at {address}: nothing on /run_info within {timeout:g} s (is `up --listen` '
-                        f'running there, and UDP port {address.rpartition(":")[2]} open to this host?)')
+                        f'running there, and UDP port {port} open to this host?)')
     return json.loads(got[0])
 
 
@@ -78,19 +85,27 @@ def check_ids(ids: list[int], info: dict[str, object]) -> None:
                         f'{info["maps"]} MAPs; {first}-{last} join from other hosts)')
 
 
-def join(address: str, ids: list[int], out: Path, agents_per_process: int, timeout: float) -> int:
-    """Fetch the run, start its agents `ids` here, and wait until they end (with the run, or on Ctrl-C)."""
-    _, domain = parse_address(address)
+def join(address: str, ids: list[int], out: Path, agents_per_process: int, timeout: float,
+         keys: Optional[HostKeys] = None) -> int:
+    """Fetch the run, start its agents `ids` here, and wait until they end (with the run, or on Ctrl-C).
+    With keys, over TCP with TLS as the run's `up --secure` (secure.py)."""
+    host, domain = parse_address(address)
     env = ros_env(domain, address)
-    info = fetch_run_info(address, env, timeout)
+    if keys is not None:
+        port = int(address.rpartition(':')[2])
+        profiles = secure.write_profiles(keys, (host, port), out / secure.FOLDER, ('client', 'super_client'))
+        env = secure.environment(env, profiles['client'])
+    info = fetch_run_info(address, env, timeout, keys is not None)
     check_ids(ids, info)
     out.mkdir(parents=True, exist_ok=True)
     here = {'crash_dir': str(out / CRASH_DIR)}  # this host's run folder, not the listening host's
     if info['agent_params'].get('links_log'):  # type: ignore[union-attr]
         here['links_log'] = str(out / LINKS_LOG_DIR)
     params = write_params(out / 'agent_params.yaml', {**info['agent_params'], **here})  # type: ignore[dict-item]
-    (out / 'run.json').write_text(json.dumps({'domain_id': domain, 'discovery_server': address, 'join': address,
-                                              'maps': info['maps'], 'ids': ids}, indent=1))
+    (out / 'run.json').write_text(json.dumps({
+        'domain_id': domain, 'discovery_server': address, 'join': address, 'maps': info['maps'], 'ids': ids,
+        'secure': None if keys is None else {'ca': keys.ca_fingerprint,
+                                             'super_client': str(out / secure.FOLDER / 'super_client.xml')}}, indent=1))
     logs = out / 'logs'
     logs.mkdir(exist_ok=True)
     groups = [ids[k:k + agents_per_process] for k in range(0, len(ids), agents_per_process)]
@@ -104,7 +119,7 @@ def join(address: str, ids: list[int], out: Path, agents_per_process: int, timeo
     old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         print(f'uav-flock agents: MAPs {ids[0]}-{ids[-1]} ({len(ids)}) in {len(groups)} processes join the run at '
-              f'{address} (ROS_DOMAIN_ID={domain}); logs in {logs}', flush=True)
+              f'{address} (ROS_DOMAIN_ID={domain}{", TCP with TLS" if keys else ""}); logs in {logs}', flush=True)
         start_agents(groups, params, env, logs, agents, lambda: interrupted)
         write_pid_table(out / 'pids.json', {i: a.pid for g, a in zip(groups, agents) for i in g})
         while not interrupted and any(a.poll() is None for a in agents):

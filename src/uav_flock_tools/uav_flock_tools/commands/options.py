@@ -259,3 +259,15 @@ def auto_agents_per_process(maps: int, cores: Optional[int] = None) -> int:
 AGENTS_PER_PROCESS_HELP = (f'K MAPs\' agent nodes in each process (default: about {PROCESSES_PER_CORE} processes per core, '
                            'ceil(MAPs / (4 x cores)): 12 for 90 MAPs on 2 cores; 1 gives each MAP a process of its '
                            'own, which costs twice the CPU and a slow start: 90 MAPs take several minutes)')
+
+
+def host_keys(cmd: str, folder: Optional[Path]):  # -> Optional[keys.HostKeys]
+    """--secure's folder, checked before anything starts: a missing or unreadable file, a certificate the CA did
+    not sign, one out of date or for another host than the folder is named for, is one line and exit 2."""
+    if folder is None:
+        return None
+    from .. import keys
+    try:
+        return keys.check(folder, folder.resolve().name)
+    except keys.KeysError as exc:
+        raise UsageError(f'{cmd}: {exc}') from None

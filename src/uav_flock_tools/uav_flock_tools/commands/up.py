@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from .options import (AGENTS_PER_PROCESS_HELP, UsageError, add_scenario_options, add_view_option,
-                      auto_agents_per_process, check_failure, default_out, domain_id, floor_note, non_negative_int,
+                      auto_agents_per_process, check_failure, default_out, domain_id, floor_note, host_keys, non_negative_int,
                       positive_float, positive_int, run_folder, serve_port)
 
 SUMMARY = 'run a scenario distributed: world_sim and the MAPs as agent processes'
@@ -31,6 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--replace', action='store_true', help='replace the earlier run in --out (refused otherwise)')
     p.add_argument('--listen', metavar='ADDRESS', help='an IPv4 address of this host where agents of other hosts '
                    'join (the discovery server listens there; see `agents --join`)')
+    p.add_argument('--secure', type=Path, metavar='KEYS/HOST',
+                   help='with --listen: this host\'s folder of `uav-flock keys`; every participant of the run on TCP '
+                        'with TLS, peers verified against the run\'s CA (docs/multihost.md)')
     add_view_option(p)
     p.add_argument('--agents-here', type=non_negative_int, metavar='N',
                    help='with --listen: run MAPs 0..N-1 here and wait for the others to join (default: all here)')
@@ -51,6 +54,9 @@ def handle(args: argparse.Namespace) -> int:
         raise UsageError(f'{cmd}: --rate sets the pace of --sync realtime; lockstep runs as fast as it can')
     if args.listen is not None:
         listen_address(args.listen)
+    keys = host_keys(cmd, args.secure)
+    if keys is not None and args.listen is None:
+        raise UsageError(f'{cmd}: --secure keeps strangers out of a run over several hosts: give --listen ADDRESS too')
     if args.agents_here is not None and args.listen is None:
         raise UsageError(f'{cmd}: --agents-here leaves MAPs to agents of other hosts: give --listen ADDRESS for them')
     if args.agents_here is not None and args.agents_here > s.maps:
@@ -61,7 +67,8 @@ def handle(args: argparse.Namespace) -> int:
     out = run_folder(Path(args.out) if args.out else default_out(cmd), f'{cmd}: --out', args.replace)
     try:
         code = launcher.up(path.resolve(), s, out.resolve(), per_process, args.domain_id, args.discovery, args.record,
-                           args.sync, args.rate, args.listen, args.agents_here, floor_note(s, s.maps), args.view)
+                           args.sync, args.rate, args.listen, args.agents_here, floor_note(s, s.maps), args.view,
+                           keys)
     except (FileExistsError, ValueError, domains.DomainInUse) as exc:
         raise UsageError(f'{cmd}: {exc}') from None
     result = simrun.read_run(out, s)

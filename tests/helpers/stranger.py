@@ -1,0 +1,53 @@
+"""A stranger on /map_<id>/state: well-formed states with a false position, for every step up to a bound, until
+SIGTERM; what a rogue host would publish to pull a formation apart.
+
+Usage: python -m helpers.stranger ID STEPS. Prints 'ready' once it publishes, 'published N readers R nodes M' when it
+ends (R: the readers its writer matched; M: the MAP nodes it discovered).
+"""
+from __future__ import annotations
+
+import re
+import sys
+
+import rclpy
+from geometry_msgs.msg import Point, Vector3
+from uav_flock_msgs.msg import AgentState
+
+from helpers.lifecycle import UntilTerm
+from uav_flock_ros.qos import STATE_QOS
+
+
+def lax_profile(member: str, certificate: bool) -> str:
+    """What a stranger would make of a run member's Fast DDS profile (secure.profile, of keys of its own): TLS that
+    checks nothing itself, and no certificate at all unless `certificate`."""
+    member = re.sub(r'<verify_mode>.*?</verify_mode>', '<verify_mode><verify>VERIFY_NONE</verify></verify_mode>', member)
+    member = re.sub(r'<verify_file>.*?</verify_file>', '', member)
+    if not certificate:
+        member = re.sub(r'<(private_key_file|cert_chain_file)>.*?</\1>', '', member)
+    return member
+
+
+def main() -> int:
+    target, steps = int(sys.argv[1]), int(sys.argv[2])
+    running = UntilTerm()
+    node = rclpy.create_node('stranger')
+    pub = node.create_publisher(AgentState, f'/map_{target}/state', STATE_QOS)
+    print('ready', flush=True)
+    n = readers = nodes = 0
+    while running:
+        # Far from every cluster and flying away: a neighbour that believed it would follow it out.
+        pub.publish(AgentState(id=target, step=n % steps, position=Point(x=400.0, y=-300.0, z=20.0),
+                               velocity=Vector3(x=20.0), mode=AgentState.MODE_STATIC, goal=0))
+        n += 1
+        readers = max(readers, pub.get_subscription_count())
+        if n % 100 == 0:  # what discovery brought: the run's nodes, whether or not their readers matched
+            nodes = max(nodes, sum(1 for _, ns in node.get_node_names_and_namespaces() if ns.startswith('/map_')))
+        rclpy.spin_once(node, timeout_sec=0.002)
+    print(f'published {n} readers {readers} nodes {nodes}', flush=True)
+    node.destroy_node()
+    rclpy.shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
