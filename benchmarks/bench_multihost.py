@@ -22,6 +22,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Optional
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'tests'))  # where tests and benchmarks keep helpers
 from helpers import netns  # noqa: E402
@@ -34,7 +35,8 @@ def cli_in(ns: str, args: list[str], out: Path) -> subprocess.Popen[str]:
                             stdout=open(out, 'w'), stderr=subprocess.STDOUT, text=True)
 
 
-def one(count: int, maps: int, duration: float, tmp: Path, tls: bool = False) -> dict[str, float]:
+def one(count: int, maps: int, duration: float, tmp: Path, tls: bool = False,
+        per_process: Optional[int] = None) -> dict[str, float]:
     roles = [f'h{n}' for n in range(count)]
     shares = [maps * (n + 1) // count - maps * n // count for n in range(count)]
     tag = f'{"tls" if tls else "udp"}{count}'
@@ -42,13 +44,14 @@ def one(count: int, maps: int, duration: float, tmp: Path, tls: bool = False) ->
         from uav_flock_tools import keys
         keys.make(tmp / f'{tag}-keys', roles)
 
-    def secure(role: str) -> list[str]:
-        return ['--secure', str(tmp / f'{tag}-keys' / role)] if tls else []
+    def extra(role: str) -> list[str]:  # --agents-per-process and, under tls, --secure
+        packed = ['--agents-per-process', str(per_process)] if per_process else []
+        return packed + (['--secure', str(tmp / f'{tag}-keys' / role)] if tls else [])
 
     with netns.hosts(roles, SUBNET) as names:
         world_out = tmp / f'{tag}-world.out'
         world = cli_in(names['h0'], ['up', '--maps', str(maps), '--duration', str(duration), '--listen', f'{SUBNET}.1',
-                                     '--agents-here', str(shares[0]), '--out', str(tmp / f'{tag}-world'), *secure('h0')],
+                                     '--agents-here', str(shares[0]), '--out', str(tmp / f'{tag}-world'), *extra('h0')],
                        world_out)
         procs = [world]
         if count > 1:
@@ -61,7 +64,7 @@ def one(count: int, maps: int, duration: float, tmp: Path, tls: bool = False) ->
             for n in range(1, count):
                 ids = f'{first}-{first + shares[n] - 1}'
                 procs.append(cli_in(names[f'h{n}'], ['agents', '--join', m.group(1), '--ids', ids,
-                                                     '--out', str(tmp / f'{tag}-h{n}'), *secure(f'h{n}')],
+                                                     '--out', str(tmp / f'{tag}-h{n}'), *extra(f'h{n}')],
                                     tmp / f'{tag}-h{n}.out'))
                 first += shares[n]
         def wire() -> int:
@@ -98,6 +101,8 @@ def main() -> int:
     ap.add_argument('--maps', type=int, default=90, help='MAPs (default: 90)')
     ap.add_argument('--duration', type=float, default=20.0, help='simulated s per run (default: 20)')
     ap.add_argument('--hosts', default='1,2,3', help='host counts to run (default: 1,2,3)')
+    ap.add_argument('--agents-per-process', type=int, metavar='K',
+                    help='K MAPs a process on every host, both transports (default: up\'s and agents\' own choice)')
     ap.add_argument('--transports', default='udp',
                     help='udp (plain DDS), tls (`--secure`: TCP with TLS), or both: udp,tls (default: udp)')
     args = ap.parse_args()
@@ -116,14 +121,15 @@ def main() -> int:
             for count in counts:
                 t0 = time.perf_counter()
                 try:
-                    r = one(count, args.maps, args.duration, Path(tmp), transport == 'tls')
+                    r = one(count, args.maps, args.duration, Path(tmp), transport == 'tls', args.agents_per_process)
                 except netns.NetnsError as exc:
                     print(f'bench_multihost: {exc}', file=sys.stderr)
                     return 2
                 print(f'  {transport}, {count} host(s): {time.perf_counter() - t0:.0f} s', flush=True)
                 rows.append((transport, count, r))
-    print(f'\n{args.maps} MAPs, lockstep, {args.duration:g} s simulated, hosts as network namespaces on one machine; '
-          'udp: plain DDS, UDP only; tls: `--secure`, TCP with TLS only:\n')
+    packed = f'{args.agents_per_process} a process' if args.agents_per_process else 'packed as up and agents choose'
+    print(f'\n{args.maps} MAPs ({packed}), lockstep, {args.duration:g} s simulated, hosts as network namespaces on one '
+          'machine; udp: plain DDS, UDP only; tls: `--secure`, TCP with TLS only:\n')
     print('| transport | hosts | start to first step | steps/s | CPU per MAP-step | bytes per MAP-step |')
     print('|---|---|---|---|---|---|')
     for transport, count, r in rows:

@@ -161,7 +161,7 @@ def test_a_secure_run_over_three_hosts_equals_sim_and_strangers_neither_join_nor
     over TLS that checks nothing itself: one with no certificate, one with a certificate of another run's CA. Neither
     discovers the run nor is discovered, the run equals `sim` byte for byte, and no topic or type name passes in
     clear."""
-    from helpers.stranger import lax_profile
+    from helpers.rogue import lax_profile
     from uav_flock_tools import keys, secure
     keys.make(tmp_path / 'keys', HOSTS)
     keys.make(tmp_path / 'other', ['otherca'])
@@ -177,7 +177,7 @@ def test_a_secure_run_over_three_hosts_equals_sim_and_strangers_neither_join_nor
                 member = secure.profile(keys.check(tmp_path / 'other' / 'otherca'), 'client', (host, int(port)))
                 for who in STRANGERS:
                     (tmp_path / f'{who}.xml').write_text(lax_profile(member, certificate=who == 'otherca'))
-                strangers = [helper_in_ns(hosts[who], 'stranger', '5', '61', env={
+                strangers = [helper_in_ns(hosts[who], 'rogue', '5', '61', env={
                     **ros_env, 'ROS_DOMAIN_ID': domain, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET',
                     'FASTRTPS_DEFAULT_PROFILES_FILE': str(tmp_path / f'{who}.xml')}) for who in STRANGERS]
                 assert world.wait(timeout=300) == 0, (tmp_path / 'world.out').read_text()

@@ -9,7 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from helpers.stranger import lax_profile
+from helpers.rogue import lax_profile
 from uav_flock_tools import keys, secure
 
 TALKER = '''

@@ -37,7 +37,8 @@ def handle(args: argparse.Namespace) -> int:
     out = run_folder(Path(args.out) if args.out else default_out('agents'), 'agents: --out', args.replace)
     try:
         return join.join(args.join, args.ids, out.resolve(),
-                         args.agents_per_process or auto_agents_per_process(len(args.ids)), args.timeout, keys)
+                         args.agents_per_process or auto_agents_per_process(len(args.ids), secure=keys is not None),
+                         args.timeout, keys)
     except join.JoinError as exc:
         shutil.rmtree(out / secure.FOLDER, ignore_errors=True)  # nothing joined: leave nothing behind
         if out.is_dir() and not any(out.iterdir()):

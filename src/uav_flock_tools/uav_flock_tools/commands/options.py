@@ -245,15 +245,23 @@ def add_view_option(p: argparse.ArgumentParser) -> None:
 
 PROCESSES_PER_CORE = 4  # agent processes per core when packing is left to `up` (docs/benchmarks.md)
 
-def auto_agents_per_process(maps: int, cores: Optional[int] = None) -> int:
-    """About four agent processes per core, the MAPs shared among them: 12 a process for 90 MAPs on 2 cores.
+# Under --secure (TCP with TLS), no more MAPs than this in one process: 90 MAPs at 12 a process stalled at step 0 in 7
+# of 7 starts on one host, their agents never told of their neighbours' writers; at 4 a process they ran
+# (docs/multihost.md).
+SECURE_AGENTS_PER_PROCESS = 4
+
+
+def auto_agents_per_process(maps: int, cores: Optional[int] = None, secure: bool = False) -> int:
+    """About four agent processes per core, the MAPs shared among them: 12 a process for 90 MAPs on 2 cores;
+    under --secure at most SECURE_AGENTS_PER_PROCESS.
 
     One process per MAP costs 2.1 times the CPU per MAP-step of ten per process (docs/benchmarks.md), and
     90 of them spend their first minute in discovery.
     """
     import math
     import os
-    return max(1, math.ceil(maps / (PROCESSES_PER_CORE * (cores or os.cpu_count() or 1))))
+    k = max(1, math.ceil(maps / (PROCESSES_PER_CORE * (cores or os.cpu_count() or 1))))
+    return min(k, SECURE_AGENTS_PER_PROCESS) if secure else k
 
 
 AGENTS_PER_PROCESS_HELP = (f'K MAPs\' agent nodes in each process (default: about {PROCESSES_PER_CORE} processes per core, '

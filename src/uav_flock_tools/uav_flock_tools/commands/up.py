@@ -63,7 +63,7 @@ def handle(args: argparse.Namespace) -> int:
         raise UsageError(f'{cmd}: --agents-here {args.agents_here}: the run has {s.maps} MAPs')
     if args.view is not None:
         serve_port(cmd, '--view', args.view)
-    per_process = args.agents_per_process or auto_agents_per_process(s.maps)
+    per_process = args.agents_per_process or auto_agents_per_process(s.maps, secure=keys is not None)
     out = run_folder(Path(args.out) if args.out else default_out(cmd), f'{cmd}: --out', args.replace)
     try:
         code = launcher.up(path.resolve(), s, out.resolve(), per_process, args.domain_id, args.discovery, args.record,
