@@ -29,11 +29,17 @@ def handle(args: argparse.Namespace) -> int:
         ns.__dict__.update(maps=None if args.maps is None else [args.maps],
                            seed=None if args.seed is None else [args.seed], pictures=None)
         return sim.handle(ns)
-    ns.__dict__.update(agents_per_process=None, domain_id=None, discovery='auto', record=True, sync='lockstep',
-                       rate=1.0, listen=None, agents_here=None, view=args.view)
+    ns = up_options(ns, record=True, view=args.view)
     code = up.handle(ns)
     bag_path = Path(ns.out) / 'bag'
     if (bag_path / 'metadata.yaml').exists():
         code = report.handle(argparse.Namespace(bag=str(bag_path), out=None, replace=True)) or code
     return code
 
+
+def up_options(ns: argparse.Namespace, **chosen: object) -> argparse.Namespace:
+    """`up`'s options as its parser's defaults, then run's own (ns) and the chosen: an option `up` gains later is
+    there with its default, where a hand-made list missed `--secure` and made `run` a traceback."""
+    parser = argparse.ArgumentParser()
+    up.add_arguments(parser)
+    return argparse.Namespace(**{**vars(parser.parse_args([])), **vars(ns), **chosen})
