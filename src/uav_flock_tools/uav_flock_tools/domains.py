@@ -51,8 +51,10 @@ def start_discovery_server(address: str, env: dict[str, str], log: Path,
                            profile: Optional[Path] = None) -> subprocess.Popen:
     """The Fast DDS discovery server the wheels ship, on address (host:port, UDP), in its own session; or as
     the XML profile says (secure.profile: TCP with TLS)."""
+    from .secure import environment
     host, port = address.rsplit(':', 1)
     args = ['-x', str(profile)] if profile is not None else ['-i', '0', '-l', host, '-p', port]
+    env = environment(env, profile)
     with open(log, 'w') as out:
         return subprocess.Popen(['fast-discovery-server', *args],
                                 env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,

@@ -89,12 +89,9 @@ def join(address: str, ids: list[int], out: Path, agents_per_process: int, timeo
          keys: Optional[HostKeys] = None) -> int:
     """Fetch the run, start its agents `ids` here, and wait until they end (with the run, or on Ctrl-C).
     With keys, over TCP with TLS as the run's `up --secure` (secure.py)."""
-    host, domain = parse_address(address)
-    env = ros_env(domain, address)
-    if keys is not None:
-        port = int(address.rpartition(':')[2])
-        profiles = secure.write_profiles(keys, (host, port), out / secure.FOLDER, ('client', 'super_client'))
-        env = secure.environment(env, profiles['client'])
+    _, domain = parse_address(address)
+    secured = secure.for_run(keys, address, out) if keys is not None else None
+    env = secure.role_env(ros_env(domain, address), out, keys, 'client')
     info = fetch_run_info(address, env, timeout, keys is not None)
     check_ids(ids, info)
     out.mkdir(parents=True, exist_ok=True)
@@ -104,8 +101,7 @@ def join(address: str, ids: list[int], out: Path, agents_per_process: int, timeo
     params = write_params(out / 'agent_params.yaml', {**info['agent_params'], **here})  # type: ignore[dict-item]
     (out / 'run.json').write_text(json.dumps({
         'domain_id': domain, 'discovery_server': address, 'join': address, 'maps': info['maps'], 'ids': ids,
-        'secure': None if keys is None else {'ca': keys.ca_fingerprint,
-                                             'super_client': str(out / secure.FOLDER / 'super_client.xml')}}, indent=1))
+        'secure': secured}, indent=1))
     logs = out / 'logs'
     logs.mkdir(exist_ok=True)
     groups = [ids[k:k + agents_per_process] for k in range(0, len(ids), agents_per_process)]

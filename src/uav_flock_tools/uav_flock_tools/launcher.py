@@ -22,7 +22,6 @@ from world_sim.core.scenario import Scenario
 from . import bag, secure, viewer
 from .cleanup import clean_shared_memory
 from .domains import DomainClaim, claim_domain, discovery_server_address, ros_env, start_discovery_server
-from .keys import HostKeys
 from .spawn import (GRACE_S, ForkedAgent, describe_exit, dies_with_parent, executable, relay_log,
                     start_agents, stop, write_pid_table)
 
@@ -58,7 +57,7 @@ class Plan:
     groups: list[list[int]]   # MAP ids per agent process on this host
     remote: list[int]         # MAP ids whose agents join from other hosts (`agents --join`)
     view: Optional[int] = None  # the live view's port (viewer.py), None: no live view
-    secure: Optional[HostKeys] = None  # this host's keys: every participant on TCP with TLS (secure.py)
+    secure: Optional[secure.HostKeys] = None  # this host's keys: every participant on TCP with TLS (secure.py)
 
     @property
     def bag_path(self) -> Path:
@@ -68,22 +67,17 @@ class Plan:
     def logs(self) -> Path:
         return self.run / 'logs'
 
-    def profile(self, role: str) -> Optional[Path]:
-        """A secured run's XML profile for a participant of that role (secure.ROLES), None if not secured."""
-        return self.run / secure.FOLDER / f'{role}.xml' if self.secure is not None else None
-
     @property
     def super_env(self) -> dict[str, str]:
-        """For the recorder and the live view: with a discovery server, a plain client hears only of the topics
-        it already uses, and these find theirs in the graph, so they are super-clients."""
-        if self.secure is not None:
-            return secure.environment(self.env, self.profile('super_client'))
-        return {**self.env, 'ROS_SUPER_CLIENT': 'TRUE'} if self.server_address else self.env
+        """The recorder's and the live view's: they find their topics in the graph, which only a super-client hears
+        of whole when there is a discovery server."""
+        return secure.role_env(self.env, self.run, self.secure, 'super_client') if self.secure is not None else \
+            {**self.env, 'ROS_SUPER_CLIENT': 'TRUE'} if self.server_address else self.env
 
 
 def plan(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: int, domain_id: Optional[int],
          discovery: str, record: bool, sync: str, rate: float, listen: Optional[str] = None,
-         agents_here: Optional[int] = None, view: Optional[int] = None, keys: Optional[HostKeys] = None) -> Plan:
+         agents_here: Optional[int] = None, view: Optional[int] = None, keys: Optional[secure.HostKeys] = None) -> Plan:
     """Stage 1: decide the run (and claim its ROS_DOMAIN_ID, held until every process of it has ended).
 
     With listen (an address of this host that the others reach), the discovery server listens there and
@@ -103,9 +97,7 @@ def plan(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process:
     timeout = max(START_TIMEOUT_MIN_S, START_TIMEOUT_PER_PROCESS_S * processes)
     if listen is not None:  # time for someone to start the agents on the other hosts
         timeout = max(timeout, JOIN_TIMEOUT_S)
-    env = ros_env(claim.domain, server_address, discovery_range)
-    if keys is not None:
-        env = secure.environment(env, run / secure.FOLDER / 'client.xml')
+    env = secure.role_env(ros_env(claim.domain, server_address, discovery_range), run, keys, 'client')
     return Plan(scenario_path, scenario, run, agents_per_process, record, sync, rate, claim, server_address,
                 discovery_range, env, timeout, groups, list(range(here, scenario.maps)), view, keys)
 
@@ -139,13 +131,9 @@ class Run:
         if p.sync == 'realtime' and not s.links.perfect:  # each MAP writes which states the channel lost
             agent_params['links_log'] = str(p.run / LINKS_LOG_DIR)
         params = write_params(p.run / 'agent_params.yaml', {**agent_params, 'crash_dir': str(p.run / CRASH_DIR)})
-        if p.secure is not None:
-            host, port = p.server_address.rsplit(':', 1)  # type: ignore[union-attr]
-            secure.write_profiles(p.secure, (host, int(port)), p.run / secure.FOLDER)
         self.info = {'domain_id': p.claim.domain, 'discovery_server': p.server_address,
                      'discovery_range': None if p.server_address else p.discovery_range,
-                     'secure': None if p.secure is None else {'ca': p.secure.ca_fingerprint,
-                                                               'super_client': str(p.profile('super_client'))},
+                     'secure': secure.for_run(p.secure, p.server_address, p.run) if p.secure is not None else None,
                      'scenario': str(p.scenario_path), 'maps': s.maps, 'seed': s.seed,
                      'agents_per_process': p.agents_per_process, 'sync': p.sync,
                      'rate': p.rate if p.sync == 'realtime' else None,
@@ -163,8 +151,7 @@ class Run:
               f'discovery {"server " + p.server_address if p.server_address else p.discovery_range}, '
               f'run folder {p.run}', flush=True)
         if p.secure is not None:
-            print(f'uav-flock up: secured: TCP with TLS only, peers verified against the CA of {p.secure.folder} '
-                  f'(SHA-256 {p.secure.ca_fingerprint[:23]}...)', flush=True)
+            print(f'uav-flock up: {secure.banner(p.secure)}', flush=True)
         if p.remote:
             print(f'uav-flock up: MAPs {p.remote[0]}-{p.remote[-1]} join from other hosts: ./uav-flock agents '
                   f'--join {p.server_address} --ids {p.remote[0]}-{p.remote[-1]} (waiting {p.start_timeout:.0f} s)',
@@ -192,8 +179,8 @@ class Run:
         p, s = self.p, self.p.scenario
         self.starting = True
         if p.server_address:
-            self.server = start_discovery_server(p.server_address, secure.environment(p.env, p.profile('server')),
-                                                 p.logs / 'discovery_server.log', p.profile('server'))
+            self.server = start_discovery_server(p.server_address, p.env, p.logs / 'discovery_server.log',
+                                                 secure.role_profile(p.run, p.secure, 'server'))
             self.info['discovery_server_pid'] = self.server.pid
         self.raise_if_interrupted()
         if p.record:
@@ -202,17 +189,15 @@ class Run:
                 'scenario_json': json.dumps({**bag.scenario_summary(p.scenario_path, s), 'sync': p.sync})})
             self.recorder = subprocess.Popen(
                 [executable('uav_flock_tools', 'uav_flock_recorder'), '--ros-args', '--params-file', str(rec_params)],
-                env=p.super_env,
-                stdout=open(p.logs / 'recorder.log', 'w'), stderr=subprocess.STDOUT, start_new_session=True,
-                preexec_fn=dies_with_parent(signal.SIGINT))
+                env=p.super_env, stdout=open(p.logs / 'recorder.log', 'w'), stderr=subprocess.STDOUT,
+                start_new_session=True, preexec_fn=dies_with_parent(signal.SIGINT))
             self.raise_if_interrupted()
         if p.view is not None:
             self.viewer = subprocess.Popen(
                 [executable('uav_flock_tools', 'uav_flock_viewer'), '--ros-args', '-p', f'maps:={s.maps}',
                  '-p', f'r:={float(s.flock.r)}', '-p', f'port:={p.view}'],
-                env=p.super_env,
-                stdout=open(p.logs / 'viewer.log', 'w'), stderr=subprocess.STDOUT, start_new_session=True,
-                preexec_fn=dies_with_parent(signal.SIGINT))
+                env=p.super_env, stdout=open(p.logs / 'viewer.log', 'w'), stderr=subprocess.STDOUT,
+                start_new_session=True, preexec_fn=dies_with_parent(signal.SIGINT))
             threading.Thread(target=viewer.announce, daemon=True,
                              args=(self.viewer, p.view, p.logs / 'viewer.log', lambda: self.stopping)).start()
             self.raise_if_interrupted()
@@ -289,7 +274,7 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
        domain_id: Optional[int] = None, discovery: str = 'auto', record: bool = False,
        sync: str = 'lockstep', rate: float = 1.0, listen: Optional[str] = None,
        agents_here: Optional[int] = None, note: Optional[str] = None,
-       view: Optional[int] = None, keys: Optional[HostKeys] = None) -> int:
+       view: Optional[int] = None, keys: Optional[secure.HostKeys] = None) -> int:
     """Run the scenario distributed, in stages; returns the exit code (the records are in the run folder).
     A note (e.g. too few MAPs for the layout) goes to stderr once the run is planned and its files written."""
     r = Run(plan(scenario_path, scenario, run, agents_per_process, domain_id, discovery, record, sync, rate,

@@ -134,3 +134,27 @@ def environment(env: dict[str, str], profile_file: Optional[Path]) -> dict[str, 
     for key in ('FASTDDS_BUILTIN_TRANSPORTS', 'ROS_DISCOVERY_SERVER', 'ROS_STATIC_PEERS', 'ROS_SUPER_CLIENT'):
         out.pop(key, None)
     return out
+
+
+def role_profile(run: Path, keys: Optional[HostKeys], role: str) -> Optional[Path]:
+    """The profile of a participant of that role (ROLES) in a run's folder, None if the run is not secured."""
+    return run / FOLDER / f'{role}.xml' if keys is not None else None
+
+
+def role_env(env: dict[str, str], run: Path, keys: Optional[HostKeys], role: str) -> dict[str, str]:
+    """The environment of a participant of that role in a run (env as it is if the run is not secured)."""
+    return environment(env, role_profile(run, keys, role))
+
+
+def for_run(keys: HostKeys, server_address: str, run: Path) -> dict[str, str]:
+    """A secured run's profiles, written into its folder; what its run.json says of them (`echo --run` takes the
+    super-client's)."""
+    host, port = server_address.rsplit(':', 1)
+    write_profiles(keys, (host, int(port)), run / FOLDER)
+    return {'ca': keys.ca_fingerprint, 'super_client': str(run / FOLDER / 'super_client.xml')}
+
+
+def banner(keys: HostKeys) -> str:
+    """What `up` says of a secured run: the transport, and the CA by folder and fingerprint."""
+    return (f'secured: TCP with TLS only, peers verified against the CA of {keys.folder} '
+            f'(SHA-256 {keys.ca_fingerprint[:23]}...)')
