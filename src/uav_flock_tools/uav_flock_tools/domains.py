@@ -42,6 +42,14 @@ def ros_env(domain_id: int, discovery_server: Optional[str] = None, discovery_ra
     return env
 
 
+def adopt(env: dict[str, str]) -> None:
+    """This process's own environment made exactly env, for the participants it creates: a key env lacks goes
+    too (ROS_DISCOVERY_SERVER from the user's shell would otherwise outlive a secured run's profile)."""
+    for key in set(os.environ) - set(env):
+        del os.environ[key]
+    os.environ.update(env)
+
+
 def discovery_server_address(domain_id: int, host: str = '127.0.0.1') -> str:
     """One port per domain, so that runs in different domains each have their own server."""
     return f'{host}:{DISCOVERY_BASE_PORT + domain_id}'

@@ -38,8 +38,9 @@ def use_domain(run: Optional[str], domain_id: Optional[int]) -> None:
         meta = json.loads(info.read_text())
         domain_id = int(meta['domain_id'])
         if meta.get('secure'):  # a super client of the run over TLS, with this host's keys
+            from .domains import adopt
             from .secure import environment
-            os.environ.update(environment(dict(os.environ), Path(meta['secure']['super_client'])))
+            adopt(environment(dict(os.environ), Path(meta['secure']['super_client'])))
         elif meta.get('discovery_server'):  # a super client sees every endpoint the server knows
             os.environ.update(ROS_DISCOVERY_SERVER=meta['discovery_server'], ROS_SUPER_CLIENT='TRUE')
         elif meta.get('discovery_range'):

@@ -9,7 +9,6 @@ folder holds its own logs, parameters and pids.json, so `kill --run FOLDER` work
 from __future__ import annotations
 
 import json
-import os
 import signal
 import time
 from pathlib import Path
@@ -18,7 +17,7 @@ from typing import Optional
 from uav_flock_ros.processes import CRASH_DIR, LINKS_LOG_DIR, write_params
 
 from . import secure
-from .domains import DISCOVERY_BASE_PORT, ros_env
+from .domains import DISCOVERY_BASE_PORT, adopt, ros_env
 from .keys import HostKeys
 from .spawn import ForkedAgent, start_agents, stop, write_pid_table
 
@@ -43,7 +42,7 @@ def parse_address(text: str) -> tuple[str, int]:
 def fetch_run_info(address: str, env: dict[str, str], timeout: float, tls: bool = False) -> dict[str, object]:
     """The run's /run_info, read through its discovery server (env: the run's); JoinError if nothing answers
     in time."""
-    os.environ.update(env)
+    adopt(env)
     import rclpy
     import rclpy.executors
     from rclpy.signals import SignalHandlerOptions
