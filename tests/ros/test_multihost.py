@@ -64,6 +64,18 @@ def wait_for(path: Path, pattern: str, proc: subprocess.Popen[str], timeout: flo
     raise AssertionError(f'no {pattern!r} within {timeout:g} s:\n{path.read_text()}')
 
 
+def ended(proc: subprocess.Popen[str], timeout: float, folder: Path) -> int:
+    """proc's exit code; past the timeout, a failure showing the last lines of the terminal outputs and logs
+    in folder (which MAPs a stalled step waits for, and on what)."""
+    try:
+        return proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        logs = sorted(folder.glob('*.out')) + sorted(folder.glob('*/logs/*.log'))
+        tails = '\n'.join(f'--- {p.relative_to(folder)}\n' + '\n'.join(p.read_text(errors='replace').splitlines()[-8:])
+                          for p in logs)
+        pytest.fail(f'{proc.args[:8]}... still running after {timeout:.0f} s\n{tails}')
+
+
 def small_scenario(paper_scenario_path: str, out: Path) -> Path:
     """Two small clusters that 8 MAPs cover whole: what the formation must recover after losing 4 of 12."""
     doc: dict[str, Any] = yaml.safe_load(Path(paper_scenario_path).read_text())
@@ -180,9 +192,9 @@ def test_a_secure_run_over_three_hosts_equals_sim_and_strangers_neither_join_nor
                 strangers = [helper_in_ns(hosts[who], 'rogue', '5', '61', env={
                     **ros_env, 'ROS_DOMAIN_ID': domain, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET',
                     'FASTRTPS_DEFAULT_PROFILES_FILE': str(tmp_path / f'{who}.xml')}) for who in STRANGERS]
-                assert world.wait(timeout=300) == 0, (tmp_path / 'world.out').read_text()
+                assert ended(world, 300, tmp_path) == 0, (tmp_path / 'world.out').read_text()
                 for role, p in zip('ab', joined):
-                    assert p.wait(timeout=60) == 0, (tmp_path / f'{role}.out').read_text()
+                    assert ended(p, 60, tmp_path) == 0, (tmp_path / f'{role}.out').read_text()
             finally:
                 end([world, *joined])
                 for p in strangers:

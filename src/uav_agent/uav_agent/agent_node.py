@@ -20,7 +20,9 @@ from typing import Optional
 
 import numpy as np
 import rclpy
+from rclpy.context import Context
 from rclpy.duration import Duration
+from rclpy.executors import Executor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
@@ -55,18 +57,27 @@ RESUBSCRIBE_AFTER_FIRST_S = 20.0
 # executor is not told of some samples that reach readers made in a burst (hundreds at once as MAPs
 # spread); they would otherwise sit there until the 1 s watch found them.
 SWEEP_PERIOD_S = 0.25
+# lockstep, step 0: a process whose MAP has heard nothing this long of a neighbour whose writer is matched, after
+# its readers were made anew, makes its DDS participant anew (AgentProcess.renew), at most this many times. Fast
+# DDS 2.14's TCP transport (`--secure`) can leave a connection between two participants open with a logical
+# port that failed its negotiation and is never asked for again: both ends matched, no sample ever crosses
+# (seen in 1 of 8 starts of 30 MAPs at 2 a process). Nothing of a run is held before step 0, so a new
+# participant loses nothing, and it opens new connections.
+RENEW_AFTER_S = 30.0
+RENEW_TIMES = 3
+RENEW_WAIT_S = 30.0  # how long the new nodes may take to have their sensing before the old ones go anyway
 FLUSH_S = 1.0  # at the end, how long the last states and commands may take to be acknowledged by every reader
 
 
 class AgentNode(Node):
     """MAP <id> in namespace /map_<id>."""
 
-    def __init__(self, map_id: int) -> None:
+    def __init__(self, map_id: int, context: Optional[Context] = None) -> None:
         # No parameter or type-description services: they are 7 readers and 7 writers more per MAP, and Fast
         # DDS pairs every new neighbour reader with every writer it knows. 200 MAPs in one process made 4
         # steps in 5 minutes with them and 50 steps in 4 minutes without (docs/benchmarks.md). Parameters
         # still come from the YAML file; `agent_params.yaml` in the run folder holds them.
-        super().__init__('agent', namespace=f'map_{map_id}', start_parameter_services=False,
+        super().__init__('agent', namespace=f'map_{map_id}', context=context, start_parameter_services=False,
                          parameter_overrides=[Parameter('start_type_description_service', value=False)])
         self.map_id = map_id
         defaults = FlockParams()
@@ -104,6 +115,7 @@ class AgentNode(Node):
         self.last_cmd: Optional[tuple[int, Command]] = None  # (step, message), said again on a repeat
         self.failed = False  # this MAP failed by the schedule (its process lives on for other MAPs)
         self.resubscribed = (-1, 0)  # (step, times its silent neighbours' readers were made anew)
+        self.silent_writers = False  # a neighbour the pending step waits for has a matched writer, unheard
 
         self.state_pub = self.create_publisher(AgentState, 'state', STATE_QOS)
         self.cmd_pub = self.create_publisher(Command, 'cmd', STEP_QOS)
@@ -378,8 +390,11 @@ class AgentNode(Node):
                 self.get_logger().info(f'step {self.pending.step}: waiting {silent:.0f} s for neighbours '
                                           f'(id: last step heard) {missing}, (id: writers matched, listed) '
                                           f'{matched}, clusters known: {self.clusters is not None}')
+            self.silent_writers = any(m > 0 for m, _ in matched.values())
             if not self.realtime:
                 self.recover(silent, {j: m for j, (m, listed) in matched.items() if m > 0 or listed > 0})
+        else:
+            self.silent_writers = False
         world_listed = self.count_publishers(f'/map_{self.map_id}/sensing') > 0
         self.world_seen = self.world_seen or world_listed
         if not self.world_seen and silent > self.world_start_timeout:
@@ -412,6 +427,12 @@ class AgentNode(Node):
                 self.subscribe(j)
             self.get_logger().info(f'step {self.pending.step}: subscribed anew to the states of '
                                       f'{list(silent_writers)}')
+
+    def stuck_at_start(self) -> bool:
+        """Step 0 waits, RENEW_AFTER_S after its sensing, on a neighbour whose writer is matched but unheard,
+        its readers made anew already: the connection between the two participants carries nothing."""
+        return (not self.realtime and self.step == 0 and self.pending is not None and self.silent_writers
+                and self.resubscribed[0] == 0 and time.monotonic() - self.sensed_at > RENEW_AFTER_S)
 
     def take_waiting_of(self, j: int) -> int:
         """Take what sits in neighbour j's reader, as the executor itself would (rclpy's own take call)."""
@@ -468,48 +489,93 @@ class CrashRequests:
         return [n for n in nodes if n.crash_dir and (Path(n.crash_dir) / str(n.map_id)).exists()]
 
 
-def main(argv: Optional[list[str]] = None) -> int:
-    argv = sys.argv if argv is None else argv
-    ids = parse_ids(rclpy.utilities.remove_ros_args(argv)[1:])
-    crashes = CrashRequests()  # before the nodes exist: a request that comes early waits for the loop
-    # No rclpy signal handlers: theirs shut the context down under a running callback, whose publish then
-    # fails and is logged as a fatal callback error. The loop ends on the flag instead, between callbacks.
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    stop = StopSignals()
-    executor = make_executor()
-    try:
-        nodes = [AgentNode(i) for i in ids]
-    except PARAMETER_ERRORS as exc:  # a bad parameter value: the user's mistake
-        print(f'uav_agent_node: error: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    for n in nodes:
-        executor.add_node(n)
-    try:
-        while nodes and not stop.received and not all(n.stopped for n in nodes):
-            executor.spin_once(timeout_sec=0.5)
-            for n in crashes.take(nodes):
-                n.crash()
-                executor.remove_node(n)
-                n.destroy_node()
-                nodes.remove(n)
-    finally:
+class AgentProcess:
+    """The MAPs of one process on one DDS participant (an rclpy context of their own): made at start, and
+    made anew when a start stalls on a connection that carries nothing (RENEW_AFTER_S)."""
+
+    def __init__(self, ids: list[int], argv: list[str]) -> None:
+        self.argv = argv
+        self.renewed = 0
+        self.context, self.executor, self.nodes = self.make(ids)
+
+    def make(self, ids: list[int]) -> tuple[Context, Executor, list[AgentNode]]:
+        context = Context()
+        # No rclpy signal handlers: theirs shut the context down under a running callback, whose publish then
+        # fails and is logged as a fatal callback error. The loop ends on the flag instead, between callbacks.
+        rclpy.init(args=self.argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
+        try:
+            nodes = [AgentNode(i, context) for i in ids]
+        except BaseException:
+            context.try_shutdown()
+            raise
+        executor = make_executor(context)
+        for n in nodes:
+            executor.add_node(n)
+        return context, executor, nodes
+
+    def stuck(self) -> bool:
+        """Step 0 of a MAP stalls on a silent connection while no MAP of the process is past it."""
+        return (self.renewed < RENEW_TIMES and any(n.stuck_at_start() for n in self.nodes)
+                and all(n.step <= 0 for n in self.nodes))
+
+    def renew(self) -> None:
+        """The same MAPs on a new participant; the old one goes once every new node has its step-0 sensing
+        (so world_sim, which drops a MAP of another host whose sensing no reader matches, never sees none)."""
+        self.renewed += 1
+        old = (self.context, self.executor, self.nodes)
+        old[2][0].get_logger().warning(
+            f'step 0: neighbours matched but unheard {RENEW_AFTER_S:.0f} s: the DDS participant of MAPs '
+            f'{[n.map_id for n in old[2]]} made anew ({self.renewed} of {RENEW_TIMES})')
+        self.context, self.executor, self.nodes = self.make([n.map_id for n in old[2]])
+        deadline = time.monotonic() + RENEW_WAIT_S
+        while time.monotonic() < deadline and any(n.step < 0 for n in self.nodes):
+            self.executor.spin_once(timeout_sec=0.1)
+        old[1].shutdown()
+        for n in old[2]:
+            n.destroy_node()
+        old[0].try_shutdown()
+
+    def close(self) -> None:
         # What the MAPs said last reaches every reader that has not acknowledged it yet (the recorder may be
         # repairing a lost datagram) before the writers go; a reader that died with its MAP is waited for no
         # longer than the budget.
         deadline = time.monotonic() + FLUSH_S
-        for n in nodes:
+        for n in self.nodes:
             for pub in (n.state_pub, n.cmd_pub):
                 pub.wait_for_all_acked(Duration(seconds=max(deadline - time.monotonic(), 0.0)))
         # The executor first: the events executor holds the nodes' entities, and only once they are all
         # released is the DDS participant deleted (with its shared memory), even if this process then ends
         # by os._exit, past the interpreter's teardown.
-        executor.shutdown()
-        for n in nodes:
+        self.executor.shutdown()
+        for n in self.nodes:
             n.summary()
             n.destroy_node()
-        rclpy.try_shutdown()
-    return 1 if any(n.stopped and not n.run_finished for n in nodes) else 0
+        self.context.try_shutdown()
+
+
+def main(argv: Optional[list[str]] = None) -> int:
+    argv = sys.argv if argv is None else argv
+    ids = parse_ids(rclpy.utilities.remove_ros_args(argv)[1:])
+    crashes = CrashRequests()  # before the nodes exist: a request that comes early waits for the loop
+    stop = StopSignals()
+    try:
+        process = AgentProcess(ids, argv)
+    except PARAMETER_ERRORS as exc:  # a bad parameter value: the user's mistake
+        print(f'uav_agent_node: error: {exc}', file=sys.stderr)
+        return 2
+    try:
+        while process.nodes and not stop.received and not all(n.stopped for n in process.nodes):
+            process.executor.spin_once(timeout_sec=0.5)
+            for n in crashes.take(process.nodes):
+                n.crash()
+                process.executor.remove_node(n)
+                n.destroy_node()
+                process.nodes.remove(n)
+            if process.stuck():
+                process.renew()
+    finally:
+        process.close()
+    return 1 if any(n.stopped and not n.run_finished for n in process.nodes) else 0
 
 
 if __name__ == '__main__':

@@ -13,6 +13,7 @@ from types import FrameType
 from typing import Any, Callable, Iterator, Optional, TypeVar
 
 import rclpy
+from rclpy.context import Context
 from rclpy.exceptions import ParameterException
 from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
@@ -59,12 +60,12 @@ def signals_deferred() -> Iterator[None]:
             before[caught[0]](caught[0], None)
 
 
-def make_executor() -> Executor:
+def make_executor(context: Optional[Context] = None) -> Executor:
     try:
         from rclpy.experimental import EventsExecutor
     except ImportError:  # rclpy before Jazzy
-        return SingleThreadedExecutor()
-    return EventsExecutor()
+        return SingleThreadedExecutor(context=context)
+    return EventsExecutor(context=context)
 
 
 def spun_node(program: str, factory: Callable[[], N], user_errors: tuple[type[Exception], ...]
