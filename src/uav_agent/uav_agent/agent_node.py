@@ -10,8 +10,10 @@ its /map_<id>/state for step k. Then, by sync mode:
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
+import threading
 import time
 from dataclasses import fields
 from pathlib import Path
@@ -67,6 +69,10 @@ RENEW_AFTER_S = 30.0
 RENEW_TIMES = 3
 RENEW_WAIT_S = 30.0  # how long the new nodes may take to have their sensing before the old ones go anyway
 FLUSH_S = 1.0  # at the end, how long the last states and commands may take to be acknowledged by every reader
+# At the end, how long the nodes and the participant may take to go before the process leaves without them: a
+# secured run's agents over three hosts once all said the run was finished, and one process of a joining host
+# was still there 60 s later (Fast DDS's TCP teardown), holding `agents --join` that waits for it.
+TEARDOWN_S = 15.0
 
 
 class AgentNode(Node):
@@ -574,8 +580,22 @@ def main(argv: Optional[list[str]] = None) -> int:
             if process.stuck():
                 process.renew()
     finally:
+        code = 1 if any(n.stopped and not n.run_finished for n in process.nodes) else 0
+        leave_after(TEARDOWN_S, code)
         process.close()
-    return 1 if any(n.stopped and not n.run_finished for n in process.nodes) else 0
+    return code
+
+
+def leave_after(seconds: float, code: int) -> None:
+    """End this process with code if it is still here after seconds (a daemon timer; see TEARDOWN_S)."""
+    def leave() -> None:
+        print(f'uav_agent_node: the DDS participant took over {seconds:.0f} s to go: leaving without it', flush=True)
+        sys.stderr.flush()
+        os._exit(code)
+
+    timer = threading.Timer(seconds, leave)
+    timer.daemon = True
+    timer.start()
 
 
 if __name__ == '__main__':
