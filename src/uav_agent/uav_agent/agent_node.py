@@ -66,6 +66,10 @@ SWEEP_PERIOD_S = 0.25
 # (seen in 1 of 8 starts of 30 MAPs at 2 a process). Nothing of a run is held before step 0, so a new
 # participant loses nothing, and it opens new connections.
 RENEW_AFTER_S = 30.0
+# Before any sensing: a process that has not seen world_sim on the graph this long after its nodes were made
+# makes its participant anew too (same limit). A refused handshake with the discovery server left two MAPs'
+# process unknown to the run: 28 of 30 MAPs ready for 150 s (1 of 15 starts of 30 MAPs at 2 a process).
+RENEW_UNSEEN_S = 60.0
 RENEW_TIMES = 3
 RENEW_WAIT_S = 30.0  # how long the new nodes may take to have their sensing before the old ones go anyway
 FLUSH_S = 1.0  # at the end, how long the last states and commands may take to be acknowledged by every reader
@@ -125,7 +129,8 @@ class AgentNode(Node):
 
         self.state_pub = self.create_publisher(AgentState, 'state', STATE_QOS)
         self.cmd_pub = self.create_publisher(Command, 'cmd', STEP_QOS)
-        self.create_subscription(Sensing, 'sensing', self.on_sensing, LATEST_QOS if self.realtime else STEP_QOS)
+        self.sensing_sub = self.create_subscription(Sensing, 'sensing', self.on_sensing,
+                                                    LATEST_QOS if self.realtime else STEP_QOS)
         self.create_subscription(Clusters, '/clusters', self.on_clusters, LATCHED_QOS)
         self.create_subscription(FailureEvent, '/events/failure', self.on_failure, STEP_QOS)
         self.create_subscription(Int64, '/events/finished', self.on_finished, LATCHED_QOS)
@@ -440,6 +445,11 @@ class AgentNode(Node):
         return (not self.realtime and self.step == 0 and self.pending is not None and self.silent_writers
                 and self.resubscribed[0] == 0 and time.monotonic() - self.sensed_at > RENEW_AFTER_S)
 
+    def unseen_at_start(self) -> bool:
+        """No sensing yet, and no world_sim on the graph RENEW_UNSEEN_S after this node was made: this
+        participant is cut off from discovery."""
+        return self.step < 0 and not self.world_seen and time.monotonic() - self.sensed_at > RENEW_UNSEEN_S
+
     def take_waiting_of(self, j: int) -> int:
         """Take what sits in neighbour j's reader, as the executor itself would (rclpy's own take call)."""
         def handle(msg: AgentState) -> bool:
@@ -520,21 +530,25 @@ class AgentProcess:
         return context, executor, nodes
 
     def stuck(self) -> bool:
-        """Step 0 of a MAP stalls on a silent connection while no MAP of the process is past it."""
-        return (self.renewed < RENEW_TIMES and any(n.stuck_at_start() for n in self.nodes)
-                and all(n.step <= 0 for n in self.nodes))
+        """Step 0 of a MAP stalls on a silent connection, or no MAP has seen the world yet, while no MAP of
+        the process is past step 0."""
+        return (self.renewed < RENEW_TIMES and all(n.step <= 0 for n in self.nodes)
+                and any(n.stuck_at_start() or n.unseen_at_start() for n in self.nodes))
 
     def renew(self) -> None:
-        """The same MAPs on a new participant; the old one goes once every new node has its step-0 sensing
-        (so world_sim, which drops a MAP of another host whose sensing no reader matches, never sees none)."""
+        """The same MAPs on a new participant; the old one goes once every new node hears world_sim's sensing
+        writer (so world_sim, which drops a MAP of another host whose sensing no reader matches, never sees
+        none), or RENEW_WAIT_S on."""
         self.renewed += 1
         old = (self.context, self.executor, self.nodes)
-        old[2][0].get_logger().warning(
-            f'step 0: neighbours matched but unheard {RENEW_AFTER_S:.0f} s: the DDS participant of MAPs '
-            f'{[n.map_id for n in old[2]]} made anew ({self.renewed} of {RENEW_TIMES})')
+        why = (f'step 0: neighbours matched but unheard {RENEW_AFTER_S:.0f} s' if any(n.stuck_at_start() for n in old[2])
+               else f'start: no world_sim seen in {RENEW_UNSEEN_S:.0f} s')
+        old[2][0].get_logger().warning(f'{why}: the DDS participant of MAPs {[n.map_id for n in old[2]]} made anew '
+                                       f'({self.renewed} of {RENEW_TIMES})')
         self.context, self.executor, self.nodes = self.make([n.map_id for n in old[2]])
         deadline = time.monotonic() + RENEW_WAIT_S
-        while time.monotonic() < deadline and any(n.step < 0 for n in self.nodes):
+        while time.monotonic() < deadline and any(n.step < 0 and n.sensing_sub.get_publisher_count() == 0
+                                                  for n in self.nodes):
             self.executor.spin_once(timeout_sec=0.1)
         old[1].shutdown()
         for n in old[2]:
