@@ -76,11 +76,13 @@ def agent(ids: str, env: dict[str, str], *ros_args: str) -> subprocess.Popen[str
 
 
 def test_agents_wait_for_a_world_that_comes_late(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    """Agents started by hand before world_sim wait for it (many processes on few cores start slowly).
+    """Agents started by hand before world_sim wait for it (many processes on few cores start slowly), making
+    their DDS participant anew while they have not seen it (renew_unseen, here 3 s: three times, the most), and
+    the participant they end with flies the run.
 
     The world is started the plain ROS way, without a scenario parameter: it runs the shipped paper scenario.
     """
-    waiting = agent('0,1', ros_env)
+    waiting = agent('0,1', ros_env, '-p', 'renew_unseen:=3.0')
     impatient = agent('5', {**ros_env, 'ROS_DOMAIN_ID': str((int(ros_env['ROS_DOMAIN_ID']) + 50) % 101 + 1)},
                       '-p', 'world_start_timeout:=2.0')
     try:
@@ -98,6 +100,9 @@ def test_agents_wait_for_a_world_that_comes_late(tmp_path: Path, ros_env: dict[s
         said, _ = waiting.communicate(timeout=30)
         assert waiting.returncode == 0 and 'world_sim finished the run after 10 steps' in said, said
         assert '[ERROR]' not in said, said
+        renewals = re.findall(r'no world_sim seen in 3 s: the DDS participant of MAPs \[0, 1\] made anew \((\d) of 3\)',
+                              said)
+        assert renewals == ['1', '2', '3'], said
     finally:
         for p in (waiting, impatient):
             if p.poll() is None:

@@ -18,7 +18,7 @@ import time
 from dataclasses import fields
 from pathlib import Path
 from types import FrameType
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 import rclpy
@@ -66,10 +66,10 @@ SWEEP_PERIOD_S = 0.25
 # (seen in 1 of 8 starts of 30 MAPs at 2 a process). Nothing of a run is held before step 0, so a new
 # participant loses nothing, and it opens new connections.
 RENEW_AFTER_S = 30.0
-# Before any sensing: a process that has not seen world_sim on the graph this long after its nodes were made
-# makes its participant anew too (same limit). A refused handshake with the discovery server left two MAPs'
-# process unknown to the run: 28 of 30 MAPs ready for 150 s (1 of 15 starts of 30 MAPs at 2 a process).
-RENEW_UNSEEN_S = 60.0
+# Before any sensing: a process that has not seen world_sim on the graph renew_unseen s after its nodes were made
+# (AgentNodeParams) makes its participant anew too (same limit). A refused handshake with the discovery server
+# left two MAPs' process unknown to the run: 28 of 30 MAPs ready for 150 s (1 of 15 starts of 30 MAPs at 2 a
+# process).
 RENEW_TIMES = 3
 RENEW_WAIT_S = 30.0  # how long the new nodes may take to have their sensing before the old ones go anyway
 FLUSH_S = 1.0  # at the end, how long the last states and commands may take to be acknowledged by every reader
@@ -103,6 +103,7 @@ class AgentNode(Node):
         self.hysteresis = float(node.hysteresis)
         self.realtime = is_realtime(str(node.sync))
         self.world_start_timeout = float(node.world_start_timeout)
+        self.renew_unseen = float(node.renew_unseen)
         self.crash_dir = str(node.crash_dir)
         self.channel(str(node.links_log))
         self.world_seen = False
@@ -446,9 +447,10 @@ class AgentNode(Node):
                 and self.resubscribed[0] == 0 and time.monotonic() - self.sensed_at > RENEW_AFTER_S)
 
     def unseen_at_start(self) -> bool:
-        """No sensing yet, and no world_sim on the graph RENEW_UNSEEN_S after this node was made: this
+        """No sensing yet, and no world_sim on the graph renew_unseen s after this node was made: this
         participant is cut off from discovery."""
-        return self.step < 0 and not self.world_seen and time.monotonic() - self.sensed_at > RENEW_UNSEEN_S
+        return (self.renew_unseen > 0 and self.step < 0 and not self.world_seen
+                and time.monotonic() - self.sensed_at > self.renew_unseen)
 
     def take_waiting_of(self, j: int) -> int:
         """Take what sits in neighbour j's reader, as the executor itself would (rclpy's own take call)."""
@@ -535,20 +537,21 @@ class AgentProcess:
         return (self.renewed < RENEW_TIMES and all(n.step <= 0 for n in self.nodes)
                 and any(n.stuck_at_start() or n.unseen_at_start() for n in self.nodes))
 
-    def renew(self) -> None:
+    def renew(self, stopping: Callable[[], bool]) -> None:
         """The same MAPs on a new participant; the old one goes once every new node hears world_sim's sensing
         writer (so world_sim, which drops a MAP of another host whose sensing no reader matches, never sees
-        none), or RENEW_WAIT_S on."""
+        none), or RENEW_WAIT_S on (renew_unseen, if shorter, before any sensing)."""
         self.renewed += 1
         old = (self.context, self.executor, self.nodes)
         why = (f'step 0: neighbours matched but unheard {RENEW_AFTER_S:.0f} s' if any(n.stuck_at_start() for n in old[2])
-               else f'start: no world_sim seen in {RENEW_UNSEEN_S:.0f} s')
+               else f'start: no world_sim seen in {old[2][0].renew_unseen:g} s')
         old[2][0].get_logger().warning(f'{why}: the DDS participant of MAPs {[n.map_id for n in old[2]]} made anew '
                                        f'({self.renewed} of {RENEW_TIMES})')
         self.context, self.executor, self.nodes = self.make([n.map_id for n in old[2]])
-        deadline = time.monotonic() + RENEW_WAIT_S
-        while time.monotonic() < deadline and any(n.step < 0 and n.sensing_sub.get_publisher_count() == 0
-                                                  for n in self.nodes):
+        sensed = any(n.step >= 0 for n in old[2])  # else the world may not be there yet: wait no longer than it was
+        deadline = time.monotonic() + (RENEW_WAIT_S if sensed else min(RENEW_WAIT_S, old[2][0].renew_unseen))
+        while not stopping() and time.monotonic() < deadline and any(
+                n.step < 0 and n.sensing_sub.get_publisher_count() == 0 for n in self.nodes):
             self.executor.spin_once(timeout_sec=0.1)
         old[1].shutdown()
         for n in old[2]:
@@ -592,7 +595,7 @@ def main(argv: Optional[list[str]] = None) -> int:
                 n.destroy_node()
                 process.nodes.remove(n)
             if process.stuck():
-                process.renew()
+                process.renew(lambda: stop.received)
     finally:
         code = 1 if any(n.stopped and not n.run_finished for n in process.nodes) else 0
         leave_after(TEARDOWN_S, code)
