@@ -65,11 +65,10 @@ SWEEP_PERIOD_S = 0.25
 # port that failed its negotiation and is never asked for again: both ends matched, no sample ever crosses
 # (seen in 1 of 8 starts of 30 MAPs at 2 a process). Nothing of a run is held before step 0, so a new
 # participant loses nothing, and it opens new connections.
+# Before any sensing, a process that has not seen world_sim on the graph renew_unseen s after its nodes were made
+# (AgentNodeParams) does so too: a refused handshake with the discovery server left two MAPs' process unknown to
+# the run, 28 of 30 MAPs ready for 150 s (1 of 15 starts of 30 MAPs at 2 a process).
 RENEW_AFTER_S = 30.0
-# Before any sensing: a process that has not seen world_sim on the graph renew_unseen s after its nodes were made
-# (AgentNodeParams) makes its participant anew too (same limit). A refused handshake with the discovery server
-# left two MAPs' process unknown to the run: 28 of 30 MAPs ready for 150 s (1 of 15 starts of 30 MAPs at 2 a
-# process).
 RENEW_TIMES = 3
 RENEW_WAIT_S = 30.0  # how long the new nodes may take to have their sensing before the old ones go anyway
 FLUSH_S = 1.0  # at the end, how long the last states and commands may take to be acknowledged by every reader
@@ -531,32 +530,35 @@ class AgentProcess:
             executor.add_node(n)
         return context, executor, nodes
 
-    def stuck(self) -> bool:
-        """Step 0 of a MAP stalls on a silent connection, or no MAP has seen the world yet, while no MAP of
-        the process is past step 0."""
-        return (self.renewed < RENEW_TIMES and all(n.step <= 0 for n in self.nodes)
-                and any(n.stuck_at_start() or n.unseen_at_start() for n in self.nodes))
+    def stuck(self) -> Optional[str]:
+        """Why the process's start stalls (step 0 of a MAP on a silent connection, or no MAP that has seen the
+        world), while no MAP of the process is past step 0; None if it does not, or after RENEW_TIMES."""
+        if self.renewed >= RENEW_TIMES or any(n.step > 0 for n in self.nodes):
+            return None
+        if any(n.stuck_at_start() for n in self.nodes):
+            return f'step 0: neighbours matched but unheard {RENEW_AFTER_S:.0f} s'
+        if any(n.unseen_at_start() for n in self.nodes):
+            return f'start: no world_sim seen in {self.nodes[0].renew_unseen:g} s'
+        return None
 
-    def renew(self, stopping: Callable[[], bool]) -> None:
+    def renew(self, why: str, stopping: Callable[[], bool]) -> None:
         """The same MAPs on a new participant; the old one goes once every new node hears world_sim's sensing
         writer (so world_sim, which drops a MAP of another host whose sensing no reader matches, never sees
         none), or RENEW_WAIT_S on (renew_unseen, if shorter, before any sensing)."""
         self.renewed += 1
-        old = (self.context, self.executor, self.nodes)
-        why = (f'step 0: neighbours matched but unheard {RENEW_AFTER_S:.0f} s' if any(n.stuck_at_start() for n in old[2])
-               else f'start: no world_sim seen in {old[2][0].renew_unseen:g} s')
-        old[2][0].get_logger().warning(f'{why}: the DDS participant of MAPs {[n.map_id for n in old[2]]} made anew '
-                                       f'({self.renewed} of {RENEW_TIMES})')
-        self.context, self.executor, self.nodes = self.make([n.map_id for n in old[2]])
-        sensed = any(n.step >= 0 for n in old[2])  # else the world may not be there yet: wait no longer than it was
-        deadline = time.monotonic() + (RENEW_WAIT_S if sensed else min(RENEW_WAIT_S, old[2][0].renew_unseen))
+        context, executor, nodes = self.context, self.executor, self.nodes
+        nodes[0].get_logger().warning(f'{why}: the DDS participant of MAPs {[n.map_id for n in nodes]} made anew '
+                                      f'({self.renewed} of {RENEW_TIMES})')
+        self.context, self.executor, self.nodes = self.make([n.map_id for n in nodes])
+        sensed = any(n.step >= 0 for n in nodes)  # else the world may not be there yet: wait no longer than it was
+        deadline = time.monotonic() + (RENEW_WAIT_S if sensed else min(RENEW_WAIT_S, nodes[0].renew_unseen))
         while not stopping() and time.monotonic() < deadline and any(
                 n.step < 0 and n.sensing_sub.get_publisher_count() == 0 for n in self.nodes):
             self.executor.spin_once(timeout_sec=0.1)
-        old[1].shutdown()
-        for n in old[2]:
+        executor.shutdown()
+        for n in nodes:
             n.destroy_node()
-        old[0].try_shutdown()
+        context.try_shutdown()
 
     def close(self) -> None:
         # What the MAPs said last reaches every reader that has not acknowledged it yet (the recorder may be
@@ -594,8 +596,9 @@ def main(argv: Optional[list[str]] = None) -> int:
                 process.executor.remove_node(n)
                 n.destroy_node()
                 process.nodes.remove(n)
-            if process.stuck():
-                process.renew(lambda: stop.received)
+            why = process.stuck()
+            if why:
+                process.renew(why, lambda: stop.received)
     finally:
         code = 1 if any(n.stopped and not n.run_finished for n in process.nodes) else 0
         leave_after(TEARDOWN_S, code)
