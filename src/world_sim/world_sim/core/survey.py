@@ -80,9 +80,12 @@ def separate(xy: NDArray[np.float64], found: NDArray[np.intp], previous: Optiona
     DBSCAN chains two crowds into one once their tails touch, centred on the empty ground between them; the
     tracker then ended one id, and the MAPs re-planned the tree around a cluster that was not there. A
     track is predicted where its velocity takes it in one period; it is held by the found cluster whose
-    centroid is nearest among those whose 95 % radius reaches it. The held cluster's MSDs are split by
-    k-means (scipy's kmeans2, seeded at the predictions; single-threaded, so every process splits alike),
-    unless a part would be smaller than MIN_SIZE. New parts take labels after the found ones.
+    centroid is nearest among those whose 95 % radius plus GATE_MARGIN reaches it (the margin: a split of two
+    crowds head-on can turn their parts across the line they walk, and the velocities measured off the
+    turned parts put a prediction a metre past the radius; the matching's gate has the same margin).
+    The held cluster's MSDs are split by k-means (scipy's kmeans2, seeded at the predictions; single-threaded,
+    so every process splits alike), unless a part would be smaller than MIN_SIZE. New parts take labels after
+    the found ones.
     """
     n = int(found.max()) + 1 if len(found) else 0
     live = np.flatnonzero(previous.active) if previous is not None else np.zeros(0, np.intp)
@@ -91,7 +94,7 @@ def separate(xy: NDArray[np.float64], found: NDArray[np.intp], previous: Optiona
     pred = previous.centroids[live] + previous.velocities[live] * period
     cen, rad = _discs(xy, found, n)
     dist = np.linalg.norm(pred[:, None, :] - cen[None, :, :], axis=-1)
-    within = dist <= rad[None, :]
+    within = dist <= rad[None, :] + GATE_MARGIN
     host = np.where(within.any(axis=1), np.argmin(np.where(within, dist, np.inf), axis=1), NONE)
     out, label = found.copy(), n
     for j in range(n):
