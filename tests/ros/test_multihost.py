@@ -171,8 +171,8 @@ def test_a_secure_run_over_three_hosts_equals_sim_and_strangers_neither_join_nor
     """`up --secure` and `agents --secure` over three hosts: TCP with TLS between every participant. Two more hosts
     on the LAN publish well-formed states of MAP 5 with a false position at every step, dialling the discovery server
     over TLS that checks nothing itself: one with no certificate, one with a certificate of another run's CA. Neither
-    discovers the run nor is discovered, the run equals `sim` byte for byte, and no topic or type name passes in
-    clear."""
+    discovers the run nor is discovered, `up` names each once (and no member), the run equals `sim` byte for byte,
+    and no topic or type name passes in clear."""
     from helpers.rogue import lax_profile
     from uav_flock_tools import keys, secure
     keys.make(tmp_path / 'keys', HOSTS)
@@ -200,7 +200,10 @@ def test_a_secure_run_over_three_hosts_equals_sim_and_strangers_neither_join_nor
                 for p in strangers:
                     p.terminate()
                 said = [p.communicate(timeout=30)[0] for p in strangers]
-    assert 'secured: TCP with TLS only' in (tmp_path / 'world.out').read_text()
+    said_up = (tmp_path / 'world.out').read_text()
+    assert 'secured: TCP with TLS only' in said_up
+    named = re.findall(r'^uav-flock up: (\S+) was refused at the discovery server \d+ times', said_up, re.M)
+    assert sorted(named) == [f'{SUBNET}.4', f'{SUBNET}.5'], f'each stranger named once, no member: {said_up}'
     for who, text in zip(STRANGERS, said):
         figures = re.search(r'^published (\d+) readers (\d+) nodes (\d+)$', text, re.M)
         assert figures, f'{who} said no figures: {text[-2000:]}'

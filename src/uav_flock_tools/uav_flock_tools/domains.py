@@ -58,15 +58,21 @@ def discovery_server_address(domain_id: int, host: str = '127.0.0.1') -> str:
 def start_discovery_server(address: str, env: dict[str, str], log: Path,
                            profile: Optional[Path] = None) -> subprocess.Popen:
     """The Fast DDS discovery server the wheels ship, on address (host:port, UDP), in its own session; or as
-    the XML profile says (secure.profile: TCP with TLS)."""
+    the XML profile says (secure.profile: TCP with TLS), and then a host refused at its handshake is named on
+    the terminal once, for as long as the server runs (strangers.py: Fast DDS logs nothing of it)."""
+    from . import strangers
     from .secure import environment
     host, port = address.rsplit(':', 1)
     args = ['-x', str(profile)] if profile is not None else ['-i', '0', '-l', host, '-p', port]
     env = environment(env, profile)
     with open(log, 'w') as out:
-        return subprocess.Popen(['fast-discovery-server', *args],
-                                env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
-                                preexec_fn=dies_with_parent(signal.SIGTERM))
+        server = subprocess.Popen(['fast-discovery-server', *args],
+                                  env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
+                                  preexec_fn=dies_with_parent(signal.SIGTERM))
+    if profile is not None:
+        strangers.watch(int(port), lambda: server.poll() is None,
+                        lambda line: print(f'uav-flock up: {line}', flush=True))
+    return server
 
 
 # Domains a run may be given: 0, ROS's default, is left to whatever else runs ROS on the host. Above 101

@@ -1,0 +1,42 @@
+"""Hosts refused at a secured run's discovery server (uav_flock_tools/strangers.py): the kernel's socket table as it
+reads it, over real sockets, and which addresses it names."""
+from __future__ import annotations
+
+import socket
+import time
+
+from uav_flock_tools.strangers import Peer, Refusals, read_tables
+
+
+def test_the_socket_table_shows_a_connection_held_and_then_closed_by_the_listening_side() -> None:
+    with socket.create_server(('127.0.0.1', 0)) as server:
+        port = server.getsockname()[1]
+        client = socket.create_connection(('127.0.0.1', port))
+        accepted, _ = server.accept()
+        mine = client.getsockname()[1]
+        assert Peer('127.0.0.1', mine, True) in read_tables(port)
+        accepted.close()  # the listening side ends it first, as Fast DDS does after a failed handshake
+        time.sleep(0.1)
+        after = [p for p in read_tables(port) if p.port == mine]
+        client.close()
+    assert after and not any(p.established for p in after), after
+    assert all(p.port != port for p in read_tables(port)), 'the listener itself is no peer'
+
+
+def test_an_address_is_named_once_after_its_dials_end_short_and_never_if_one_held() -> None:
+    seen = Refusals(held_s=2.0, times=2)
+    member, stranger = '10.0.0.2', '10.0.0.9'
+    assert seen.see(0.0, [Peer(member, 40000, False), Peer(stranger, 50000, True)]) == []  # a member's first dial reset
+    assert seen.see(0.5, [Peer(member, 40001, True), Peer(stranger, 50000, False)]) == []  # one refusal is not enough
+    assert seen.see(3.0, [Peer(member, 40001, True), Peer(stranger, 50001, True)]) == []
+    assert seen.see(3.5, [Peer(member, 40001, True), Peer(stranger, 50001, False), Peer(member, 40002, False)]) == \
+        [stranger], 'the stranger was refused twice; the member held a connection for 3 s'
+    assert seen.see(9.0, [Peer(stranger, 50002, False), Peer(stranger, 50003, False)]) == [], 'named once'
+    late = Refusals(held_s=2.0, times=2)
+    assert late.see(0.0, [Peer(member, 1, True)]) == [] and late.see(2.5, [Peer(member, 1, True)]) == []
+    assert late.see(3.0, [Peer(member, 1, False), Peer(member, 2, False), Peer(member, 3, False)]) == [], \
+        'an address that held a connection is a member\'s, whatever its other dials do'
+    unseen = Refusals(held_s=2.0, times=2)
+    assert unseen.see(0.0, [Peer(stranger, 7, True)]) == [] and \
+        unseen.see(0.5, [Peer(stranger, 7, False), Peer(stranger, 8, False)]) == [stranger], \
+        'a connection seen established once and then closing did not hold; one first seen closing neither'
