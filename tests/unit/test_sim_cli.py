@@ -291,9 +291,15 @@ def test_floor_names_the_lb_of_any_scenario_and_sim_says_when_maps_are_below_it(
     assert f'below the floor of this layout, LB = {lb} MAPs' in below.stderr and 'note:' not in above.stderr
 
 
-def test_paper_names_the_command_that_ran_and_each_path_once(tmp_path: Path) -> None:
-    out = tmp_path / 'paper1'
-    args = ['paper', '--seeds', '1', '--no-ablation', '--layouts', '0', '--out', str(out)]
+def test_paper_names_the_command_that_ran_and_each_path_once(tmp_path: Path, paper_scenario_path: str) -> None:
+    out, short = tmp_path / 'paper1', tmp_path / 'short.yaml'  # the paper's layout, 20 s runs: naming, not figures
+    short.write_text(re.sub(r'(?m)^duration:.*$', 'duration: 20.0', Path(paper_scenario_path).read_text()))
+    (tmp_path / 'shorter.yaml').write_text(short.read_text().replace('duration: 20.0', 'duration: 3.0'))
+    refused = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'paper', '--scenario',
+                              str(tmp_path / 'shorter.yaml'), '--out', str(tmp_path / 'no')], capture_output=True, text=True)
+    assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1 and 'before the failure' in \
+        refused.stderr and not (tmp_path / 'no').exists(), refused.stderr
+    args = ['paper', '--scenario', str(short), '--seeds', '1', '--no-ablation', '--layouts', '0', '--out', str(out)]
     proc = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', *args], capture_output=True, text=True,
                           timeout=600)
     assert proc.returncode == 0, proc.stderr
