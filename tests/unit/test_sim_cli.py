@@ -296,7 +296,8 @@ def test_paper_names_the_command_that_ran_and_each_path_once(tmp_path: Path, pap
     short.write_text(re.sub(r'(?m)^duration:.*$', 'duration: 20.0', Path(paper_scenario_path).read_text()))
     (tmp_path / 'shorter.yaml').write_text(short.read_text().replace('duration: 20.0', 'duration: 3.0'))
     refused = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'paper', '--scenario',
-                              str(tmp_path / 'shorter.yaml'), '--out', str(tmp_path / 'no')], capture_output=True, text=True)
+                              str(tmp_path / 'shorter.yaml'), '--out', str(tmp_path / 'no')],
+                             capture_output=True, text=True)
     assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1 and 'before the failure' in \
         refused.stderr and not (tmp_path / 'no').exists(), refused.stderr
     args = ['paper', '--scenario', str(short), '--seeds', '1', '--no-ablation', '--layouts', '0', '--out', str(out)]

@@ -85,6 +85,7 @@ class Refusals:
 
 
 def read_tables(port: int) -> list[Peer]:
+    """The connections to `port` in this network namespace, IPv4 and IPv6."""
     found: list[Peer] = []
     for table in TABLES:
         try:

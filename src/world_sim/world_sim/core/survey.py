@@ -82,7 +82,7 @@ def separate(xy: NDArray[np.float64], found: NDArray[np.intp], previous: Optiona
     track is predicted where its velocity takes it in one period; it is held by the found cluster whose
     centroid is nearest among those whose 95 % radius plus GATE_MARGIN reaches it (the margin: a split of two
     crowds head-on can turn their parts across the line they walk, and the velocities measured off the
-    turned parts put a prediction a metre past the radius; the matching's gate has the same margin).
+    turned parts put a prediction just past the radius; the matching's gate has the same margin).
     The held cluster's MSDs are split by k-means (scipy's kmeans2, seeded at the predictions; single-threaded,
     so every process splits alike), unless a part would be smaller than MIN_SIZE. New parts take labels after
     the found ones.
