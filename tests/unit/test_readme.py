@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from world_sim.core import layouts
+from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -29,6 +30,17 @@ def runs_of_the_readme() -> list[list[str]]:
     return [w for w in map(shlex.split, lines) if len(w) > 1 and w[0] == './uav-flock' and w[1] in ('sim', 'up', 'run')]
 
 
+def scenario_of(words: list[str]) -> Scenario:
+    """The scenario a README run flies (its --scenario, the paper's by default)."""
+    name = readme_check.option(words, '--scenario')
+    return load_scenario(COPIES.get(str(name), name or 'paper'))
+
+
+def maps_of(words: list[str], scenario: Scenario) -> list[int]:
+    """Each MAP count a README run flies (its --maps, a list in a sweep; the scenario's by default)."""
+    return [int(n) for n in (readme_check.option(words, '--maps') or str(scenario.maps)).split(',')]
+
+
 def test_the_readme_shows_runs_of_every_kind() -> None:
     kinds = {w[1] for w in runs_of_the_readme()}
     assert {'sim', 'up'} <= kinds, kinds
@@ -37,10 +49,9 @@ def test_the_readme_shows_runs_of_every_kind() -> None:
 @pytest.mark.parametrize('words', runs_of_the_readme(), ids=shlex.join)
 def test_every_run_the_readme_shows_flies_above_its_floor(words: list[str]) -> None:
     """Also after a failure it asks for: the MAPs left must still be MARGIN x LB."""
-    scenario = load_scenario(COPIES.get(str(readme_check.option(words, '--scenario')),
-                                        readme_check.option(words, '--scenario') or 'paper'))
+    scenario = scenario_of(words)
     lb = layouts.floor(scenario).total
-    counts = [int(n) for n in (readme_check.option(words, '--maps') or str(scenario.maps)).split(',')]
+    counts = maps_of(words, scenario)
     left = 1.0 - float(readme_check.option(words, '--fail-fraction') or 0.0)
     for n in counts:
         assert n * left >= MARGIN * lb, (f'{shlex.join(words)}: {n} MAPs ({n * left:.0f} after the failure) is below '
@@ -55,11 +66,9 @@ SIMULATED_UP_TO = 200
 def settles(words: list[str]) -> bool:
     """Runs of 30 s or more, long enough to have converged (the paper layout connects by about 20 s), of up to
     SIMULATED_UP_TO MAPs."""
-    scenario = load_scenario(COPIES.get(str(readme_check.option(words, '--scenario')),
-                                        readme_check.option(words, '--scenario') or 'paper'))
-    counts = [int(n) for n in (readme_check.option(words, '--maps') or str(scenario.maps)).split(',')]
+    scenario = scenario_of(words)
     return float(readme_check.option(words, '--duration') or scenario.duration) >= 30.0 and \
-        max(counts) <= SIMULATED_UP_TO
+        max(maps_of(words, scenario)) <= SIMULATED_UP_TO
 
 
 @pytest.mark.parametrize('words', [w for w in runs_of_the_readme() if settles(w)], ids=shlex.join)
@@ -68,10 +77,9 @@ def test_every_run_the_readme_shows_ends_connected_and_covered(words: list[str])
     scenario, MAPs, seed, duration and failure) ends with one component and R_c >= 95 %. The floor alone
     does not say it: the paper's own Algorithm 2 at 70 MAPs (1.55 x LB) ends in two pieces."""
     from uav_flock_tools.simrun import simulate
-    name = readme_check.option(words, '--scenario')
-    base = load_scenario(COPIES.get(str(name), name or 'paper'))
+    base = scenario_of(words)
     number = lambda key, cast: None if readme_check.option(words, key) is None else cast(readme_check.option(words, key))  # noqa: E731
-    for maps in (readme_check.option(words, '--maps') or str(base.maps)).split(','):
+    for maps in maps_of(words, base):
         for seed in (readme_check.option(words, '--seed') or str(base.seed)).split(','):
             s = base.with_overrides(maps=int(maps), seed=int(seed), duration=number('--duration', float),
                                     fail_at=number('--fail-at', float), fail_fraction=number('--fail-fraction', float))

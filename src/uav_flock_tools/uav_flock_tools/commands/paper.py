@@ -27,7 +27,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def handle(args: argparse.Namespace) -> int:
     """Into a run folder by default; into the tracked docs/results.md and docs/figures only with --docs."""
     from .. import paper
-    if paper.simrun.load_scenario(args.scenario).duration <= paper.FAIL_AT:  # the failure runs would see no failure
+    from ..simrun import load_scenario
+    if load_scenario(args.scenario).duration <= paper.FAIL_AT:  # the failure runs would see no failure
         raise UsageError(f'paper: --scenario {args.scenario}: its runs end before the failure runs\' failure at '
                          f'{paper.FAIL_AT:g} s; give a scenario with a longer duration')
     if args.docs and args.out:
