@@ -31,7 +31,8 @@ DEFAULT_PORT = 8765
 
 
 VIEW_START_S = 60.0  # the viewer imports rclpy and the SDK and starts its server well within this
-# A step still short of a MAP's sensing this many steps on is drawn with where that MAP was last drawn.
+# A step still short of a MAP's sensing this many steps on is drawn with where that MAP was last drawn
+# (or, before the first whole step, not at all: the view begins with a whole formation).
 LAG_STEPS = 20
 
 
@@ -116,6 +117,8 @@ class Viewer(Node):
             if len(at) < m.alive and int(self.pending[-1].step) - k < LAG_STEPS:
                 return
             self.pending.popleft()
+            if len(at) < m.alive and not self.last:
+                continue
             gone = [(s, i, c) for s, i, c in self.failed if s <= k and i not in at]
             self.failed = [f for f in self.failed if f not in gone]
             self.lost.update(i for _, i, _ in gone)
