@@ -10,8 +10,9 @@ Nothing here imports ROS: the viewer node and `report` hand it numbers.
 """
 from __future__ import annotations
 
+from collections import deque
 from pathlib import Path
-from typing import Iterable, Optional, Sequence
+from typing import Iterable, NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -25,6 +26,9 @@ from foxglove.messages import (Color, CylinderPrimitive, LinePrimitive, LinePrim
 FRAME = 'world'
 SCENE, METRICS, LOG = '/scene', '/metrics', '/log'
 MAP_SIZE = 3.0  # m, the sphere drawn for a MAP
+# A live step still short of a MAP's sensing this many steps on is drawn with where that MAP was last drawn
+# (or, before the first whole step, not at all: the view begins with a whole formation).
+LAG_STEPS = 20
 # M0, M1, M2 as in the PNGs (matplotlib's tab:blue, tab:orange, tab:green)
 MODE_RGBA = ((0.122, 0.467, 0.706, 1.0), (1.0, 0.498, 0.055, 1.0), (0.173, 0.627, 0.173, 1.0))
 LINK_RGBA = (0.35, 0.35, 0.35, 0.8)
@@ -107,6 +111,66 @@ def metrics(row: Sequence[float]) -> dict:
 def event(t: float, message: str, warning: bool = True) -> Log:
     return Log(timestamp=stamp(t), level=LogLevel.Warning if warning else LogLevel.Info, message=message,
                name='uav_flock')
+
+
+class Frame(NamedTuple):
+    """One live step, ready to draw: the MAPs (ids, positions q (n, 3)), the MAPs drawn before and not now
+    (gone: their spheres to delete), the failures heard of since the last frame (MAP, cause), and the
+    world's metrics row of the step."""
+
+    t: float
+    ids: list[int]
+    q: np.ndarray
+    gone: list[int]
+    failures: list[tuple[int, str]]
+    row: list[float]
+
+
+class LiveSteps:
+    """The live view's steps, each once its metrics and the sensing of every MAP the world counted at it
+    are in. The world's topics reach a viewer each on its own (and, to one that joins late, each from its
+    own history), so a step's metrics can come before its sensing, or a later step's sensing before it."""
+
+    def __init__(self) -> None:
+        self.pending: deque[list[float]] = deque()  # metrics rows of the steps not yet drawn, in order
+        self.heard: dict[int, dict[int, np.ndarray]] = {}  # step -> MAP -> where the world put it
+        self.last: dict[int, np.ndarray] = {}  # the MAPs of the last frame, where they were drawn
+        self.failed: list[tuple[int, int, str]] = []  # (step, MAP, cause), not yet told
+
+    def sensed(self, step: int, i: int, q: np.ndarray) -> list[Frame]:
+        if not self.pending or step >= self.pending[0][0]:
+            self.heard.setdefault(int(step), {})[int(i)] = np.asarray(q, dtype=float)
+        return self.ready()
+
+    def metrics(self, row: Sequence[float]) -> list[Frame]:
+        self.pending.append(list(row))
+        return self.ready()
+
+    def dropped(self, step: int, ids: Iterable[int], cause: str) -> None:
+        self.failed += [(int(step), int(i), cause) for i in ids]
+
+    def ready(self) -> list[Frame]:
+        out = []
+        while self.pending:
+            row = self.pending[0]
+            k, alive = int(row[0]), int(row[4])
+            at = self.heard.get(k, {})
+            whole = len(at) >= alive
+            if not whole and int(self.pending[-1][0]) - k < LAG_STEPS:
+                break
+            self.pending.popleft()
+            self.heard = {s: h for s, h in self.heard.items() if s > k}
+            if not whole and not self.last:
+                continue
+            told = [(s, i, c) for s, i, c in self.failed if s <= k and i not in at]
+            self.failed = [f for f in self.failed if f not in told]
+            lost = {i for _, i, _ in told}
+            now = at if whole else {i: q for i, q in {**self.last, **at}.items() if i not in lost}
+            ids = sorted(now)
+            out.append(Frame(float(row[1]), ids, np.array([now[i] for i in ids]).reshape(-1, 3),
+                             sorted(set(self.last) - set(now)), [(i, c) for _, i, c in told], row))
+            self.last = now
+        return out
 
 
 class Channels:

@@ -2,20 +2,17 @@
 
 It subscribes to what the world and the MAPs publish anyway (each MAP's sensing and state, `/metrics`,
 failures), so it costs world_sim nothing, and serves the scene of `scene.py` through the Foxglove SDK's
-WebSocket server (protocol `foxglove.sdk.v1`, which Foxglove and Lichtblick connect to). A step's scene goes
-out once its metrics and the sensing of every MAP it counts as flying are in: each topic arrives on its own
-(and, to a viewer that joins late, from its own history), so a step's metrics can come before its sensing.
+WebSocket server (protocol `foxglove.sdk.v1`, which Foxglove and Lichtblick connect to), a step at a time
+once the step is whole (scene.LiveSteps).
 """
 from __future__ import annotations
 
 import subprocess
 import sys
 import time
-from collections import deque
 from pathlib import Path
 from typing import Callable, Optional
 
-import numpy as np
 import rclpy
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
@@ -31,9 +28,6 @@ DEFAULT_PORT = 8765
 
 
 VIEW_START_S = 60.0  # the viewer imports rclpy and the SDK and starts its server well within this
-# A step still short of a MAP's sensing this many steps on is drawn with where that MAP was last drawn
-# (or, before the first whole step, not at all: the view begins with a whole formation).
-LAG_STEPS = 20
 
 
 def announce(viewer: subprocess.Popen, port: int, log: Path, stopping: Callable[[], bool]) -> None:
@@ -80,12 +74,8 @@ class Viewer(Node):
         except RuntimeError as exc:
             raise ViewerError(f'cannot serve on {host}:{port}: {exc}') from None
         self.channels = scene.Channels()
-        self.pending: deque[Metrics] = deque()  # steps whose scene is not out yet, in order
-        self.heard: dict[int, dict[int, Sensing]] = {}  # step -> MAP -> the world's sensing of it
-        self.last: dict[int, Sensing] = {}  # where each MAP was last drawn
+        self.steps = scene.LiveSteps()
         self.modes: dict[int, int] = {}
-        self.failed: list[tuple[int, int, str]] = []  # (step, MAP, cause) not yet in a scene
-        self.lost: set[int] = set()
         self.subs = [self.create_subscription(AgentState, f'/map_{i}/state', self.on_state, STATE_QOS)
                      for i in range(maps)]
         self.subs += [self.create_subscription(Sensing, f'/map_{i}/sensing', self.on_sensing, STEP_QOS)
@@ -97,41 +87,21 @@ class Viewer(Node):
         self.modes[int(msg.id)] = int(msg.mode)
 
     def on_sensing(self, msg: Sensing) -> None:
-        if not self.pending or msg.step >= self.pending[0].step:
-            self.heard.setdefault(int(msg.step), {})[int(msg.id)] = msg
-            self.draw()
+        self.draw(self.steps.sensed(int(msg.step), int(msg.id), convert.xyz(msg.position)))
 
     def on_failure(self, msg: FailureEvent) -> None:
-        self.failed += [(int(msg.step), int(i), str(msg.cause)) for i in msg.ids]
+        f = convert.FailureData.from_msg(msg)
+        self.steps.dropped(f.step, f.ids, f.cause)
 
     def on_metrics(self, msg: Metrics) -> None:
-        self.pending.append(msg)
-        self.draw()
+        self.draw(self.steps.metrics(convert.MetricsData.from_msg(msg).row()))
 
-    def draw(self) -> None:
-        """The scenes of the steps whose sensing is in, in order: each where the world put the MAPs it
-        counted at that step, with the world's figures of that step."""
-        while self.pending:
-            m = self.pending[0]
-            k, at = int(m.step), self.heard.get(int(m.step), {})
-            if len(at) < m.alive and int(self.pending[-1].step) - k < LAG_STEPS:
-                return
-            self.pending.popleft()
-            if len(at) < m.alive and not self.last:
-                continue
-            gone = [(s, i, c) for s, i, c in self.failed if s <= k and i not in at]
-            self.failed = [f for f in self.failed if f not in gone]
-            self.lost.update(i for _, i, _ in gone)
-            for i in self.lost:
-                self.last.pop(i, None)
-            self.last.update(at)
-            ids = sorted(self.last)
-            q = np.array([convert.xyz(self.last[i].position) for i in ids])
-            self.channels.frame(m.t, scene.formation(m.t, ids, q.reshape(-1, 3), [self.modes.get(i, 0) for i in ids],
-                                                     self.r, lost=[i for _, i, _ in gone]),
-                                scene.metrics(convert.MetricsData.from_msg(m).row()),
-                                [scene.event(m.t, f'MAP {i} lost ({c})') for _, i, c in gone])
-            self.heard = {s: h for s, h in self.heard.items() if s > k}
+    def draw(self, frames: list[scene.Frame]) -> None:
+        """Each step's scene where the world put the MAPs, with the world's figures of that step."""
+        for f in frames:
+            self.channels.frame(f.t, scene.formation(f.t, f.ids, f.q, [self.modes.get(i, 0) for i in f.ids], self.r,
+                                                     lost=f.gone),
+                                scene.metrics(f.row), [scene.event(f.t, f'MAP {i} lost ({c})') for i, c in f.failures])
 
     def close(self) -> None:
         self.server.stop()
