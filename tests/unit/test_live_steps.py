@@ -86,3 +86,15 @@ def test_the_view_begins_with_its_first_whole_step() -> None:
                 frames += live.sensed(k, i, q)
     assert [f.row[0] for f in frames] == list(range(3, len(rows)))
     assert all(f.ids == [0, 1, 2] for f in frames)
+
+
+def test_sensing_with_no_metrics_keeps_a_bounded_number_of_steps() -> None:
+    """A viewer that hears the MAPs' sensing and no metrics (yet) holds the newest steps only."""
+    sensed, rows, _ = world(2, 10 * LAG_STEPS, {}, {}, seed=3)
+    live = LiveSteps()
+    for k in range(len(rows)):
+        for i, q in sensed[k].items():
+            assert live.sensed(k, i, q) == []
+    assert sorted(live.heard) == list(range(len(rows) - 4 * LAG_STEPS, len(rows)))
+    frames = live.metrics(rows[-1])
+    assert len(frames) == 1 and frames[0].ids == [0, 1] and np.array_equal(frames[0].q[1], sensed[-1][1])

@@ -140,6 +140,8 @@ class LiveSteps:
     def sensed(self, step: int, i: int, q: np.ndarray) -> list[Frame]:
         if not self.pending or step >= self.pending[0][0]:
             self.heard.setdefault(int(step), {})[int(i)] = np.asarray(q, dtype=float)
+            if len(self.heard) > 4 * LAG_STEPS:  # sensing far ahead of the metrics: keep the newest
+                del self.heard[min(self.heard)]
         return self.ready()
 
     def metrics(self, row: Sequence[float]) -> list[Frame]:
