@@ -137,17 +137,11 @@ def replay(path: Path, agent: int, tolerance: float = 1e-9, timeout: float = 20.
     return outcome
 
 
-def _lookalike(name: str) -> str:
-    """A name as it reads to the eye: `cl` for c1 and `n0` for nO are typing slips, not other names."""
-    return name.lower().translate(str.maketrans('lio', '110'))
-
-
 def checked_overrides(overrides: dict[str, object], recorded: dict[str, object]) -> dict[str, object]:
     """--set KEY=VALUE pairs as agent parameters (`flock.c1` as in a scenario names c1 too), each checked as
     the agent node would check it, with the bag's other parameters: ReplayError in one line, before any
     process starts."""
-    import difflib
-
+    from uav_agent.core.checks import did_you_mean
     from uav_agent.core.policies import check
     names = [f.name for f in fields(FlockParams)]
     # `--set c1=1` reads as an integer; ROS parameters are typed, and the agent declares c1 a double.
@@ -156,10 +150,8 @@ def checked_overrides(overrides: dict[str, object], recorded: dict[str, object])
     for key, value in overrides.items():
         name = key.removeprefix('flock.')
         if name not in names:
-            near = [n for n in names if _lookalike(n) == _lookalike(name)] or \
-                difflib.get_close_matches(name, names, n=1, cutoff=0.5)
-            hint = f'; did you mean {near[0]}?' if near else ''
-            raise ReplayError(f'--set: no agent parameter {key!r}{hint} (keys: {", ".join(names)})')
+            raise ReplayError(f'--set: no agent parameter {key!r}{did_you_mean(name, names)} '
+                              f'(keys: {", ".join(names)})')
         changed[name] = float(value) if name in floats and type(value) is int else value
     base = {k: v for k, v in recorded.items() if k in names}
     try:

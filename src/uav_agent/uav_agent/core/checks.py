@@ -3,9 +3,10 @@ option or a node parameter. A bad value is a ValueError naming where it came fro
 each door turns that into its own one-line error (ScenarioError, argparse's, the node's exit 2)."""
 from __future__ import annotations
 
+import difflib
 import math
 from dataclasses import dataclass, fields
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Iterable, Optional
 
 
 def requirement(low: Optional[float] = None, high: Optional[float] = None, low_open: bool = False,
@@ -71,3 +72,16 @@ def check_fields(obj: Any, where: Callable[[str], str] = str) -> None:
         b = f.metadata.get('bound')
         if b is not None:
             number(getattr(obj, f.name), where(f.name), b.low, b.high, b.low_open, b.integer)
+
+
+def _lookalike(name: str) -> str:
+    """A name as it reads to the eye: `cl` for c1 and `n0` for nO are typing slips, not other names."""
+    return name.lower().translate(str.maketrans('lio', '110'))
+
+
+def did_you_mean(name: str, names: Iterable[str]) -> str:
+    """'; did you mean X?' for the known name that a mistyped one most resembles, or '' if none does."""
+    names = list(names)
+    near = [n for n in names if _lookalike(n) == _lookalike(name)] or \
+        difflib.get_close_matches(name, names, n=1, cutoff=0.5)
+    return f'; did you mean {near[0]}?' if near else ''

@@ -8,7 +8,7 @@ from typing import Any, Callable
 import yaml
 
 from uav_agent.core import links as channel
-from uav_agent.core.checks import bound, number
+from uav_agent.core.checks import bound, did_you_mean, number
 from uav_agent.core.links import Links
 from uav_agent.core.params import DERIVED, FlockParams
 from uav_agent.core.policies import POLICY_VALUES
@@ -133,10 +133,15 @@ def _section(doc: dict[str, Any], key: str, allowed: set[str], required: bool = 
     sec = doc[key]
     if not isinstance(sec, dict):
         raise ScenarioError(f'{key}: expected a mapping')
-    unknown = sorted(set(sec) - allowed)
-    if unknown:
-        raise ScenarioError(f'{key}.{unknown[0]}: unknown key')
+    _known(sec, allowed, f'{key}.')
     return sec
+
+
+def _known(doc: dict[str, Any], allowed: set[str], prefix: str = '') -> None:
+    """ScenarioError for the first key not in `allowed`, with the allowed key it most resembles."""
+    unknown = sorted(set(map(str, doc)) - allowed)
+    if unknown:
+        raise ScenarioError(f'{prefix}{unknown[0]}: unknown key{did_you_mean(unknown[0], sorted(allowed))}')
 
 
 def _need(sec: dict[str, Any], where: str, key: str) -> Any:
@@ -200,9 +205,7 @@ def _clusters(clusters_doc: Any) -> tuple[Cluster, ...]:
         where = f'users.clusters[{i}]'
         if not isinstance(c, dict):
             raise ScenarioError(f'{where}: expected a mapping')
-        bad = sorted(set(c) - _CLUSTER)
-        if bad:
-            raise ScenarioError(f'{where}.{bad[0]}: unknown key')
+        _known(c, _CLUSTER, f'{where}.')
         clusters.append(_cluster(where, c))
     return tuple(clusters)
 
@@ -211,9 +214,7 @@ def parse(doc: Any) -> Scenario:
     """Check a scenario document and build the Scenario; raise ScenarioError naming the bad key."""
     if not isinstance(doc, dict):
         raise ScenarioError('scenario: expected a mapping at the top level')
-    unknown = sorted(set(doc) - _TOP)
-    if unknown:
-        raise ScenarioError(f'{unknown[0]}: unknown key')
+    _known(doc, _TOP)
     flock = _flock(doc)
     radio = _section(doc, 'radio', _RADIO)
     release = _section(doc, 'release', _RELEASE)
@@ -251,6 +252,9 @@ def parse(doc: Any) -> Scenario:
         links=links,
     )
     _check(scenario)
+    if scenario.fail_at is not None and scenario.fail_at >= scenario.duration:  # a file's own; --duration may cut it
+        raise ScenarioError(f'failure.at: {scenario.fail_at:g} s is not before the end of the run '
+                            f'(duration {scenario.duration:g} s)')
     return scenario
 
 
@@ -266,6 +270,7 @@ def _check(s: Scenario) -> None:
         raise ScenarioError(f'maps: must be at least 1, got {s.maps}')
     if s.dt > s.duration:
         raise ScenarioError(f'dt: must not exceed duration ({s.duration}), got {s.dt}')
+
 
 
 def to_doc(s: Scenario, policies: bool = True) -> dict[str, Any]:
@@ -307,21 +312,40 @@ def _cluster_doc(c: Cluster) -> dict[str, Any]:
     return out
 
 
-def load(path: str | Path) -> Scenario:
-    """Read and check a scenario file."""
+class _StrictLoader(yaml.SafeLoader):
+    """YAML as safe_load reads it, but a key given twice in one mapping is refused, not the last one kept."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: set[Any] = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f'{key!r} is given twice in one mapping', key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
+def read_yaml(path: str | Path, what: str) -> Any:
+    """A YAML file's document, or ScenarioError in one line naming the path once (and the line, for bad YAML)."""
     path = Path(path)
     try:
-        doc = yaml.safe_load(path.read_text())
+        return yaml.load(path.read_text(), Loader=_StrictLoader)  # noqa: S506 (a SafeLoader)
     except FileNotFoundError:
-        raise ScenarioError(f'{path}: no such scenario file') from None
+        raise ScenarioError(f'{path}: no such {what} file') from None
     except (OSError, UnicodeDecodeError) as exc:  # a folder, no permission, a binary file
         why = exc.strerror if isinstance(exc, OSError) else 'not a text file'
-        raise ScenarioError(f'{path}: cannot read the scenario ({why})') from None
+        raise ScenarioError(f'{path}: cannot read the {what} ({why})') from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, 'problem_mark', None)
         where = f' at line {mark.line + 1}, column {mark.column + 1}' if mark is not None else ''
-        what = getattr(exc, 'problem', None) or str(exc).splitlines()[0]
-        raise ScenarioError(f'{path}: not valid YAML{where} ({what})') from None
+        what_went = getattr(exc, 'problem', None) or str(exc).splitlines()[0]
+        raise ScenarioError(f'{path}: not valid YAML{where} ({what_went})') from None
+
+
+def load(path: str | Path) -> Scenario:
+    """Read and check a scenario file."""
+    doc = read_yaml(path, 'scenario')
     if doc is None:
         raise ScenarioError(f'{path}: the scenario file is empty')
     try:
