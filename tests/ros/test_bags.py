@@ -139,9 +139,10 @@ def test_run_trends_modes_and_numbers_from_the_bag_alone(recorded: Path) -> None
         assert after[-1, 2] > after[:, 2].min(), 'coverage recovers after the failure'
 
 
-@pytest.mark.parametrize('per_process, said', [('1', 'SIGKILLed MAPs'), ('5', 'their nodes ended inside processes')])
+@pytest.mark.parametrize('per_process, said, unsaid', [('1', 'SIGKILLed with every MAP', 'ended inside'),
+                                                       ('5', 'their nodes ended inside process', 'SIGKILLed')])
 def test_killed_agents_leave_a_complete_bag(tmp_path: Path, ros_env: dict[str, str], per_process: str,
-                                            said: str) -> None:
+                                            said: str, unsaid: str) -> None:
     """Whole processes SIGKILLed (one MAP each), or packed MAPs' nodes ended inside living processes."""
     run = tmp_path / 'up'
     # 10 MAPs step about 100 times a second here: long enough a run that the kill lands while it goes on.
@@ -151,6 +152,7 @@ def test_killed_agents_leave_a_complete_bag(tmp_path: Path, ros_env: dict[str, s
         wait_for_line(proc, 't =   2.0 s', 120)
         killed = cli('kill', '--run', str(run), '--fraction', '0.3')
         assert killed.returncode == 0 and said in killed.stdout, killed.stdout + killed.stderr
+        assert unsaid not in killed.stdout, f'kill tells of what it did not do: {killed.stdout}'
         assert proc.wait(timeout=300) == 0
     finally:
         proc.kill()

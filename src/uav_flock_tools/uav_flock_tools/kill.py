@@ -14,10 +14,10 @@ from .spawn import read_pid_table
 
 
 def kill(run: Path, ids: Optional[list[int]], fraction: Optional[float], whole_processes: bool = False
-         ) -> tuple[list[int], list[int], bool]:
+         ) -> tuple[list[int], list[int], list[int]]:
     """Kill MAPs of a running `up`, by id or a random fraction of the live ones, as a failure would.
 
-    Returns (MAP ids killed, pids concerned, whole processes SIGKILLed). A MAP alone in its process dies by
+    Returns (MAP ids killed, pids whose named MAPs' nodes ended inside them, pids SIGKILLed whole). A MAP alone in its process dies by
     SIGKILL with it. A MAP packed with others has its node ended inside the process, as abruptly (no last
     message, nothing flushed; see agent_node.CrashRequests), and the other MAPs fly on; whole_processes
     instead SIGKILLs every process concerned with all of its MAPs.
@@ -63,7 +63,7 @@ def kill(run: Path, ids: Optional[list[int]], fraction: Optional[float], whole_p
     for pid in whole:
         os.kill(pid, signal.SIGKILL)
     taken = sorted({*ids, *(i for pid in whole for i in by_pid[pid])})
-    return taken, pids, bool(whole) and whole == pids
+    return taken, [pid for pid in pids if pid not in whole], whole
 
 
 def _running(pid: int, *words: str) -> bool:

@@ -147,7 +147,9 @@ class Run:
         self.write_info()
         p.logs.mkdir(exist_ok=True)
         pace = f'realtime x{p.rate:g}' if p.sync == 'realtime' else 'lockstep'
-        print(f'uav-flock up: {s.maps} MAPs in {len(p.groups)} processes, {pace}, ROS_DOMAIN_ID={p.claim.domain}, '
+        here = f'{s.maps - len(p.remote)} of them here' if p.remote else ''
+        maps = f'{s.maps} MAPs, {here} in' if p.remote else f'{s.maps} MAPs in'
+        print(f'uav-flock up: {maps} {len(p.groups)} process{"es" if len(p.groups) != 1 else ""}, {pace}, ROS_DOMAIN_ID={p.claim.domain}, '
               f'discovery {"server " + p.server_address if p.server_address else p.discovery_range}, '
               f'run folder {p.run}', flush=True)
         if p.secure is not None:

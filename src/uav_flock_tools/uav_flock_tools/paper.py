@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 import time
 from pathlib import Path
 from typing import Callable
@@ -28,7 +29,6 @@ FAIL_FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5)
 FAIL_AT = 18.0
 SETTLE = 10.0  # "after convergence": the mean over the last SETTLE seconds of a run
 
-DYNAMICS_HEADING = '## Users that move'  # results.md's last section, from benchmarks/bench_dynamics.py
 
 
 def settled(m: np.ndarray, column: int) -> float:
@@ -42,18 +42,22 @@ def time_to_connected_coverage(m: np.ndarray) -> float:
     return t if np.isfinite(t) else float('nan')
 
 
-def _band(ax: plt.Axes, runs: list[np.ndarray], column: int, scale: float, label: str) -> None:
+def _band(ax: plt.Axes, runs: list[np.ndarray], column: int, scale: float, label: str, since: float = 0.0) -> None:
+    """Mean and min-max band over seeds, from `since` on (a failure run equals the run without one before it)."""
     t = runs[0][:, 1]
     y = np.array([r[:, column] for r in runs]) * scale
+    shown = t >= since - 1e-9
+    t, y = t[shown], y[:, shown]
     ax.plot(t, y.mean(axis=0), lw=1.6, label=label)
     ax.fill_between(t, y.min(axis=0), y.max(axis=0), alpha=0.2)
 
 
 def _figure(path: Path, groups: list[tuple[str, list[np.ndarray]]], column: int, scale: float,
-            ylabel: str, title: str, events: tuple[float, ...] = ()) -> Path:
+            ylabel: str, title: str, events: tuple[float, ...] = (), since: tuple[float, ...] = ()) -> Path:
+    """since: per group, the time its curve starts (default 0)."""
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
-    for label, runs in groups:
-        _band(ax, runs, column, scale, label)
+    for i, (label, runs) in enumerate(groups):
+        _band(ax, runs, column, scale, label, since[i] if i < len(since) else 0.0)
     if column == 3:  # the Fiedler value: connected or not is what the figure is for
         plots.fiedler_axis(ax)
     plots.finish(ax, 'time t (s)', ylabel, title + ' (line: mean over seeds, band: min to max)', events)
@@ -69,7 +73,7 @@ def _fiedler_vs_count(path: Path, counts: tuple[int, ...], values: dict[int, lis
     for n in counts:
         ax.scatter([n] * len(values[n]), values[n], s=8, c='0.5', zorder=3)
     plots.fiedler_axis(ax)
-    plots.finish(ax, 'number of MAPs', f'λ2, mean of the last {SETTLE:g} s (-, symlog)',
+    plots.finish(ax, 'number of MAPs', f'λ2, mean of the last {SETTLE:g} s (no unit; log above {plots.FIEDLER_LINEAR_BELOW:g})',
                  f'Connectivity after convergence, {policies}\n(grey: single seeds)')
     return plots.save(fig, path)
 
@@ -138,11 +142,12 @@ def main(seeds: int, out: Path, docs: Path, scenario: str, ablation: bool = True
     figs['coverage'] = _figure(out / 'coverage_vs_time.png', [(f'{n} MAPs', runs(f'sweep/{n}')) for n in COUNTS_FIG],
                                2, 100, 'coverage ratio R_c (%)', 'Coverage vs time')
     figs['fiedler'] = _figure(out / 'fiedler_vs_time.png', [(f'{n} MAPs', runs(f'sweep/{n}')) for n in COUNTS_FIG],
-                              3, 1, 'Fiedler value λ2 (-, symlog)', 'Fiedler value vs time')
+                              3, 1, plots.FIEDLER_LABEL, 'Fiedler value vs time')
     figs['failures'] = _figure(out / 'coverage_failures.png',
                                [('no failure', runs('sweep/80'))]
                                + [(f'{int(fr * 100)} % fail', runs(f'fail/{fr}')) for fr in FAIL_FRACTIONS],
-                               2, 100, 'coverage ratio R_c (%)', '80 MAPs, random failures', (FAIL_AT,))
+                               2, 100, 'coverage ratio R_c (%)', '80 MAPs, random failures', (FAIL_AT,),
+                               since=(0.0,) + (FAIL_AT,) * len(FAIL_FRACTIONS))  # all one curve before it
     settled_f = {n: [settled(m, 3) for m in runs(f'sweep/{n}')] for n in COUNTS_SWEEP}
     figs['fiedler_count'] = _fiedler_vs_count(out / 'fiedler_vs_maps.png', COUNTS_SWEEP, settled_f)
     snap = base.with_overrides(maps=90, seed=0)
@@ -179,10 +184,21 @@ def write_results(docs: Path, out: Path, base: Scenario, seeds: int, metrics: di
     if ended:
         lines += _layout_lines(ended)
     docs.parent.mkdir(parents=True, exist_ok=True)
-    dynamics_section = ''  # the section benchmarks/bench_dynamics.py measures is not this command's to regenerate
-    if docs.exists() and DYNAMICS_HEADING in docs.read_text():
-        dynamics_section = '\n' + DYNAMICS_HEADING + docs.read_text().split(DYNAMICS_HEADING, 1)[1]
-    docs.write_text('\n'.join(lines) + '\n' + dynamics_section)
+    kept = _others(docs.read_text(), lines) if docs.exists() else []
+    docs.write_text('\n'.join(lines) + '\n' + ''.join('\n' + section for section in kept))
+
+
+# Every section this command may write (some only when asked): an earlier one left out this time is not kept.
+OWN_HEADINGS = ('## Figures', '## Effect of each open choice', '## The demand allocation on the paper layout',
+                '## Random layouts')
+
+
+def _others(text: str, lines: list[str]) -> list[str]:
+    """The sections of an earlier results.md that this command does not write (the benchmarks' own, as
+    benchmarks/bench_links.py's radio and bench_dynamics.py's moving users), in their order, to be kept."""
+    ours = {line for line in lines if line.startswith('## ')} | set(OWN_HEADINGS)
+    sections = re.split(r'(?m)^(?=## )', text)[1:]
+    return [sec.rstrip('\n') + '\n' for sec in sections if sec.splitlines()[0] not in ours]
 
 
 def _paper_lines(base: Scenario, command: str, seed_ids: list[int], elapsed: float, runs: Runs,

@@ -42,6 +42,7 @@ def finish(ax: plt.Axes, xlabel: str, ylabel: str, title: str, events: Sequence[
 
 
 FIEDLER_LINEAR_BELOW = 1e-3  # the symlog axis is linear below this, so lambda2 = 0 sits on the axis
+FIEDLER_LABEL = f'Fiedler value λ2 (no unit; log scale above {FIEDLER_LINEAR_BELOW:g})'
 
 
 def fiedler_axis(ax: plt.Axes, t: np.ndarray | None = None, fiedler: np.ndarray | None = None) -> None:
@@ -75,7 +76,7 @@ def fiedler_series(series: Sequence[tuple[str, np.ndarray, np.ndarray]], title: 
     for label, t, y in series:
         ax.plot(t, y, label=label if len(series) > 1 else None, lw=1.6)
     fiedler_axis(ax, *(series[0][1:] if len(series) == 1 else (None, None)))
-    finish(ax, 'time t (s)', 'Fiedler value λ2 (-, symlog)', title, events)
+    finish(ax, 'time t (s)', FIEDLER_LABEL, title, events)
     return save(fig, path)
 
 
@@ -86,7 +87,7 @@ def channel(t: np.ndarray, metrics: np.ndarray, title: str, path: Path, events: 
     for col, name in ((3, 'disc graph'), (9, 'usable graph (delivery ≥ 0.5)'), (11, 'heard graph (last 1 s)')):
         top.plot(t, metrics[:, col], lw=1.4, label=name)
     fiedler_axis(top)
-    finish(top, '', 'Fiedler value λ2 (-, symlog)', title, events)
+    finish(top, '', FIEDLER_LABEL, title, events)
     low.plot(t, 100 * metrics[:, 13], lw=1.2, color='tab:grey')
     finish(low, 'time t (s)', 'states heard (%)', '')
     return save(fig, path)

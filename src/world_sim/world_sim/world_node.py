@@ -450,7 +450,7 @@ class WorldNode(Node):
         self.finished = True
         self.ok = ok
         if self.resent:
-            print(f'{self.resent} stalled steps had their sensing sent again (delays of discovery or delivery; '
+            print(f'{self.resent} stalled step{"s" if self.resent > 1 else ""} had {"their" if self.resent > 1 else "its"} sensing sent again (delays of discovery or delivery; '
                   'lockstep results do not depend on them; logs/world.log says which)', flush=True)
         if ok:
             self.finished_pub.publish(Int64(data=int(self.world.k)))

@@ -22,13 +22,16 @@ def handle(args: argparse.Namespace) -> int:
     if (args.ids is None) == (args.fraction is None):
         raise UsageError('kill: give exactly one of --ids or --fraction')
     try:
-        killed, pids, whole = kill(Path(args.run), args.ids, args.fraction, args.whole_processes)
+        killed, inside, whole = kill(Path(args.run), args.ids, args.fraction, args.whole_processes)
     except (FileNotFoundError, ValueError) as exc:
         raise UsageError(f'kill: {exc}') from None
+    how = []
+    if inside:
+        how.append(f'their nodes ended inside process{"es" if len(inside) > 1 else ""} {inside}, '
+                   f'whose other MAPs fly on')
     if whole:
-        print(f'SIGKILLed MAPs {killed} (processes {pids})')
-    else:
-        print(f'killed MAPs {killed} (their nodes ended inside processes {pids}, whose other MAPs fly on; '
-              'a MAP alone in its process was SIGKILLed with it)')
+        how.append(f'process{"es" if len(whole) > 1 else ""} {whole} SIGKILLed with every MAP '
+                   f'{"they" if len(whole) > 1 else "it"} held')
+    print(f'killed MAPs {killed} ({"; ".join(how)})')
     return 0
 

@@ -21,7 +21,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _progress(done: int, total: int, elapsed: float) -> None:
-    eta = f', about {elapsed / done * (total - done) / 60:.0f} min left' if done else ''
+    left = elapsed / done * (total - done) if done else 0.0
+    eta = '' if not done or done == total else (f', about {left / 60:.0f} min left' if left >= 90
+                                                  else f', about {max(left, 1):.0f} s left')
     print(f'  {done}/{total} runs, {elapsed:.0f} s{eta}', file=sys.stderr, flush=True)
 
 
@@ -38,12 +40,16 @@ def handle(args: argparse.Namespace) -> int:
     if args.out is None:
         raise UsageError('study: give --out DIR, the study folder')
     try:
-        grid = runs(load(Path(args.spec)))
+        spec = load(Path(args.spec))
+    except SpecError as exc:  # names the path itself
+        raise UsageError(f'study: {exc}') from None
+    try:
+        grid = runs(spec)
     except SpecError as exc:
         raise UsageError(f'study: {args.spec}: {exc}') from None
     if args.scheduler:
         _reach(args.scheduler)
-    print(f'study: {len(grid)} runs into {args.out / engine.RESULTS}'
+    print(f'study: {len(grid)} run{"s" if len(grid) != 1 else ""} into {args.out / engine.RESULTS}'
           f' on {args.scheduler or "a local cluster"}', file=sys.stderr, flush=True)
     try:
         done, total = engine.study(grid, args.out, args.scheduler, args.workers, _progress)

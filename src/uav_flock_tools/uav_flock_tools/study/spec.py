@@ -1,6 +1,7 @@
 """A study's spec (a YAML file, docs/studies.md) and the runs it names: layouts x seeds x kinds x variants."""
 from __future__ import annotations
 
+import argparse
 import copy
 import dataclasses
 import hashlib
@@ -11,11 +12,11 @@ from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
-import yaml
 
 from uav_agent.core import ablation
+from uav_agent.core.checks import did_you_mean
 from world_sim.core import layouts
-from world_sim.core.scenario import Scenario, ScenarioError, parse, to_doc
+from world_sim.core.scenario import Scenario, ScenarioError, parse, read_yaml, to_doc
 
 from .cases import case, draws, lb_along
 
@@ -80,45 +81,94 @@ def _kind(text: Any) -> tuple[str, Optional[float]]:
     return name, v
 
 
+def _whole(key: str, value: Any, low: int) -> int:
+    """An integer key of the spec, or SpecError naming it (YAML's 2.5, 'three' and true are no counts)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        what = {0: 'a non-negative integer', 1: 'a positive integer'}[low]
+        raise SpecError(f'{key}: expected {what}, got {value!r}')
+    return value
+
+
+def _cluster_range(value: Any) -> tuple[int, int]:
+    """layouts.clusters as [LO, HI], N, or 'LO-HI' (the form `layouts --clusters` takes)."""
+    from ..commands.options import count_range
+    if isinstance(value, list) and len(value) == 2:
+        lo, hi = (_whole(f'layouts.clusters[{i}]', v, 1) for i, v in enumerate(value))
+        if lo <= hi:
+            return lo, hi
+    elif isinstance(value, (int, str)) and not isinstance(value, bool):
+        try:
+            return count_range(str(value))
+        except argparse.ArgumentTypeError:
+            pass
+    raise SpecError(f'layouts.clusters: expected [LO, HI], N or "LO-HI" with 1 <= LO <= HI, got {value!r}')
+
+
 def _layouts(doc: dict[str, Any]) -> tuple[Scenario, ...]:
     from ..layouts import draw, policy_sets
     from ..simrun import load_scenario
-    if ('layouts' in doc) == ('scenario' in doc):
+    if 'layouts' in doc and 'scenario' in doc:
         raise SpecError('layouts: give either layouts (the random-layout generator) or scenario, not both')
+    if 'layouts' not in doc and 'scenario' not in doc:
+        raise SpecError('layouts: missing: give layouts (the random-layout generator) or scenario (one scenario)')
     if 'scenario' in doc:
         return (load_scenario(str(doc['scenario'])),)
     gen = doc['layouts']
-    if not isinstance(gen, dict) or set(gen) - {'count', 'clusters', 'seed'} or 'count' not in gen:
+    if not isinstance(gen, dict) or 'count' not in gen:
         raise SpecError('layouts: expected {count: N, clusters: [LO, HI], seed: S}')
-    lo, hi = gen.get('clusters', [3, 6])
-    drawn = draw('paper', int(gen['count']), (int(lo), int(hi)), int(gen.get('seed', 0)))
+    unknown = sorted(set(map(str, gen)) - {'count', 'clusters', 'seed'})
+    if unknown:
+        raise SpecError(f'layouts.{unknown[0]}: unknown key{did_you_mean(unknown[0], ["count", "clusters", "seed"])}')
+    drawn = draw('paper', _whole('layouts.count', gen['count'], 1), _cluster_range(gen.get('clusters', [3, 6])),
+                 _whole('layouts.seed', gen.get('seed', 0), 0))
     flock = policy_sets(load_scenario('paper'))['default']
     return tuple(dataclasses.replace(lay, flock=flock) for lay in drawn)
 
 
+def _variant(name: str, overrides: Any) -> dict[str, Any]:
+    """A variant's overrides as dotted keys: `{flock: {c1: 0.4}}` is `{flock.c1: 0.4}`, not a new flock section."""
+    if not isinstance(overrides, dict):
+        raise SpecError(f'variants: {name}: expected a mapping of dotted.key: value')
+    flat: dict[str, Any] = {}
+    for key, value in overrides.items():
+        if isinstance(value, dict):
+            flat.update({f'{key}.{k}': v for k, v in _variant(name, value).items()})
+        else:
+            flat[str(key)] = value
+    return flat
+
+
 def load(path: Path) -> Spec:
-    """Read and check a spec; SpecError (one line) naming what is wrong."""
+    """Read and check a spec; SpecError (one line) naming what is wrong: the path, then the key."""
     try:
-        doc = yaml.safe_load(Path(path).read_text())
-    except FileNotFoundError:
-        raise SpecError(f'{path}: no such spec file') from None
-    except yaml.YAMLError as exc:
-        raise SpecError(f'{path}: not YAML ({str(exc).splitlines()[0]})') from None
+        doc = read_yaml(path, 'spec')
+        return _checked(doc)
+    except ScenarioError as exc:  # the YAML itself, or the scenario the spec names
+        message = str(exc)
+        raise SpecError(message if message.startswith(f'{path}:') else f'{path}: {message}') from None
+    except SpecError as exc:
+        raise SpecError(f'{path}: {exc}') from None
+
+
+def _checked(doc: Any) -> Spec:
     if not isinstance(doc, dict):
-        raise SpecError(f'{path}: expected a mapping of study keys')
-    unknown = sorted(set(doc) - KEYS)
+        raise SpecError('expected a mapping of study keys')
+    unknown = sorted(set(map(str, doc)) - KEYS)
     if unknown:
-        raise SpecError(f'{unknown[0]}: unknown key (keys: {", ".join(sorted(KEYS))})')
+        raise SpecError(f'{unknown[0]}: unknown key{did_you_mean(unknown[0], sorted(KEYS))} '
+                        f'(keys: {", ".join(sorted(KEYS))})')
     seeds = doc.get('seeds', [0])
-    seeds = list(range(seeds)) if isinstance(seeds, int) else seeds
+    if isinstance(seeds, list):
+        seeds = [_whole(f'seeds[{i}]', x, 0) for i, x in enumerate(seeds)]
+    else:
+        seeds = list(range(_whole('seeds', seeds, 1)))
     kinds = doc.get('kinds', ['static'])
     variants = doc.get('variants') or {'base': {}}
-    if not isinstance(seeds, list) or not all(isinstance(x, int) for x in seeds):
-        raise SpecError('seeds: expected a count or a list of integers')
     if not isinstance(kinds, list):
         raise SpecError('kinds: expected a list')
-    if not isinstance(variants, dict) or not all(isinstance(v, dict) for v in variants.values()):
+    if not isinstance(variants, dict):
         raise SpecError('variants: expected a mapping of name: {dotted.key: value, ...}')
+    variants = {str(name): _variant(str(name), v) for name, v in variants.items()}
     for name, v in variants.items():
         off = v.get(OFF, [])
         if not isinstance(off, list) or not all(isinstance(x, str) for x in off):
@@ -130,11 +180,11 @@ def load(path: Path) -> Spec:
     for key, v in (('maps', maps), ('duration', duration)):
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or v <= 0):
             raise SpecError(f'{key}: expected a positive number')
-    spec = Spec(_layouts(doc), tuple(seeds), tuple(_kind(k) for k in kinds), maps, duration,
-                {str(k): v for k, v in variants.items()})
-    if not spec.layouts or not spec.seeds or not spec.kinds:
-        raise SpecError('the grid is empty: give at least one layout, seed and kind')
-    return spec
+    if not seeds:
+        raise SpecError('seeds: an empty list: give at least one seed')
+    if not kinds:
+        raise SpecError('kinds: an empty list: give at least one kind')
+    return Spec(_layouts(doc), tuple(seeds), tuple(_kind(k) for k in kinds), maps, duration, variants)
 
 
 def _override(doc: dict[str, Any], dotted: str, value: Any) -> None:
