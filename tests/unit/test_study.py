@@ -112,6 +112,8 @@ def test_an_interrupted_study_keeps_its_rows_and_the_next_call_computes_only_the
     assert run.returncode == 130, stderr
     kept = rows(out)
     assert 3 <= len(kept) < 12 and parts(out) == 0, 'every finished row gathered into results.parquet'
+    assert 'Traceback' not in stderr and 'CancelledError' not in stderr, f'the workers spoke:\n{stderr}'
+    assert f'{len(kept)} of 12 runs kept' in stderr.splitlines()[-1], stderr
     assert all(r['error'] is None for r in kept), 'no run counted finished that the interrupt cut short'
     rest = study(str(SMOKE), '--out', str(out), '--workers', '2')
     assert rest.returncode == 0, rest.stderr
@@ -121,7 +123,15 @@ def test_an_interrupted_study_keeps_its_rows_and_the_next_call_computes_only_the
 
 @pytest.mark.parametrize('spec, says', [
     ({'layouts': {'count': 1}, 'colour': 'red'}, 'colour: unknown key'),
-    ({'layouts': {'count': 1}, 'seeds': []}, 'the grid is empty'),
+    ({'layouts': {'count': 1}, 'seeds': []}, 'seeds: an empty list'),
+    ({'layouts': {'count': 1}, 'seeds': -2}, 'seeds: expected a positive integer, got -2'),
+    ({'layouts': {'count': 'three'}}, "layouts.count: expected a positive integer, got 'three'"),
+    ({'layouts': {'count': 2.5}}, 'layouts.count: expected a positive integer, got 2.5'),
+    ({'layouts': {'count': 1, 'seed': 'x'}}, "layouts.seed: expected a non-negative integer, got 'x'"),
+    ({'layouts': {'count': 1, 'clusters': '4-3'}}, "layouts.clusters: expected [LO, HI]"),
+    ({'layouts': {'count': 1, 'cluster': 3}}, 'layouts.cluster: unknown key; did you mean clusters?'),
+    ({'seeds': 1}, 'layouts: missing: give layouts'),
+    ({'layouts': {'count': 1}, 'variants': {'a': {'flock': {'cl': 0.4}}}}, 'flock.cl: unknown key; did you mean c1?'),
     ({'layouts': {'count': 1}, 'kinds': ['drift:fast']}, 'must be a number'),
     ({'layouts': {'count': 1}, 'kinds': ['hover']}, "'hover': expected one of"),
     ({'layouts': {'count': 1}, 'variants': {'odd': {'flock.nope': 1}}}, 'variants: odd: '),
@@ -133,6 +143,24 @@ def test_a_bad_spec_is_one_line_and_exit_2(tmp_path: Path, spec: dict, says: str
     proc = study(str(tmp_path / 'bad.yaml'), '--out', str(tmp_path / 'out'))
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and says in proc.stderr, proc.stderr
     assert not (tmp_path / 'out').exists()
+
+
+@pytest.mark.parametrize('text, says', [
+    ('layouts: {count: 1\nseeds: 2\n', 'not valid YAML at line 2'),
+    ('layouts: {count: 1}\nseeds: 1\nseeds: 2\n', "not valid YAML at line 3, column 1 ('seeds' is given twice"),
+])
+def test_a_spec_that_is_no_yaml_names_its_line_and_its_path_once(tmp_path: Path, text: str, says: str) -> None:
+    (tmp_path / 'bad.yaml').write_text(text)
+    proc = study(str(tmp_path / 'bad.yaml'), '--out', str(tmp_path / 'out'))
+    assert proc.returncode == 2 and says in proc.stderr and proc.stderr.count('bad.yaml') == 1, proc.stderr
+
+
+def test_a_spec_with_clusters_as_the_layouts_command_writes_them_and_a_nested_variant_flies(tmp_path: Path) -> None:
+    from uav_flock_tools.study.spec import load, runs
+    (tmp_path / 's.yaml').write_text(yaml.safe_dump({'layouts': {'count': 1, 'clusters': '3-4'}, 'duration': 1,
+                                                      'variants': {'a': {'flock': {'c1': 0.4}}}}))
+    grid = runs(load(tmp_path / 's.yaml'))
+    assert len(grid) == 1 and grid[0].doc['flock']['c1'] == 0.4 and 3 <= len(grid[0].doc['users']['clusters']) <= 4
 
 
 def test_a_scheduler_that_is_not_there_is_one_line_and_exit_2(tmp_path: Path) -> None:

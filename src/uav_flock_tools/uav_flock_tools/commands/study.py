@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .options import UsageError, positive_int
+from .options import EXIT_INTERRUPTED, UsageError, positive_int
 
 SUMMARY = 'many runs of a grid, on Dask (a local cluster or a scheduler\'s workers), into results.parquet'
 
@@ -52,7 +52,14 @@ def handle(args: argparse.Namespace) -> int:
     print(f'study: {len(grid)} run{"s" if len(grid) != 1 else ""} into {args.out / engine.RESULTS}'
           f' on {args.scheduler or "a local cluster"}', file=sys.stderr, flush=True)
     try:
-        done, total = engine.study(grid, args.out, args.scheduler, args.workers, _progress)
+        done, total = engine.study(grid, args.out, args.scheduler, args.workers, _progress,
+                                   lambda text: print(f'study: {text}', file=sys.stderr, flush=True))
+    except KeyboardInterrupt:
+        keys = {r.key for r in grid}
+        kept = sum(r['key'] in keys and r['error'] is None for r in engine.finished(args.out))
+        print(f'uav-flock: study interrupted: {kept} of {len(grid)} runs kept in {args.out / engine.RESULTS} '
+              f'(the same command computes the other {len(grid) - kept})', file=sys.stderr)
+        return EXIT_INTERRUPTED
     except engine.StudyError as exc:
         print(f'uav-flock: error: study: {exc}', file=sys.stderr)
         return 1

@@ -7,6 +7,7 @@ existing scheduler (`dask scheduler`, `dask worker` on any host with uav-flock i
 """
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import socket
@@ -107,8 +108,15 @@ def client_for(scheduler: Optional[str], workers: Optional[int]):  # -> (Client,
     from dask.distributed import Client, LocalCluster
     if scheduler:
         return Client(scheduler, timeout='10s'), None
-    cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                           dashboard_address=None)
+    # The worker processes are started with Ctrl-C ignored: it reaches the whole process group, and this process
+    # alone should answer it (the workers end with the cluster, without a traceback each). ':0': a free port for
+    # the dashboard, which None does not switch off (dask/distributed#8136), so no warning about 8787 in use.
+    ignored = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                               dashboard_address=':0', silence_logs=logging.ERROR)  # not a cancelled task's warning
+    finally:
+        signal.signal(signal.SIGINT, ignored)
     return Client(cluster), cluster
 
 
@@ -133,8 +141,10 @@ def _interruptible() -> Iterator[Callable[[], bool]]:
 
 
 def study(runs: list[Run], out: Path, scheduler: Optional[str] = None, workers: Optional[int] = None,
-          progress: Callable[[int, int, float], None] = lambda done, total, elapsed: None) -> tuple[int, int]:
-    """Compute the runs the folder does not hold yet; (runs computed now, runs in all)."""
+          progress: Callable[[int, int, float], None] = lambda done, total, elapsed: None,
+          say: Callable[[str], None] = lambda text: None) -> tuple[int, int]:
+    """Compute the runs the folder does not hold yet; (runs computed now, runs in all). say: a line for the user
+    while nothing else moves (a scheduler with no worker)."""
     import pyarrow.parquet as pq
     from dask.distributed import as_completed
     out.mkdir(parents=True, exist_ok=True)
@@ -148,6 +158,11 @@ def study(runs: list[Run], out: Path, scheduler: Optional[str] = None, workers: 
             futures = {client.submit(execute, r, key=f'uav-flock-run-{r.key}', pure=False): r for r in todo}
             progress(0, len(todo), 0.0)
             with _interruptible() as stopped:
+                if scheduler and not client.scheduler_info().get('workers'):
+                    say(f'the scheduler has no worker yet: waiting for one (`dask worker {scheduler}` on a host '
+                        'with uav-flock installed)')
+                    client.wait_for_workers(1)
+                    say('a worker joined')
                 for fut in as_completed(futures):
                     if stopped():
                         raise KeyboardInterrupt
