@@ -123,7 +123,10 @@ def test_bad_node_parameters_and_sync_options_are_one_line_errors(ros_env: dict[
                        ('world_sim_node', ['--ros-args', '-p', 'maps:=many']),
                        ('world_sim_node', ['--ros-args', '-p', 'seed:=-5']),  # not the -1 that means the scenario's
                        ('world_sim_node', ['--ros-args', '-p', 'duration:=-5.0']),
-                       ('world_sim_node', ['--ros-args', '-p', 'scenario:=no_such_scenario'])):
+                       ('world_sim_node', ['--ros-args', '-p', 'scenario:=no_such_scenario']),
+                       ('uav_agent_node', ['--ids', '3', '--ros-args', '--params-file', 'runs/nosuch.yaml']),
+                       ('world_sim_node', ['--ros-args', '--params-file', 'runs/nosuch.yaml']),
+                       ('uav_agent_node', ['--ids', '3', '--ros-args', '-r'])):  # rcl's own refusal
         pkg = 'uav_agent' if node == 'uav_agent_node' else 'world_sim'
         done = subprocess.run([executable(pkg, node), *args], env=ros_env, capture_output=True, text=True, timeout=60)
         said = (done.stdout + done.stderr).strip()

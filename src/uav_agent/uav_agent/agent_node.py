@@ -32,7 +32,7 @@ from rclpy.subscription import Subscription
 from std_msgs.msg import Header, Int64
 from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
 from uav_flock_ros import convert
-from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, make_executor, take_waiting
+from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, checked_ros_args, make_executor, take_waiting
 from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STEP_QOS, is_realtime
 
 from .core import links
@@ -580,7 +580,10 @@ class AgentProcess:
 
 def main(argv: Optional[list[str]] = None) -> int:
     argv = sys.argv if argv is None else argv
-    ids = parse_ids(rclpy.utilities.remove_ros_args(argv)[1:])
+    rest = checked_ros_args('uav_agent_node', argv)
+    if rest is None:
+        return 2
+    ids = parse_ids(rest[1:])
     crashes = CrashRequests()  # before the nodes exist: a request that comes early waits for the loop
     stop = StopSignals()
     try:

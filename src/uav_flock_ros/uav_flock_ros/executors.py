@@ -68,6 +68,21 @@ def make_executor(context: Optional[Context] = None) -> Executor:
     return EventsExecutor(context=context)
 
 
+def checked_ros_args(program: str, argv: list[str]) -> Optional[list[str]]:
+    """argv without its ROS arguments, or None after one line on stderr when they are a user's mistake (a params
+    file that is not there, a malformed remap): rcl would raise RCLInvalidROSArgsError with its C source lines."""
+    from pathlib import Path
+    for i, word in enumerate(argv[:-1]):
+        if word == '--params-file' and not Path(argv[i + 1]).is_file():
+            print(f'{program}: error: --params-file {argv[i + 1]}: no such file', file=sys.stderr)
+            return None
+    try:
+        return rclpy.utilities.remove_ros_args(argv)
+    except rclpy._rclpy_pybind11.RCLInvalidROSArgsError as exc:  # noqa: SLF001 -- rclpy exports it nowhere else
+        print(f'{program}: error: {str(exc).split(", at ")[0]}', file=sys.stderr)
+        return None
+
+
 def spun_node(program: str, factory: Callable[[], N], user_errors: tuple[type[Exception], ...]
               ) -> tuple[Optional[N], Optional[Executor]]:
     """The node on its executor; a user mistake in its parameters is one line on stderr and (None, None)."""

@@ -31,7 +31,7 @@ from std_msgs.msg import Int64
 from uav_flock_msgs.msg import FailureEvent, Metrics
 
 from uav_flock_ros.convert import FailureData, MetricsData, stamped_id_step
-from uav_flock_ros.executors import StopSignals, spun_node, take_waiting
+from uav_flock_ros.executors import StopSignals, checked_ros_args, spun_node, take_waiting
 from uav_flock_ros.qos import LATCHED_QOS, is_realtime
 
 from . import bag
@@ -189,6 +189,8 @@ class Recorder(Node):
 
 
 def main(argv: Optional[list[str]] = None) -> int:
+    if checked_ros_args('uav_flock_recorder', sys.argv if argv is None else argv) is None:
+        return 2
     rclpy.init(args=sys.argv if argv is None else argv, signal_handler_options=SignalHandlerOptions.NO)
     stop = StopSignals()
     node, executor = spun_node('uav_flock_recorder', Recorder, (WriterError,))

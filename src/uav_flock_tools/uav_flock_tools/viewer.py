@@ -19,7 +19,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from uav_flock_msgs.msg import AgentState, FailureEvent, Metrics, Sensing
 from uav_flock_ros import convert
-from uav_flock_ros.executors import StopSignals, spun_node
+from uav_flock_ros.executors import StopSignals, checked_ros_args, spun_node
 from uav_flock_ros.qos import STATE_QOS, STEP_QOS
 
 from . import scene
@@ -108,6 +108,8 @@ class Viewer(Node):
 
 
 def main(argv: Optional[list[str]] = None) -> int:
+    if checked_ros_args('uav_flock_viewer', sys.argv if argv is None else argv) is None:
+        return 2
     rclpy.init(args=sys.argv if argv is None else argv, signal_handler_options=SignalHandlerOptions.NO)
     stop = StopSignals()
     node, executor = spun_node('uav_flock_viewer', Viewer, (ViewerError,))

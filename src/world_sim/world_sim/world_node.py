@@ -34,7 +34,7 @@ from uav_flock_msgs.msg import Association, Clusters, Command, FailureEvent, Met
 from uav_agent.core.checks import check_fields
 from uav_agent.core.clusters import NO_GOAL
 from uav_flock_ros import convert
-from uav_flock_ros.executors import StopSignals, spun_node
+from uav_flock_ros.executors import StopSignals, checked_ros_args, spun_node
 from uav_flock_ros.processes import CRASH_DIR, process_alive
 from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, RECORDER_MAX_LAG_STEPS, STEP_QOS, is_realtime
 
@@ -467,6 +467,8 @@ class WorldNode(Node):
 
 
 def main(argv: Optional[list[str]] = None) -> int:
+    if checked_ros_args('world_sim_node', sys.argv if argv is None else argv) is None:
+        return 2
     rclpy.init(args=sys.argv if argv is None else argv, signal_handler_options=SignalHandlerOptions.NO)
     stop = StopSignals()  # SIGINT or SIGTERM: the records are written before exit
     node, executor = spun_node('world_sim', lambda: WorldNode(lambda: stop.received), (ScenarioError,))

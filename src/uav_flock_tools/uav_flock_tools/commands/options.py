@@ -6,6 +6,7 @@ line naming the option, exit code 2, before any work starts.
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn, Optional
@@ -211,11 +212,18 @@ def add_scenario_options(p: argparse.ArgumentParser, grid: bool, failures: bool 
 
 
 def check_failure(cmd: str, base: 'Scenario', args: argparse.Namespace) -> None:
-    """A failure option that would do nothing is a mistake: say so rather than run without the failure."""
+    """A duration or failure option that would do other than asked is a mistake: say so rather than run, and a run
+    this machine has not the memory for is refused before it is asked for."""
     duration = args.duration or base.duration
     if args.duration is not None and args.duration < base.dt:
         raise UsageError(f'{cmd}: --duration {args.duration:g} s is shorter than one step of the scenario '
                          f'(dt = {base.dt:g} s)')
+    if args.duration is not None and abs(args.duration / base.dt - round(args.duration / base.dt)) > 1e-6:
+        steps = args.duration / base.dt
+        raise UsageError(f'{cmd}: --duration {args.duration:g} s is not a whole number of steps of '
+                         f'{base.dt:g} s (give {int(steps) * base.dt:g} or {(int(steps) + 1) * base.dt:g})')
+    maps = args.maps if isinstance(args.maps, int) else max(args.maps or [base.maps])
+    check_memory(cmd, base, maps)
     if args.fail_fraction and args.fail_at is None and base.fail_at is None:
         raise UsageError(f'{cmd}: --fail-fraction needs --fail-at (or failure.at in the scenario)')
     if args.fail_at is None:
@@ -224,6 +232,29 @@ def check_failure(cmd: str, base: 'Scenario', args: argparse.Namespace) -> None:
         raise UsageError(f'{cmd}: --fail-at needs --fail-fraction (or failure.fraction in the scenario)')
     if args.fail_at >= duration:
         raise UsageError(f'{cmd}: --fail-at {args.fail_at:g} s is not before the end of the run ({duration:g} s)')
+
+
+def check_memory(cmd: str, s: 'Scenario', maps: int) -> None:
+    """UsageError if the MAPs' radio pairs at release would take more memory than this machine has free."""
+    from world_sim.core.physics import PAIR_BYTES, release_pairs
+    pairs = release_pairs(maps, s.release_half_width, s.flock.r)
+    need = pairs * PAIR_BYTES
+    free = available_memory()
+    if need > free:
+        raise UsageError(f'{cmd}: {maps} MAPs released in a square of {2 * s.release_half_width:g} m make about '
+                         f'{pairs:.2g} pairs within r = {s.flock.r:g} m, about {need / 2**30:.0f} GiB to hold, and this '
+                         f'machine has {free / 2**30:.0f} GiB free: fewer MAPs or a wider release.half_width')
+
+
+def available_memory() -> float:
+    """Bytes the kernel says a new allocation can have (MemAvailable), or the physical memory where it does not say."""
+    try:
+        for line in Path('/proc/meminfo').read_text().splitlines():
+            if line.startswith('MemAvailable:'):
+                return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return float(os.sysconf('SC_PAGE_SIZE') * os.sysconf('SC_PHYS_PAGES'))
 
 
 def floor_note(s: 'Scenario', maps: int) -> Optional[str]:

@@ -121,6 +121,21 @@ def neighbour_pairs(q: F64, r: float) -> NDArray[np.intp]:
     return both[order]
 
 
+# Peak bytes per unordered pair within r while neighbour_pairs works: the tree's pairs, both orders, their sorted copy.
+PAIR_BYTES = 96
+
+
+def release_pairs(n: int, half_width: float, r: float) -> float:
+    """Expected unordered MAP pairs within r at release: n uniform in a square of side L = 2 * half_width.
+
+    P(|a - b| <= r) for two uniform points of a square of side L >= r is (pi r^2 L^2 - 8/3 r^3 L + r^4 / 2) / L^4
+    (the square's distance distribution); beyond L, 1 bounds it.
+    """
+    side = 2.0 * half_width
+    p = 1.0 if r >= side else (np.pi * r**2 * side**2 - 8.0 / 3.0 * r**3 * side + r**4 / 2.0) / side**4
+    return n * (n - 1) / 2.0 * min(p, 1.0)
+
+
 def laplacian(pairs: NDArray[np.intp], n: int) -> F64:
     """L = D - A of the MAP graph from its ordered pairs."""
     a = np.zeros((n, n))
