@@ -35,7 +35,7 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-async def watch(port: int, frames: int) -> tuple[dict[str, dict], list[tuple[int, bytes]]]:
+async def watch(port: int, frames: int, subprotocol: str = SUBPROTOCOL) -> tuple[dict[str, dict], list[tuple[int, bytes]]]:
     """Connect (retrying while the run starts), note the advertised channels, subscribe to /scene and take
     `frames` of its messages: (log time in ns, payload)."""
     import websockets
@@ -43,14 +43,14 @@ async def watch(port: int, frames: int) -> tuple[dict[str, dict], list[tuple[int
     give_up = time.monotonic() + 90.0
     while True:
         try:
-            ws = await websockets.connect(f'ws://127.0.0.1:{port}', subprotocols=[SUBPROTOCOL])
+            ws = await websockets.connect(f'ws://127.0.0.1:{port}', subprotocols=[subprotocol])
             break
         except OSError:
             if time.monotonic() > give_up:
                 raise AssertionError(f'nothing served on port {port} within 90 s of `up --view`') from None
             await asyncio.sleep(0.3)
     async with ws:
-        assert ws.subprotocol == SUBPROTOCOL
+        assert ws.subprotocol == subprotocol
         channels: dict[str, dict] = {}
         while not {'/scene', '/metrics'} <= set(channels):
             msg = await asyncio.wait_for(ws.recv(), 30)
@@ -135,6 +135,34 @@ def test_view_plays_a_recorded_run_into_the_same_server(tmp_path: Path) -> None:
         rows = traj[traj[:, 0] == round(ns / 1e9 / DT)]
         assert {f'map_{int(i)}': (x, y, z) for i, x, y, z in rows[:, 2:6]} == \
             {k: (p.x, p.y, p.z) for k, p in spheres.items()}
+
+
+def test_view_speaks_both_names_of_the_protocol_and_says_why_it_refuses_a_client(tmp_path: Path) -> None:
+    """Older Lichtblick releases offer `foxglove.websocket.v1`; a client offering neither name hears why."""
+    import websockets
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'view', str(GOLDEN), '--port', str(port),
+                             '--loop'], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        wait_for_line(proc, 'Waiting for a client', 60)
+        for name in ('foxglove.websocket.v1', SUBPROTOCOL):
+            channels, got = asyncio.run(watch(port, 2, name))
+            assert {'/scene', '/metrics'} <= set(channels) and len(got) == 2, name
+
+        async def stranger() -> int:
+            try:
+                async with websockets.connect(f'ws://127.0.0.1:{port}', subprotocols=['ros.bridge.v2']):
+                    return 101
+            except websockets.exceptions.InvalidStatus as exc:
+                return exc.response.status_code
+        assert asyncio.run(stranger()) == 400
+        seen = ''.join(wait_for_line(proc, 'refused a client', 30))
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=60)
+    refused = [line for line in (seen + out).splitlines() if 'refused' in line]
+    assert refused == ['view: refused a client at 127.0.0.1: it offered ros.bridge.v2; the view speaks '
+                       'foxglove.sdk.v1 or foxglove.websocket.v1'], seen + out
 
 
 def test_view_of_a_folder_that_is_no_bag_is_one_line_and_exit_2(tmp_path: Path) -> None:

@@ -62,14 +62,16 @@ def play(path: Path, port: int, rate: float = 1.0, loop: bool = False, said: Cal
     clock, once a client is there, until Ctrl-C; returns how many frames went out. ValueError if the port
     cannot be served."""
     import foxglove
+
+    from . import gate
     run = bag.load(path)
     bag.summary(run)  # a bag without /metrics is refused here, with its reason
     traj = records.columns(run.trajectory)
     clients = Clients(said)
     t, update, figures = 0.0, None, None  # the last frame played, which is held
     try:
-        server = foxglove.start_server(name='uav-flock', host='127.0.0.1', port=port, server_listener=clients,
-                                        capabilities=[foxglove.Capability.Time])  # the recording's clock
+        server = gate.start_server(said, host='127.0.0.1', port=port, name='uav-flock', server_listener=clients,
+                                   capabilities=[foxglove.Capability.Time])  # the recording's clock
     except RuntimeError as exc:
         raise ValueError(f'--port {port}: cannot serve there ({exc})') from None
     channels, sent = scene.Channels(), 0  # advertised now, so that a client finds them when it connects

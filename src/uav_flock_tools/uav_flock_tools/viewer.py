@@ -2,7 +2,8 @@
 
 It subscribes to what the world and the MAPs publish anyway (each MAP's sensing and state, `/metrics`,
 failures), so it costs world_sim nothing, and serves the scene of `scene.py` through the Foxglove SDK's
-WebSocket server (protocol `foxglove.sdk.v1`, which Foxglove and Lichtblick connect to), a step at a time
+WebSocket server behind gate.py (protocol `foxglove.sdk.v1`, or its former name `foxglove.websocket.v1` that
+older Lichtblick releases offer), a step at a time
 once the step is whole (scene.LiveSteps).
 """
 from __future__ import annotations
@@ -68,9 +69,10 @@ class Viewer(Node):
         maps = int(self.get_parameter('maps').value)
         self.r = float(self.get_parameter('r').value)
         port, host = int(self.get_parameter('port').value), str(self.get_parameter('host').value)
-        import foxglove
+        from . import gate
         try:
-            self.server = foxglove.start_server(name='uav-flock', host=host, port=port)
+            self.server = gate.start_server(lambda line: self.get_logger().warning(line), host=host, port=port,
+                                            name='uav-flock')
         except RuntimeError as exc:
             raise ViewerError(f'cannot serve on {host}:{port}: {exc}') from None
         self.channels = scene.Channels()
