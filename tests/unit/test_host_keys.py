@@ -157,3 +157,14 @@ def test_up_and_agents_refuse_a_folder_that_cannot_secure_this_host_before_anyth
         assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and says in proc.stderr, \
             (args, proc.stderr)
         assert not out.exists(), f'{args}: nothing may be made before the keys are checked'
+
+
+def test_the_join_line_of_a_secured_run_names_the_joining_hosts_keys(tmp_path: Path) -> None:
+    """`up --secure` prints the `agents --join` line to paste on the other host: with its --secure folder."""
+    from uav_flock_tools.secure import join_option
+    keys.make(tmp_path / 'two', ['world', 'field1'])
+    assert join_option(keys.check(tmp_path / 'two' / 'world')) == f' --secure {tmp_path / "two" / "field1"}'
+    keys.make(tmp_path / 'three', ['world', 'field1', 'field2'])
+    said = join_option(keys.check(tmp_path / 'three' / 'world'))
+    assert said.startswith(f' --secure {tmp_path / "three" / "HOST"} (HOST: '), said
+    assert join_option(None) == ''

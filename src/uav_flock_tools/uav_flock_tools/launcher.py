@@ -156,8 +156,8 @@ class Run:
             print(f'uav-flock up: {secure.banner(p.secure)}', flush=True)
         if p.remote:
             print(f'uav-flock up: MAPs {p.remote[0]}-{p.remote[-1]} join from other hosts: ./uav-flock agents '
-                  f'--join {p.server_address} --ids {p.remote[0]}-{p.remote[-1]} (waiting {p.start_timeout:.0f} s)',
-                  flush=True)
+                  f'--join {p.server_address} --ids {p.remote[0]}-{p.remote[-1]}{secure.join_option(p.secure)} '
+                  f'(waiting {p.start_timeout:.0f} s)', flush=True)
         return params
 
     def write_info(self) -> None:

@@ -154,6 +154,17 @@ def for_run(keys: HostKeys, server_address: str, run: Path) -> dict[str, str]:
     return {'ca': keys.ca_fingerprint, 'super_client': str(run / FOLDER / 'super_client.xml')}
 
 
+def join_option(keys: Optional[HostKeys]) -> str:
+    """The `--secure` a joining host's `agents` needs: its own folder beside this host's (named if it is the only
+    other one there)."""
+    if keys is None:
+        return ''
+    others = sorted(d for d in keys.folder.parent.iterdir() if d.is_dir() and d != keys.folder) \
+        if keys.folder.parent.is_dir() else []
+    return f' --secure {others[0] if len(others) == 1 else keys.folder.parent / "HOST"}' + \
+        ('' if len(others) == 1 else ' (HOST: that host\'s folder of `uav-flock keys`)')
+
+
 def banner(keys: HostKeys) -> str:
     """What `up` says of a secured run: the transport, and the CA by folder and fingerprint."""
     return (f'secured: TCP with TLS only, peers verified against the CA of {keys.folder} '
