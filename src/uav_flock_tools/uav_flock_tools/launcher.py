@@ -16,7 +16,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
+import numpy as np
+from uav_agent.core.links import describe
 from uav_flock_ros.processes import CRASH_DIR, LINKS_LOG_DIR, write_params
+from world_sim.core import hearing
 from world_sim.core.scenario import Scenario
 
 from . import bag, secure, viewer
@@ -152,6 +155,8 @@ class Run:
         print(f'uav-flock up: {maps} {len(p.groups)} process{"es" if len(p.groups) != 1 else ""}, {pace}, ROS_DOMAIN_ID={p.claim.domain}, '
               f'discovery {"server " + p.server_address if p.server_address else p.discovery_range}, '
               f'run folder {p.run}', flush=True)
+        if not s.links.perfect:
+            print(f'uav-flock up: radio between MAPs: {describe(s.links)}', flush=True)
         if p.secure is not None:
             print(f'uav-flock up: {secure.banner(p.secure)}', flush=True)
         if p.remote:
@@ -265,6 +270,11 @@ class Run:
             tail = log.read_text().strip().splitlines()[-1:] if log.exists() else []
             print(f'uav-flock up: world_sim failed ({describe_exit(code)}){": " + tail[0] if tail else ""}',
                   file=sys.stderr)
+        metrics = p.run / 'metrics.csv'
+        if not p.scenario.links.perfect and metrics.exists():
+            rows = np.atleast_2d(np.loadtxt(metrics, delimiter=',', skiprows=1))
+            if rows.size and rows.shape[1] > 9:
+                print(f'uav-flock up: radio: {hearing.summary(rows)}', flush=True)
         if self.recorder_gone is not None:
             print(f'uav-flock up: the recorder ended during the run ({describe_exit(self.recorder_gone)}, see '
                   f'{p.logs / "recorder.log"}); the bag in {p.bag_path} is incomplete', file=sys.stderr)

@@ -49,6 +49,18 @@ class Links:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
+def describe(links: Links) -> str:
+    """The channel in a line, as a run's header says it."""
+    said = ['every state within r' if links.delivery == 'disc'
+            else f"delivered with the paper's alpha (falling from {links.z1:g} r to r)"]
+    if links.loss:
+        said.append(f'{100 * links.loss:g} % lost on top' + (f' in bursts of {links.burst:g} steps' if links.burst > 1 else ''))
+    if links.latency:
+        said.append(f'{links.latency} step{"s" if links.latency > 1 else ""} late')
+    said.append(f'a state used for {links.ttl} steps')
+    return ', '.join(said)
+
+
 def check(links: Links, where: Callable[[str], str] = lambda name: f'links.{name}') -> Links:
     """The channel with its numbers as floats and whole steps as ints; ValueError, naming the key as
     `where(name)` does, for a channel no run can use."""

@@ -5,8 +5,6 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from .options import EXIT_INTERRUPTED, add_scenario_options, check_failure, default_out, floor_note, run_folder
 
 SUMMARY = 'run a scenario in-process for one or more MAP counts and seeds'
@@ -24,6 +22,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def handle(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from uav_agent.core.links import describe
+    from world_sim.core import hearing
+
     from .. import plots, simrun
     cmd = args.command
     base = simrun.load_scenario(args.scenario)
@@ -35,6 +36,8 @@ def handle(args: argparse.Namespace) -> int:
                        fail_fraction=args.fail_fraction)
     if (note := floor_note(base, min(maps))) is not None:
         print(note, file=sys.stderr, flush=True)
+    if not base.links.perfect:
+        print(f'radio between MAPs: {describe(base.links)}', flush=True)
     several = len(runs) > 1
     total = sum(s.steps for s in runs)
     done: list[tuple[str, object]] = []
@@ -62,9 +65,7 @@ def handle(args: argparse.Namespace) -> int:
         print(f'{label}: t = {m[-1, 1]:.1f} s, R_c = {100 * m[-1, 2]:.1f} %, Fiedler = {m[-1, 3]:.4f}, '
               f'components = {int(m[-1, 5])}, alive = {int(m[-1, 4])}')
         if m.shape[1] > 9:  # under a channel (world_sim/core/hearing.py)
-            print(f'{" " * len(label)}  usable graph connected {100 * np.mean(m[:, 9] > 0):.1f} % of the run, '
-                  f'heard graph {100 * np.mean(m[:, 11] > 0):.1f} %; {100 * m[:, 13].mean():.1f} % of neighbour states '
-                  f'heard, oldest used {int(m[:, 14].max())} steps')
+            print(f'{" " * len(label)}  {hearing.summary(m)}')
     if several:
         table = simrun.write_summary([r for _, r in done], out)
         print('\n'.join(['', 'Mean ± std over the seeds (time to success: first t with R_c ≥ 95 % and λ2 > 0):',

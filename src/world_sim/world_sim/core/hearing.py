@@ -21,6 +21,15 @@ LINK_FMT = ('%.10g', '%d', '%.10g', '%d', '%.10g', '%d')
 HEARD_WINDOW_S = 1.0  # a pair is in the heard graph while a state went either way this recently
 
 
+def summary(metrics: np.ndarray) -> str:
+    """What a run's MAPs heard, in a line: metrics rows with LINK_COLUMNS after the nine of records.METRICS_COLUMNS."""
+    usable, heard, share, oldest = (metrics[:, 9 + LINK_COLUMNS.index(c)] for c in
+                                    ('usable_fiedler', 'heard_fiedler', 'heard_share', 'oldest_used'))
+    return (f'usable graph connected {100 * np.mean(usable > 0):.1f} % of the run, heard graph '
+            f'{100 * np.mean(heard > 0):.1f} %; {100 * share.mean():.1f} % of neighbour states heard, oldest used '
+            f'{int(oldest.max())} steps')
+
+
 class Hearing:
     """The channel's side of a run's metrics, one row per step (LINK_COLUMNS)."""
 
