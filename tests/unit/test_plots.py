@@ -61,3 +61,34 @@ def test_the_legend_of_the_animation_reads_the_same_in_every_frame(tmp_path) -> 
     assert len(np.unique(frames[0][legend].reshape(-1, 3), axis=0)) > 5, 'the legend is drawn there'
     for n, f in enumerate(frames[1:], 1):
         assert np.array_equal(f[legend], frames[0][legend]), f'the legend of frame {n} differs from the first'
+
+
+def test_a_map_lost_is_drawn_where_it_was_last_seen() -> None:
+    # MAP 1 flies at t = 0 and 0.1 s and is gone at 0.2 s; MAP 0 flies throughout.
+    traj = {'t': np.array([0.0, 0.0, 0.1, 0.1, 0.2]), 'id': np.array([0, 1, 0, 1, 0]),
+            'x': np.array([0.0, 5.0, 0.0, 6.0, 0.0]), 'y': np.array([0.0, 1.0, 0.0, 2.0, 0.0])}
+    assert plots.lost_at(traj, 0.1).shape == (0, 2)
+    assert plots.lost_at(traj, 0.2).tolist() == [[6.0, 2.0]]
+
+
+def test_an_interrupted_run_and_a_map_killed_by_hand_are_marked_on_its_pictures(tmp_path) -> None:
+    """Every picture of a run cut short says so, and a hand kill is marked on the time axes as a failure is."""
+    import dataclasses
+
+    from uav_flock_tools import simrun
+    s = simrun.load_scenario('paper').with_overrides(maps=6, duration=2.0)
+    result, _ = simrun.simulate(s)
+    cut = dataclasses.replace(result, metrics=result.metrics[:11], events=[(5, [2, 4], 'killed')],
+                              trajectory=result.trajectory[result.trajectory[:, 0] <= 10])
+    captured: dict = {}
+
+    def figures(*args, **kwargs):
+        captured['label'], captured['events'] = args[6], args[8]
+        return []
+    original, plots.run_figures = plots.run_figures, figures
+    try:
+        simrun.write_run(cut, tmp_path, '6 MAPs')
+    finally:
+        plots.run_figures = original
+    assert captured['label'].endswith('interrupted at t = 1.0 s'), captured['label']
+    assert (0.5, '2 MAPs killed') in captured['events'] and (1.0, 'run interrupted') in captured['events']

@@ -16,10 +16,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
 from uav_agent.core.links import describe
 from uav_flock_ros.processes import CRASH_DIR, LINKS_LOG_DIR, write_params
-from world_sim.core import hearing
 from world_sim.core.scenario import Scenario
 
 from . import bag, secure, viewer
@@ -270,11 +268,6 @@ class Run:
             tail = log.read_text().strip().splitlines()[-1:] if log.exists() else []
             print(f'uav-flock up: world_sim failed ({describe_exit(code)}){": " + tail[0] if tail else ""}',
                   file=sys.stderr)
-        metrics = p.run / 'metrics.csv'
-        if not p.scenario.links.perfect and metrics.exists():
-            rows = np.atleast_2d(np.loadtxt(metrics, delimiter=',', skiprows=1))
-            if rows.size and rows.shape[1] > 9:
-                print(f'uav-flock up: radio: {hearing.summary(rows)}', flush=True)
         if self.recorder_gone is not None:
             print(f'uav-flock up: the recorder ended during the run ({describe_exit(self.recorder_gone)}, see '
                   f'{p.logs / "recorder.log"}); the bag in {p.bag_path} is incomplete', file=sys.stderr)

@@ -16,7 +16,8 @@ from world_sim.core.physics import label_centroids  # noqa: E402
 Event = Union[float, tuple[float, str]]
 UsersAt = Callable[[float], tuple[np.ndarray, np.ndarray]]
 MODE_COLOURS = ('tab:blue', 'tab:orange', 'tab:green')
-MODE_NAMES = ('M0 dynamic', 'M1 connectivity', 'M2 static')
+# M0 is also a server at a cluster still under r0 coverage (docs/allocation.md): it stays dynamic there.
+MODE_NAMES = ('M0 dynamic (cluster not yet served)', 'M1 connectivity', 'M2 static')
 
 
 def save(fig: plt.Figure, path: Path) -> Path:
@@ -149,6 +150,17 @@ def formation(ax: plt.Axes, users_xy: np.ndarray, users_cluster: np.ndarray, cen
     ax.set_title(title, fontsize=9)
 
 
+def lost_at(traj: dict[str, np.ndarray], t: float) -> np.ndarray:
+    """Where each MAP that flew before t and no longer does at t was last, (n, 2)."""
+    before, now = traj['t'] < t, traj['t'] == t
+    gone = np.setdiff1d(np.unique(traj['id'][before]), traj['id'][now])
+    if not len(gone):
+        return np.zeros((0, 2))
+    rows = np.flatnonzero(before & np.isin(traj['id'], gone))
+    last = {int(traj['id'][i]): i for i in rows}  # rows run in time order: the last one stays
+    return np.array([[traj['x'][i], traj['y'][i]] for i in last.values()])
+
+
 def formation_snapshots(traj: dict[str, np.ndarray], users_xy: np.ndarray, users_cluster: np.ndarray,
                         centroids: np.ndarray, r: float, times: Sequence[float], title: str, path: Path,
                         users_at: UsersAt | None = None) -> Path:
@@ -168,13 +180,18 @@ def formation_snapshots(traj: dict[str, np.ndarray], users_xy: np.ndarray, users
     width = 3.6 * (hi[0] - lo[0]) / max(hi[1] - lo[1], 1e-9)
     fig, axes = plt.subplots(1, len(times), figsize=(min(max(width, 2.4), 5.0) * len(times) + 0.6, 4.6),
                              squeeze=False)
+    any_lost = False
     for ax, t in zip(axes[0], shown):
         sel = traj['t'] == t
         q = np.column_stack([traj['x'][sel], traj['y'][sel]])
         formation(ax, *panels[t], q, traj['mode'][sel].astype(int), r, f't = {t:.1f} s')
+        gone = lost_at(traj, t)
+        if len(gone):
+            any_lost = True
+            ax.scatter(gone[:, 0], gone[:, 1], marker='X', s=30, c='tab:red', zorder=5)
         ax.set_xlim(lo[0], hi[0])
         ax.set_ylim(lo[1], hi[1])
-    handles = legend_handles(r)
+    handles = legend_handles(r, lost=any_lost)
     fig.legend(handles=handles, loc='lower center', ncol=len(handles), fontsize=8, frameon=False)
     fig.suptitle(title)
     fig.tight_layout(rect=(0, 0.08, 1, 0.96))
@@ -215,9 +232,15 @@ class FormationMovie:
         pts = np.vstack([*(u[0] for u in users.values()),
                          np.column_stack([traj['x'], traj['y']])[np.concatenate(self.rows)]])
         lo, hi = pts.min(axis=0) - 15.0, pts.max(axis=0) + 15.0
-        aspect = (hi[1] - lo[1]) / max(hi[0] - lo[0], 1e-9)
-        height = min(max(5.4 * aspect, 3.0), 6.4) + 1.5  # the axes, and 1.5 in for the title, labels and legend
-        self.fig, ax = plt.subplots(figsize=(6.0, height))
+        # The figure is cut to the axes' own shape (equal scales, within 1:2 and 7:5), so no band is left empty
+        # around them; 480 px wide at 96 dpi, where the text reads.
+        span = hi - lo
+        aspect = float(np.clip(span[1] / max(span[0], 1e-9), 0.5, 1.4))
+        grow = np.maximum(np.array([span[1] / aspect, span[0] * aspect]) - span, 0.0)
+        lo, hi = lo - grow / 2, hi + grow / 2
+        width, left, right, top, bottom = 5.0, 0.7, 0.15, 0.5, 0.95  # inches: labels above, ticks and legend below
+        height = (width - left - right) * aspect + top + bottom
+        self.fig, ax = plt.subplots(figsize=(width, height))
         ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), xlabel='x (m)', ylabel='y (m)')
         ax.set_aspect('equal')
         self.msd = ax.scatter(*users[shown[0]][0].T, s=2, c='0.75', zorder=1)
@@ -228,10 +251,11 @@ class FormationMovie:
         self.lost = ax.scatter([], [], marker='X', s=40, c='tab:red', zorder=5)
         self.heading = ax.set_title('', fontsize=9)
         self.last_seen: dict[int, np.ndarray] = {}
-        self.fig.legend(handles=legend_handles(r, lost=True, tracks=True), loc='lower center', ncol=4, fontsize=7,
-                        frameon=False)
-        self.fig.subplots_adjust(bottom=1.0 / height, top=1.0 - 0.45 / height)
-        self.fig.set_dpi(80)
+        self.fig.legend(handles=legend_handles(r, lost=True, tracks=True), loc='lower center', ncol=3, fontsize=7,
+                        frameon=False, borderaxespad=0.2, handletextpad=0.3, columnspacing=1.0)
+        self.fig.subplots_adjust(left=left / width, right=1.0 - right / width, bottom=bottom / height,
+                                 top=1.0 - top / height)
+        self.fig.set_dpi(96)
 
     def readout(self, t: float) -> str:
         if self.metrics is None or not len(self.metrics):
@@ -282,10 +306,12 @@ class FormationMovie:
 
 def run_figures(metrics: np.ndarray, traj: dict[str, np.ndarray], users_xy: np.ndarray | None,
                 users_cluster: np.ndarray | None, centroids: np.ndarray | None, r: float, label: str,
-                folder: Path, events: Sequence[Event] = (), users_at: UsersAt | None = None) -> list[Path]:
+                folder: Path, events: Sequence[Event] = (), users_at: UsersAt | None = None,
+                radio: str | None = None) -> list[Path]:
     """The figures of one run: coverage, Fiedler value, mode counts, formation snapshots and animation.
 
-    metrics rows follow the METRICS_COLUMNS order; without MSDs the formation pictures are left out. The
+    metrics rows follow the METRICS_COLUMNS order; without MSDs the formation pictures are left out; radio: the
+    channel between MAPs in words, for links.png's title. The
     animation, the costliest, is drawn by a forked child meanwhile (on a machine of one core, here after).
     """
     animated = users_xy is not None and users_cluster is not None and centroids is not None and len(traj['t'])
@@ -301,7 +327,8 @@ def run_figures(metrics: np.ndarray, traj: dict[str, np.ndarray], users_xy: np.n
             mode_counts(t, metrics[:, 6:9], f'Modes, {label}', folder / 'modes.png'),
         ]
         if metrics.shape[1] > 9:  # under a channel: the graphs of what the MAPs could and did hear (hearing.py)
-            out.append(channel(t, metrics, f'Radio between MAPs, {label}', folder / 'links.png', events))
+            out.append(channel(t, metrics, f'Radio between MAPs, {label}' + (f'\n{radio}' if radio else ''),
+                               folder / 'links.png', events))
         if child is not None:
             end = float(traj['t'].max())
             times = sorted({0.0, round(end / 4, 1), round(end / 2, 1), end})

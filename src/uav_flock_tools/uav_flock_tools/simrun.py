@@ -12,6 +12,7 @@ import numpy as np
 from uav_flock_tools.batch import BatchSimulator
 from world_sim.core.model import RunResult
 from world_sim.core import outcome, records
+from uav_agent.core.links import describe
 from world_sim.core.crowd import events as events_of
 from world_sim.core.hearing import LINK_COLUMNS
 from world_sim.core.scenario import Scenario
@@ -34,12 +35,20 @@ def write_run(result: RunResult, folder: Path, label: str, pictures: bool = True
     records.write_failures(folder / records.FAILURES_FILE, result.failed, result.fail_step, result.events)
     if not pictures:
         return []
-    events = [result.fail_step * result.scenario.dt] if result.fail_step is not None and len(result.failed) else []
+    events: list[plots.Event] = \
+        [result.fail_step * result.scenario.dt] if result.fail_step is not None and len(result.failed) else []
     u, dt = result.users, result.scenario.dt
+    events += [(step * dt, f'{len(ids)} MAP{"s" if len(ids) > 1 else ""} {cause}') for step, ids, cause in result.events
+               if cause != 'scheduled']  # killed by hand (the scheduled failure is marked above)
+    end = float(result.metrics[-1, 1]) if len(result.metrics) else 0.0
+    if end < result.scenario.duration - dt / 2:  # Ctrl-C, or world_sim ended early: every picture says so
+        events.append((end, 'run interrupted'))
+        label = f'{label}, interrupted at t = {end:.1f} s'
     moving = None if result.motion is None else (lambda t: result.motion.at(int(round(t / dt))))
+    radio = None if result.scenario.links.perfect else describe(result.scenario.links)
     return plots.run_figures(result.metrics, trajectory_columns(result), u.xyz[:, :2], u.cluster, u.centroids,
-                             result.scenario.flock.r, f'{result.scenario.name}, {label}', folder, [*events, *events_of(result.scenario)],
-                             moving)
+                             result.scenario.flock.r, f'{result.scenario.name}, {label}', folder,
+                             [*events, *events_of(result.scenario)], moving, radio)
 
 
 def simulate(scenario: Scenario, progress: Optional[Callable[[int], None]] = None) -> tuple[RunResult, bool]:
