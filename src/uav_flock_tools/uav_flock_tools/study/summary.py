@@ -96,7 +96,7 @@ def strip_plot(rows: list[dict[str, Any]], lines: list[dict[str, Any]], path: Pa
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(max(4.0, 1.2 * len(lines) + 1), 4.0))
+    fig, ax = plt.subplots(figsize=(max(6.4, 1.2 * len(lines) + 1), 4.4))
     rng = np.random.default_rng(0)
     for x, c in enumerate(lines):
         v = np.array([_value(r) for r in rows if r['kind'] == c['kind'] and r['variant'] == c['variant']]) * 100
@@ -104,8 +104,11 @@ def strip_plot(rows: list[dict[str, Any]], lines: list[dict[str, Any]], path: Pa
         ax.errorbar(x, 100 * c['mean'], yerr=[[100 * (c['mean'] - c['low'])], [100 * (c['high'] - c['mean'])]],
                     fmt='_', color='k', capsize=6, markersize=20)
     ax.set_xticks(range(len(lines)), [f"{c['kind']}\n{c['variant']}" for c in lines], fontsize=8)
+    ax.set_xlim(-0.6, len(lines) - 0.4)
+    ax.set_ylim(-3.0, 103.0)  # a share: the whole scale, so that studies compare at a glance
     ax.set_ylabel('connected after convergence (%)')
-    ax.set_title('each run, and the mean with its 95 % interval')
+    ax.set_title(f'Study {path.parent.name}: {len(rows)} runs\n'
+                 'dots: each run; bar: the mean with its 95 % interval', fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
