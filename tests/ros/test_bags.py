@@ -258,6 +258,8 @@ def test_report_on_a_bag_without_steps_says_so(tmp_path: Path) -> None:
     done = cli('report', str(early), '--out', str(tmp_path / 'r'))
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
     assert 'the bag holds no steps' in done.stderr and 'not a uav-flock run' not in done.stderr, done.stderr
+    replayed = cli('replay', str(early), '--agent', '3')  # the same words, not "MAP 3 is not in this bag"
+    assert replayed.returncode == 2 and 'the bag holds no steps' in replayed.stderr, replayed.stderr
 
 
 def test_report_reads_a_bag_without_our_metadata(tmp_path: Path) -> None:
@@ -297,6 +299,13 @@ def test_replay_with_a_parameter_changed_is_an_experiment(tmp_path: Path) -> Non
         differ = int(re.search(r'(\d+) of \d+ steps differ', said)[1])
         assert steps > 0 and 0 < differ <= steps, said
         assert plot.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n' and str(plot) in said
+    # Without --plot, a bag that is in no run folder (the golden bag, tracked by git) is left as it was.
+    before = sorted(p.name for p in GOLDEN.iterdir())
+    done = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'replay', str(GOLDEN / 'bag'), '--agent', '2',
+                           '--set', 'c1=0.35'], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert sorted(p.name for p in GOLDEN.iterdir()) == before, 'replay wrote into tests/golden'
+    assert len(list((tmp_path / 'runs').glob('replay-*/replay_map2.png'))) == 1, done.stdout
 
 
 def test_a_replay_without_set_that_differs_fails() -> None:

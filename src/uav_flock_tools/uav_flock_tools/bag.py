@@ -372,6 +372,9 @@ def replay_inputs(path: Path, agent: int) -> ReplayInputs:
                 clusters.setdefault(convert.ClustersData.from_msg(msg).version, raw)
             else:
                 failures.append((convert.FailureData.from_msg(msg), raw))
+    if not sensing and not states:
+        raise BagError(f'{path}: the bag holds no steps (no /map_<id>/state message): the run ended before its '
+                       'first step')
     if not sensing:
         raise BagError(f'{path}: no /map_{agent}/sensing messages: MAP {agent} is not in this bag')
     if not clusters:

@@ -5,7 +5,7 @@ import argparse
 from dataclasses import fields
 from pathlib import Path
 
-from .options import BAG_HELP, UsageError, key_value, make_folder, non_negative_float, non_negative_int, positive_float
+from .options import BAG_HELP, UsageError, default_out, key_value, make_folder, non_negative_float, non_negative_int, positive_float
 
 SUMMARY = "feed one MAP's recorded inputs to a fresh agent node, compare commands"
 
@@ -21,7 +21,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help='an experiment: replay with an agent parameter changed, e.g. --set c1=0.4 (repeatable); '
                         f'exit 0 and a summary of how the commands differ. Keys: {", ".join(replay_keys())}')
     p.add_argument('--plot', metavar='PNG', help='with --set: where the plot of |Δu| over time goes '
-                                                 '(default: replay_map<ID>.png beside the bag folder)')
+                                                 '(default: replay_map<ID>.png in the run folder that holds '
+                                                 'the bag, or in runs/replay-<time>/ for a bag of no run folder)')
 
 
 def handle(args: argparse.Namespace) -> int:
@@ -31,7 +32,10 @@ def handle(args: argparse.Namespace) -> int:
         raise UsageError('replay: --plot draws the difference that --set makes: give --set KEY=VALUE')
     try:
         path = bag.find_bag(Path(args.bag))
-        plot = Path(args.plot) if args.plot else path.parent / f'replay_map{args.agent}.png'  # beside the bag
+        # Beside the bag in the run folder `up` made (run.json there); a bag elsewhere, perhaps tracked by git as
+        # tests/golden/bag is, is not written beside: its picture goes into a new runs/replay-<time>/.
+        home = path.parent if (path.parent / 'run.json').exists() else default_out('replay')
+        plot = Path(args.plot) if args.plot else home / f'replay_map{args.agent}.png'
         if args.set:
             make_folder(plot.parent, 'replay: --plot')
         outcome = replay.replay(path, args.agent, args.tolerance, args.timeout, dict(args.set or []))
