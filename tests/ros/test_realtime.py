@@ -161,7 +161,7 @@ def test_sigterm_ends_a_stepping_world_in_order(tmp_path: Path, ros_env: dict[st
 
 
 def test_a_pace_the_machine_cannot_keep_is_reported_once(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    done = cli('up', '--maps', '3', '--duration', '4', '--sync', 'realtime', '--rate', '200', '--out', str(tmp_path),
+    done = cli('up', '--maps', '3', '--duration', '6', '--sync', 'realtime', '--rate', '200', '--out', str(tmp_path),
                env=ros_env)
     assert done.returncode == 0, done.stdout + done.stderr
     said = [line for line in done.stdout.splitlines() if 'the run goes slower than asked' in line]
