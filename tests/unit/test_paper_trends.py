@@ -25,3 +25,21 @@ def test_half_the_fleet_failing_loses_connectivity_but_keeps_coverage(paper_scen
     m = BatchSimulator(s).run().metrics
     assert m[-1, 4] == 40
     assert settled(m, 3) == 0.0 and settled(m, 2) >= 0.75
+
+
+def test_the_shipped_results_md_holds_what_paper_computes_for_seed_0(paper_scenario_path: str) -> None:
+    """docs/results.md is what `paper --docs` wrote with the code as it is: seed 0's time to success at 90 MAPs,
+    under Algorithm 2 and under the demand allocation, is the first of each list of seeds there."""
+    import re
+    from pathlib import Path
+
+    from uav_flock_tools.paper import time_to_connected_coverage, with_demand
+    text = (Path(__file__).resolve().parents[2] / 'docs' / 'results.md').read_text()
+    listed = re.findall(r'first time with λ2 > 0 and R_c ≥ 95 %: (never|[\d.]+ s),', text)
+    assert len(listed) == 2, 'results.md lists seed by seed the time to success of Algorithm 2 and of demand'
+    s = load(paper_scenario_path).with_overrides(maps=90, seed=0)
+    for said, scenario, name in zip(listed, (s, with_demand(s)), ('Algorithm 2', 'demand allocation')):
+        t = time_to_connected_coverage(BatchSimulator(scenario).run().metrics)
+        now = 'never' if np.isnan(t) else f'{t:.1f} s'
+        assert now == said, (f'{name}, 90 MAPs, seed 0: results.md says {said}, the code now gives {now}: '
+                             'regenerate it with `./uav-flock paper --docs --seeds 5`')
