@@ -22,7 +22,7 @@ readme_check = importlib.util.module_from_spec(SPEC)
 sys.modules['readme_check'] = readme_check  # its dataclasses look their module up there
 SPEC.loader.exec_module(readme_check)
 MARGIN = 1.5  # MAPs over the floor LB that a demo flies with (docs/allocation.md: LB alone splits often)
-COPIES = {'my.yaml': 'paper'}  # the README's own scenario starts as a copy of paper.yaml
+COPIES = {'runs/my.yaml': 'paper'}  # the README's own scenario starts as a copy of paper.yaml
 
 
 def runs_of_the_readme() -> list[list[str]]:
