@@ -8,7 +8,7 @@ below-the-floor note. Two kinds are handled as a user would: `topics`, `echo` an
 given a live run (the `up` that writes that folder is started in the background and waited for), and a
 command that serves until Ctrl-C (`echo` without --once, `view`) gets a SIGINT after a while. Left out:
 `make test` (the suite, which CI runs), and the native-ROS and Docker blocks (no ROS or Docker here).
-Takes about half an hour on two cores (`paper` alone about ten minutes).
+Takes about three quarters of an hour on two cores (`paper` alone about 17 minutes; `--skip paper` leaves it out).
 """
 from __future__ import annotations
 
