@@ -184,8 +184,8 @@ def write_results(docs: Path, out: Path, base: Scenario, seeds: int, metrics: di
     if ended:
         lines += _layout_lines(ended)
     docs.parent.mkdir(parents=True, exist_ok=True)
-    kept = _others(docs.read_text(), lines) if docs.exists() else []
-    docs.write_text('\n'.join(lines) + '\n' + ''.join('\n' + section for section in kept))
+    carried = _others(docs.read_text(), lines) if docs.exists() else []
+    docs.write_text('\n'.join(lines) + '\n' + ''.join('\n' + section for section in carried))
 
 
 # Every section this command may write (some only when asked): an earlier one left out this time is not kept.

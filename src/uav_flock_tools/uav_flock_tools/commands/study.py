@@ -56,9 +56,9 @@ def handle(args: argparse.Namespace) -> int:
                                    lambda text: print(f'study: {text}', file=sys.stderr, flush=True))
     except KeyboardInterrupt:
         keys = {r.key for r in grid}
-        kept = sum(r['key'] in keys and r['error'] is None for r in engine.finished(args.out))
-        print(f'uav-flock: study interrupted: {kept} of {len(grid)} runs kept in {args.out / engine.RESULTS} '
-              f'(the same command computes the other {len(grid) - kept})', file=sys.stderr)
+        saved = sum(r['key'] in keys and r['error'] is None for r in engine.finished(args.out))
+        print(f'uav-flock: study interrupted: {saved} of {len(grid)} runs kept in {args.out / engine.RESULTS} '
+              f'(the same command computes the other {len(grid) - saved})', file=sys.stderr)
         return EXIT_INTERRUPTED
     except engine.StudyError as exc:
         print(f'uav-flock: error: study: {exc}', file=sys.stderr)
