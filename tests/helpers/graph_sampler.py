@@ -9,10 +9,16 @@ import json
 import sys
 
 import rclpy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from uav_flock_msgs.msg import Metrics
 
 from helpers.lifecycle import UntilTerm
-from uav_flock_ros.qos import STEP_QOS
+
+# The step the world is at now, not its history: a sampler that matched late would otherwise be handed the
+# world's latched past steps (TRANSIENT_LOCAL) and read the graph of step 50 as that of step 0.
+NOW_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.VOLATILE)
+
 
 def main() -> int:
     n = int(sys.argv[1])
@@ -21,18 +27,21 @@ def main() -> int:
     samples: list[list[object]] = []
     nodes = heard = 0  # the most MAP nodes discovery brought at once; /metrics messages received
 
+    last = -5  # the step last sampled: every 5th step at most (with depth 1, steps may be skipped while sampling)
+
     def on_metrics(m: Metrics) -> None:
-        nonlocal heard
+        nonlocal heard, last
         heard += 1
-        if m.step % 5:
+        if m.step < last + 5:
             return
+        last = int(m.step)
         for j in range(n):
             subs = sorted(int(i.node_namespace.rsplit('_', 1)[1]) for i in
                           node.get_subscriptions_info_by_topic(f'/map_{j}/state')
                           if i.node_namespace.startswith('/map_'))
             samples.append([int(m.step), j, subs])
 
-    node.create_subscription(Metrics, '/metrics', on_metrics, STEP_QOS)
+    node.create_subscription(Metrics, '/metrics', on_metrics, NOW_QOS)
     print('ready', flush=True)
     while running:
         rclpy.spin_once(node, timeout_sec=0.1)
