@@ -35,3 +35,15 @@ def paper_scenario_path() -> str:
     """The shipped paper scenario, as installed in the workspace."""
     from ament_index_python.packages import get_package_share_directory
     return os.path.join(get_package_share_directory('world_sim'), 'config', 'paper.yaml')
+
+
+SLOW_FOLDERS = ('ros',)  # tests/ros: real processes over DDS, every one of them
+SLOW_FILES = ('test_bootstrap.py',)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """`slow` on whatever starts processes by where it lives; the unit tests that do mark themselves."""
+    for item in items:
+        path = item.path
+        if path.parent.name in SLOW_FOLDERS or path.name in SLOW_FILES:
+            item.add_marker(pytest.mark.slow)

@@ -170,6 +170,7 @@ def test_with_maps_for_every_demand_no_edge_is_left_without_its_relays(k: int, s
     assert sorted(roles.edges) == [tuple(e) for e in mst_edges(xy)], 'the tree spans every cluster from the start'
 
 
+@pytest.mark.slow
 def test_a_small_random_layout_ends_covered_and_connected(paper_scenario_path: str) -> None:
     paper = load(paper_scenario_path)
     lay = layouts.draw(paper, layouts.LayoutSpec(clusters=(3, 3)), np.random.default_rng(11))

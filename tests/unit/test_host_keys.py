@@ -134,6 +134,7 @@ def test_the_command_says_in_one_line_what_it_made(tmp_path: Path) -> None:
     assert again.returncode == 2 and '--replace' in again.stderr
 
 
+@pytest.mark.slow
 def test_up_and_agents_refuse_a_folder_that_cannot_secure_this_host_before_anything_starts(tmp_path: Path) -> None:
     """`--secure` takes the folder of this host (its name is the host's): missing, for another host, expired, or
     without --listen, each is one line and exit 2 before any run folder or process is made."""

@@ -2,9 +2,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from uav_flock_tools.batch import BatchSimulator
 from world_sim.core.scenario import load
+
+pytestmark = pytest.mark.slow  # the paper's runs, 60 s each
 
 
 def settled(metrics: np.ndarray, column: int) -> float:

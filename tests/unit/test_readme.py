@@ -15,6 +15,8 @@ from world_sim.core import layouts
 from world_sim.core.scenario import Scenario
 from world_sim.shipped import load_scenario
 
+pytestmark = pytest.mark.slow  # the README's runs, simulated
+
 ROOT = Path(__file__).resolve().parents[2]
 SPEC = importlib.util.spec_from_file_location('readme_check', ROOT / 'tools' / 'readme_check.py')
 assert SPEC is not None and SPEC.loader is not None

@@ -16,6 +16,8 @@ from PIL import Image
 
 from world_sim.core.records import METRICS_COLUMNS, TRAJECTORY_COLUMNS, read_csv, read_trajectory
 
+pytestmark = pytest.mark.slow  # every test runs the command line
+
 
 GOLDEN_BAG = Path(__file__).resolve().parents[1] / 'golden' / 'bag'
 

@@ -16,6 +16,8 @@ import pyarrow.parquet as pq
 import pytest
 import yaml
 
+pytestmark = pytest.mark.slow  # studies on Dask clusters of worker processes
+
 SMOKE = Path(__file__).resolve().parents[2] / 'studies' / 'smoke.yaml'
 WHERE = ('wall_s', 'host')  # how long and on which host a run took: not what it found
 

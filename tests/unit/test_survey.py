@@ -3,6 +3,7 @@ from __future__ import annotations
 
 
 import numpy as np
+import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
@@ -82,6 +83,7 @@ def test_settle_reports_a_cluster_again_only_when_it_changed_enough() -> None:
 @example(seed=29103415, sa=13.8125, sb=13.75, na=354, nb=255, speed=3.38671875, offset=0.0)  # a turned split
 @given(st.integers(0, 2**32 - 1), st.floats(10.0, 16.0), st.floats(10.0, 16.0), st.integers(200, 700),
        st.integers(200, 700), st.floats(1.0, 4.0), st.floats(-1.0, 1.0))
+@pytest.mark.slow
 def test_two_crowds_that_meet_stay_two_clusters(seed: int, sa: float, sb: float, na: int, nb: int, speed: float,
                                                offset: float) -> None:
     """Two crowds that walk into and through each other are two tracked clusters at every 2 s survey, and

@@ -5,6 +5,7 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 
 from uav_agent.core.clusters import ClusterMap, key_of
 from uav_agent.core.params import FlockParams
@@ -80,6 +81,7 @@ def test_a_role_not_heard_since_the_map_reached_its_place_is_not_declared() -> N
     assert vacate(mem._replace(since=-1), NOW, near_cluster_2(), ROW, P).lost == (), 'never settled: nothing'
 
 
+@pytest.mark.slow
 def test_a_wiped_out_cluster_is_served_again_in_a_batch_run(paper_scenario_path: str) -> None:
     """Every server of one cluster fails at once: the survivors learn it by gossip, and some take the role."""
     paper = load(paper_scenario_path)
