@@ -8,8 +8,6 @@ the MAP agents as processes), `agents` (agents of another host joining an `up --
 from __future__ import annotations
 
 import argparse
-import io
-import os
 import signal
 import sys
 from types import FrameType
@@ -56,46 +54,6 @@ RETRY_INTERRUPT_S = 0.05
 PRINTERS = ('echo', 'topics')
 
 
-class _Outlasting(io.TextIOBase):
-    """stdout that outlives its reader: once the pipe closes, what is printed goes to /dev/null, and the job goes on.
-
-    `up ... | head -2` must not cut a run's records at the step the reader left.
-    """
-
-    def __init__(self, stream: 'io.TextIOBase') -> None:
-        self._stream = stream
-
-    def _closed_pipe(self) -> None:
-        os.dup2(os.open(os.devnull, os.O_WRONLY), self._stream.fileno())
-
-    def write(self, text: str) -> int:
-        try:
-            return self._stream.write(text)
-        except BrokenPipeError:
-            self._closed_pipe()
-            return len(text)
-
-    def flush(self) -> None:
-        try:
-            self._stream.flush()
-        except BrokenPipeError:
-            self._closed_pipe()
-            try:
-                self._stream.flush()  # what was buffered goes to /dev/null now
-            except BrokenPipeError:  # pragma: no cover - the descriptor now points at /dev/null
-                pass
-
-    def fileno(self) -> int:
-        return self._stream.fileno()
-
-    def isatty(self) -> bool:
-        return self._stream.isatty()
-
-    @property
-    def encoding(self) -> str:  # type: ignore[override]
-        return self._stream.encoding
-
-
 
 def _interrupt(signum: int, frame: Optional[FrameType]) -> None:
     raise KeyboardInterrupt
@@ -127,7 +85,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     install_interrupts()
     command = next((a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith('-')), '')
     if command not in PRINTERS:
-        sys.stdout = _Outlasting(sys.stdout)  # type: ignore[assignment]
+        from .outlast import Outlasting
+        sys.stdout = Outlasting(sys.stdout)  # type: ignore[assignment]
     try:
         return _main(argv)
     except KeyboardInterrupt:

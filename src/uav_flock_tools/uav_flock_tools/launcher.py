@@ -142,25 +142,21 @@ class Run:
         if p.remote:
             self.info['remote_ids'] = [p.remote[0], p.remote[-1]]
             # What `agents --join` fetches from /run_info: the MAPs it may serve and the agents' parameters.
-            (p.run / 'join.json').write_text(json.dumps({
-                'maps': s.maps, 'remote_ids': [p.remote[0], p.remote[-1]], 'domain_id': p.claim.domain,
-                'agent_params': agent_params}))
+            (p.run / 'join.json').write_text(json.dumps({'maps': s.maps, 'remote_ids': self.info['remote_ids'],
+                                                         'domain_id': p.claim.domain, 'agent_params': agent_params}))
         self.write_info()
         p.logs.mkdir(exist_ok=True)
+        maps = f'{s.maps} MAPs, {s.maps - len(p.remote)} of them here,' if p.remote else f'{s.maps} MAPs'
         pace = f'realtime x{p.rate:g}' if p.sync == 'realtime' else 'lockstep'
-        here = f'{s.maps - len(p.remote)} of them here' if p.remote else ''
-        maps = f'{s.maps} MAPs, {here} in' if p.remote else f'{s.maps} MAPs in'
-        print(f'uav-flock up: {maps} {len(p.groups)} process{"es" if len(p.groups) != 1 else ""}, {pace}, ROS_DOMAIN_ID={p.claim.domain}, '
-              f'discovery {"server " + p.server_address if p.server_address else p.discovery_range}, '
-              f'run folder {p.run}', flush=True)
-        if not s.links.perfect:
-            print(f'uav-flock up: radio between MAPs: {describe(s.links)}', flush=True)
-        if p.secure is not None:
-            print(f'uav-flock up: {secure.banner(p.secure)}', flush=True)
-        if p.remote:
-            print(f'uav-flock up: MAPs {p.remote[0]}-{p.remote[-1]} join from other hosts: ./uav-flock agents '
-                  f'--join {p.server_address} --ids {p.remote[0]}-{p.remote[-1]}{secure.join_option(p.secure)} '
-                  f'(waiting {p.start_timeout:.0f} s)', flush=True)
+        found = 'server ' + p.server_address if p.server_address else p.discovery_range
+        said = [f'{maps} in {len(p.groups)} process{"es" if len(p.groups) != 1 else ""}, {pace}, '
+                f'ROS_DOMAIN_ID={p.claim.domain}, discovery {found}, run folder {p.run}']
+        said += [] if s.links.perfect else [f'radio between MAPs: {describe(s.links)}']
+        said += [] if p.secure is None else [secure.banner(p.secure)]
+        said += [f'MAPs {p.remote[0]}-{p.remote[-1]} join from other hosts: ./uav-flock agents --join '
+                 f'{p.server_address} --ids {p.remote[0]}-{p.remote[-1]}{secure.join_option(p.secure)} '
+                 f'(waiting {p.start_timeout:.0f} s)'] if p.remote else []
+        print('\n'.join(f'uav-flock up: {line}' for line in said), flush=True)
         return params
 
     def write_info(self) -> None:
@@ -244,10 +240,7 @@ class Run:
         self.stopping = True
         self.recorder_gone = self.recorder.poll() if self.recorder is not None else None  # ends only when told
         stop([self.world] if self.world is not None else [], signal.SIGINT, {signal.SIGTERM: self.agents})
-        if self.recorder is not None:
-            stop([self.recorder], signal.SIGINT)
-        if self.viewer is not None:
-            stop([self.viewer], signal.SIGINT)
+        stop([child for child in (self.recorder, self.viewer) if child is not None], signal.SIGINT)
         if self.server is not None:
             stop([self.server])
         # A SIGKILLed agent cannot remove its files, nor can one stopped while its participant was still
