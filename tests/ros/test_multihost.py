@@ -193,8 +193,9 @@ def test_a_secure_run_over_three_hosts_equals_sim_and_strangers_neither_join_nor
                     **ros_env, 'ROS_DOMAIN_ID': domain, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET',
                     'FASTRTPS_DEFAULT_PROFILES_FILE': str(tmp_path / f'{who}.xml')}) for who in STRANGERS]
                 assert ended(world, 300, tmp_path) == 0, (tmp_path / 'world.out').read_text()
-                for role, p in zip('ab', joined):
-                    assert ended(p, 60, tmp_path) == 0, (tmp_path / f'{role}.out').read_text()
+                for role, p in zip('ab', joined):  # 120 s: under the whole suite's load, a joining host's four
+                    # TLS participants once took over 60 s to go after the run ended (alone: under 15 s)
+                    assert ended(p, 120, tmp_path) == 0, (tmp_path / f'{role}.out').read_text()
             finally:
                 end([world, *joined])
                 for p in strangers:
