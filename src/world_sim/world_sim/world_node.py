@@ -356,12 +356,12 @@ class WorldNode(Node):
             print(f't = {t:5.1f} s  R_c = {100 * rc:5.1f} %  λ2 = {lam2:.4f}  alive = {int(alive)}  '
                   f'modes = {int(m0)}/{int(m1)}/{int(m2)}  {pace:.1f} steps/s{fresh}', flush=True)
             asked = self.rate / self.scenario.dt  # realtime's steps per wall second
-            if t >= SLOW_AFTER_S:
+            if self.realtime and t >= SLOW_AFTER_S:
                 self.paces.append((int(k), wall))
             if self.paces and int(k) - self.paces[0][0] >= SLOW_WINDOW_S / self.scenario.dt:
                 k0, wall0 = self.paces.popleft()
                 recent = (int(k) - k0) / max(wall - wall0, 1e-9)
-                if self.realtime and not self.slow_said and recent < SLOW_FRACTION * asked:
+                if not self.slow_said and recent < SLOW_FRACTION * asked:
                     self.slow_said = True
                     print(f'realtime x{self.rate:g} asks for {asked:g} steps/s and this machine kept {recent:.1f} '
                           f'over the last {SLOW_WINDOW_S:g} s ({recent / asked:.2f} of it): the run goes slower than '
@@ -460,7 +460,8 @@ class WorldNode(Node):
         self.finished = True
         self.ok = ok
         if self.resent:
-            print(f'{self.resent} stalled step{"s" if self.resent > 1 else ""} had {"their" if self.resent > 1 else "its"} sensing sent again (delays of discovery or delivery; '
+            steps = f'{self.resent} stalled steps had their' if self.resent > 1 else '1 stalled step had its'
+            print(f'{steps} sensing sent again (delays of discovery or delivery; '
                   'lockstep results do not depend on them; logs/world.log says which)', flush=True)
         if ok:
             self.finished_pub.publish(Int64(data=int(self.world.k)))

@@ -6,7 +6,6 @@ line naming the option, exit code 2, before any work starts.
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn, Optional
@@ -211,7 +210,7 @@ def add_scenario_options(p: argparse.ArgumentParser, grid: bool, failures: bool 
                             'failure.fraction; paper: none)')
 
 
-def check_failure(cmd: str, base: 'Scenario', args: argparse.Namespace) -> None:
+def check_run_options(cmd: str, base: 'Scenario', args: argparse.Namespace) -> None:
     """A duration or failure option that would do other than asked is a mistake: say so rather than run, and a run
     this machine has not the memory for is refused before it is asked for."""
     duration = args.duration or base.duration
@@ -239,22 +238,12 @@ def check_memory(cmd: str, s: 'Scenario', maps: int) -> None:
     from world_sim.core.physics import PAIR_BYTES, release_pairs
     pairs = release_pairs(maps, s.release_half_width, s.flock.r)
     need = pairs * PAIR_BYTES
-    free = available_memory()
+    import psutil
+    free = psutil.virtual_memory().available
     if need > free:
         raise UsageError(f'{cmd}: {maps} MAPs released in a square of {2 * s.release_half_width:g} m make about '
                          f'{pairs:.2g} pairs within r = {s.flock.r:g} m, about {need / 2**30:.0f} GiB to hold, and this '
                          f'machine has {free / 2**30:.0f} GiB free: fewer MAPs or a wider release.half_width')
-
-
-def available_memory() -> float:
-    """Bytes the kernel says a new allocation can have (MemAvailable), or the physical memory where it does not say."""
-    try:
-        for line in Path('/proc/meminfo').read_text().splitlines():
-            if line.startswith('MemAvailable:'):
-                return float(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return float(os.sysconf('SC_PAGE_SIZE') * os.sysconf('SC_PHYS_PAGES'))
 
 
 def floor_note(s: 'Scenario', maps: int) -> Optional[str]:

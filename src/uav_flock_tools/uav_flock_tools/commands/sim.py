@@ -5,7 +5,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .options import EXIT_INTERRUPTED, add_scenario_options, check_failure, default_out, floor_note, run_folder
+from .options import EXIT_INTERRUPTED, add_scenario_options, check_run_options, default_out, floor_note, run_folder
 
 SUMMARY = 'run a scenario in-process for one or more MAP counts and seeds'
 
@@ -28,7 +28,7 @@ def handle(args: argparse.Namespace) -> int:
     from .. import plots, simrun
     cmd = args.command
     base = simrun.load_scenario(args.scenario)
-    check_failure(cmd, base, args)
+    check_run_options(cmd, base, args)
     maps = args.maps or [base.maps]
     seeds = args.seed or [base.seed]
     out = run_folder(Path(args.out) if args.out else default_out(cmd), f'{cmd}: --out', args.replace)

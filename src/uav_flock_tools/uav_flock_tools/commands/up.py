@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from .options import (AGENTS_PER_PROCESS_HELP, UsageError, add_scenario_options, add_view_option,
-                      auto_agents_per_process, check_failure, default_out, domain_id, floor_note, host_keys, non_negative_int,
+                      auto_agents_per_process, check_run_options, default_out, domain_id, floor_note, host_keys, non_negative_int,
                       positive_float, positive_int, run_folder, serve_port)
 
 SUMMARY = 'run a scenario distributed: world_sim and the MAPs as agent processes'
@@ -47,7 +47,7 @@ def handle(args: argparse.Namespace) -> int:
     cmd = args.command
     path = resolve(args.scenario)
     base = simrun.load_scenario(args.scenario)
-    check_failure(cmd, base, args)
+    check_run_options(cmd, base, args)
     s = base.with_overrides(maps=args.maps, seed=args.seed, duration=args.duration, fail_at=args.fail_at,
                             fail_fraction=args.fail_fraction)
     if args.rate != 1.0 and args.sync != 'realtime':

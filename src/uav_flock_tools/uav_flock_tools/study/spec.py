@@ -16,7 +16,7 @@ import numpy as np
 from uav_agent.core import ablation
 from uav_agent.core.checks import did_you_mean
 from world_sim.core import layouts
-from world_sim.core.scenario import Scenario, ScenarioError, parse, read_yaml, to_doc
+from world_sim.core.scenario import Scenario, ScenarioError, parse, read_yaml, refuse_unknown, to_doc
 
 from .cases import case, draws, lb_along
 
@@ -116,9 +116,7 @@ def _layouts(doc: dict[str, Any]) -> tuple[Scenario, ...]:
     gen = doc['layouts']
     if not isinstance(gen, dict) or 'count' not in gen:
         raise SpecError('layouts: expected {count: N, clusters: [LO, HI], seed: S}')
-    unknown = sorted(set(map(str, gen)) - {'count', 'clusters', 'seed'})
-    if unknown:
-        raise SpecError(f'layouts.{unknown[0]}: unknown key{did_you_mean(unknown[0], ["count", "clusters", "seed"])}')
+    refuse_unknown(gen, {'count', 'clusters', 'seed'}, 'layouts.')  # ScenarioError: load() names the path
     drawn = draw('paper', _whole('layouts.count', gen['count'], 1), _cluster_range(gen.get('clusters', [3, 6])),
                  _whole('layouts.seed', gen.get('seed', 0), 0))
     flock = policy_sets(load_scenario('paper'))['default']

@@ -133,11 +133,11 @@ def _section(doc: dict[str, Any], key: str, allowed: set[str], required: bool = 
     sec = doc[key]
     if not isinstance(sec, dict):
         raise ScenarioError(f'{key}: expected a mapping')
-    _known(sec, allowed, f'{key}.')
+    refuse_unknown(sec, allowed, f'{key}.')
     return sec
 
 
-def _known(doc: dict[str, Any], allowed: set[str], prefix: str = '') -> None:
+def refuse_unknown(doc: dict[str, Any], allowed: set[str], prefix: str = '') -> None:
     """ScenarioError for the first key not in `allowed`, with the allowed key it most resembles."""
     unknown = sorted(set(map(str, doc)) - allowed)
     if unknown:
@@ -205,7 +205,7 @@ def _clusters(clusters_doc: Any) -> tuple[Cluster, ...]:
         where = f'users.clusters[{i}]'
         if not isinstance(c, dict):
             raise ScenarioError(f'{where}: expected a mapping')
-        _known(c, _CLUSTER, f'{where}.')
+        refuse_unknown(c, _CLUSTER, f'{where}.')
         clusters.append(_cluster(where, c))
     return tuple(clusters)
 
@@ -214,7 +214,7 @@ def parse(doc: Any) -> Scenario:
     """Check a scenario document and build the Scenario; raise ScenarioError naming the bad key."""
     if not isinstance(doc, dict):
         raise ScenarioError('scenario: expected a mapping at the top level')
-    _known(doc, _TOP)
+    refuse_unknown(doc, _TOP)
     flock = _flock(doc)
     radio = _section(doc, 'radio', _RADIO)
     release = _section(doc, 'release', _RELEASE)
