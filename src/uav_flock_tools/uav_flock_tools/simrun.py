@@ -133,8 +133,8 @@ def read_run(run: Path, scenario: Scenario) -> Optional[RunResult]:
     if len(m['step']) == 0:
         return None
     t = records.read_trajectory(run)
-    metrics = records.rows(m, records.METRICS_COLUMNS + (LINK_COLUMNS if LINK_COLUMNS[0] in m else ()))
-    traj = records.rows(t, records.TRAJECTORY_COLUMNS)
+    metrics = records.rows(m, tuple(c for c in records.METRICS_COLUMNS + LINK_COLUMNS + records.VEHICLE_COLUMNS if c in m))
+    traj = records.rows(t, tuple(c for c in records.TRAJECTORY_COLUMNS + records.ESTIMATE_COLUMNS if c in t))
     failed, fail_step, events = records.read_failures(run / records.FAILURES_FILE)
     return RunResult(scenario, records.read_users(run / records.USERS_FILE), metrics, traj, failed, fail_step,
                      records.read_motion(run / records.USERS_FILE), events)

@@ -37,7 +37,15 @@ CHANNEL_RULES = {
     'hold': 'a relay that hears one side of its chain, or a server no relay of its cluster, for no longer than '
             'the channel\'s losses last takes it for lost states and holds its place (demand.hushed, demand.anchored)',
 }
+# The vehicle's (core/envelope.py): how a MAP flies eq. 9 within a multirotor's envelope. None of them acts on the
+# paper's vehicle.
+VEHICLE_RULES = {
+    'brake': "a goal term aims at a speed from which the MAP stops before its goal, within v_max (envelope.capped)",
+    'keep': 'a MAP brakes along a link it closes on faster than it could stop keep m short (envelope.keep_apart)',
+    'priority': "that braking is served first from a_max, eq. 9's terms from what is left (envelope.command)",
+}
 RULES.update(CHANNEL_RULES)
+RULES.update(VEHICLE_RULES)
 # Per thread of control, not per process: a Dask worker flies runs of different variants on its threads at once.
 _OFF: ContextVar[frozenset[str]] = ContextVar('uav_flock_rules_off', default=frozenset())
 

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from . import envelope
+from .clusters import segment_distance
 from .params import FlockParams
 from .potentials import F64, action, bump, sigma_abs, sigma_grad, sigma_norm
 from .state import M1, PASSING
@@ -69,8 +71,15 @@ def flocking_terms(own_q: F64, own_p: F64, own_nu: F64, owner: NDArray[np.intp],
 
 def goal_term(q: F64, p_vel: F64, q_ref: F64, fp: FlockParams, v_ref: F64 | float = 0.0) -> F64:
     """h_i for M0 and M2, eq. 12: a spring to the goal q^r with damping to its velocity p^r (zero for a
-    cluster that stands still, the survey's estimate for one that moves)."""
-    return fp.c1 * (q_ref - q) + fp.c2 * (v_ref - p_vel)
+    cluster that stands still, the survey's estimate for one that moves).
+
+    Within an envelope it is the same velocity loop, c2 (v^r + (c1/c2)(q^r - q) - p), with the spring's speed
+    (c1/c2)(q^r - q) capped at one the MAP can stop from before q^r (rule 'brake', envelope.capped).
+    """
+    if not envelope.limited(fp):
+        return fp.c1 * (q_ref - q) + fp.c2 * (v_ref - p_vel)
+    error = q_ref - q
+    return fp.c2 * (v_ref + envelope.capped(fp.c1 / fp.c2 * error, np.linalg.norm(error, axis=-1), fp) - p_vel)
 
 
 def bridge_term(q: F64, p_vel: F64, q1: F64, q2: F64, fp: FlockParams,
@@ -80,7 +89,14 @@ def bridge_term(q: F64, p_vel: F64, q1: F64, q2: F64, fp: FlockParams,
     pull = (fp.k * d1 / (1.0 + fp.epsilon * sigma_norm(d1, fp.epsilon))[..., None]
             + fp.k * d2 / (1.0 + fp.epsilon * sigma_norm(d2, fp.epsilon))[..., None])
     # Eq. 13 damps toward each of the two clusters' velocities with half of c2 (zero while they stand still).
-    return pull + 0.5 * fp.c2 * (v1 - p_vel) + 0.5 * fp.c2 * (v2 - p_vel)
+    if not envelope.limited(fp):
+        return pull + 0.5 * fp.c2 * (v1 - p_vel) + 0.5 * fp.c2 * (v2 - p_vel)
+    # Within an envelope: the pull's speed pull / c2 capped by the distance to the segment (rule 'brake').
+    rows = zip(np.reshape(q, (-1, 3)), np.reshape(q1, (-1, 3)), np.reshape(q2, (-1, 3)))
+    off = np.array([segment_distance(x, a[:2], b[:2]) for x, a, b in rows]).reshape(np.shape(q)[:-1])
+    rest = envelope.capped(pull / fp.c2, off, fp)
+    return fp.c2 * (0.5 * (v1 + v2) + rest - p_vel)
+
 
 
 def connectivity_potential(q: F64, q1: F64, q2: F64, fp: FlockParams) -> F64:
@@ -104,4 +120,6 @@ def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer]
     if np.any(bridging):
         h[bridging] = bridge_term(own_q[bridging], own_p[bridging], bridge_a[bridging], bridge_b[bridging], fp,
                                   v[bridging, 1], v[bridging, 2])
-    return u + h
+    if not envelope.limited(fp):
+        return u + h
+    return envelope.command(u + h, envelope.keep_apart(own_q, own_p, owner, nbr_q, nbr_p, fp), fp)

@@ -14,7 +14,9 @@ OPEN_CHOICES: dict[str, tuple[str, ...]] = {
     'm0_exhausted': ('bridge', 'serve'),
     'edge_choice': ('nearest', 'keep_nearest', 'share'),
 }
-DERIVED = ('reach', 'hush')  # FlockParams fields a scenario sets from its other sections, not from `flock:`
+# FlockParams fields a scenario sets from its other sections (`links:`, `vehicle:`), not from `flock:`
+DERIVED = ('reach', 'hush', 'v_max', 'a_max', 'tau', 'keep')
+ENVELOPE = ('v_max', 'a_max', 'tau', 'keep')  # the vehicle's, 0 on the paper's (core/envelope.py)
 
 
 @dataclass(frozen=True)
@@ -46,6 +48,13 @@ class FlockParams:
     # Steps a MAP takes a neighbour's silence for the channel's losses, not for its absence (links.hush):
     # 0 under the paper's channel, where silence is absence. Set from `links:` too.
     hush: int = 0
+    # The envelope the MAP flies in (core/envelope.py), from the scenario's `vehicle:`; all 0 on the paper's
+    # unbounded double integrator. Speed (m/s) and acceleration (m/s^2) over the ground, the autopilot's lag
+    # (s), and the least distance the MAP keeps from another: the vehicle's separation plus its GNSS margin (m).
+    v_max: float = 0.0
+    a_max: float = 0.0
+    tau: float = 0.0
+    keep: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -72,6 +81,8 @@ def check(p: FlockParams, where: Callable[[str], str] = str,
             continue  # a choice whose values another module names
         elif f.name == 'reach':
             number(v, where(f.name), low=0.0, high=p.r)
+        elif f.name in ENVELOPE:
+            number(v, where(f.name), low=0.0)
         elif isinstance(f.default, int):
             number(v, where(f.name), low=0, integer=True)
         else:

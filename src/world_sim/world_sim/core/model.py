@@ -9,8 +9,8 @@ import numpy as np
 
 from uav_agent.core.clusters import NO_GOAL, ClusterMap
 
-from . import physics
-from .records import Motion
+from . import physics, vehicle
+from .records import Motion, metrics_columns
 from .crowd import Crowd
 from .hearing import LINK_COLUMNS, Hearing
 from .scenario import Scenario
@@ -43,6 +43,9 @@ class Sensed:
     coverage_ratio: float
     bounds: list[int] = field(default_factory=list)  # neighbours of row n are pairs[bounds[n]:bounds[n+1], 1]
     assoc: np.ndarray = field(default_factory=lambda: np.zeros(0, np.intp))  # (M,) row serving each MSD, or -1
+    # Where the MAPs are (n, 3), when that is not where they believe they are (q: their GNSS estimate, what they
+    # are told and tell); None: q is the truth. Association, coverage, range and the records take the truth.
+    truth: Optional[np.ndarray] = None
 
     def __post_init__(self) -> None:
         self.bounds = np.searchsorted(self.pairs[:, 0], np.arange(len(self.ids) + 1)).tolist()
@@ -73,6 +76,12 @@ class World:
         self._placed = -1
         self._motion: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
         self.q, self.p = physics.release(scenario, rng['release'])
+        craft = scenario.vehicle
+        self.flight = None if craft.ideal else vehicle.Flight(craft, scenario.maps, scenario.dt, rng['vehicle'])
+        if self.flight is not None:
+            self.q, self.p = vehicle.release(self.q, self.p, craft, scenario.release_center,
+                                             scenario.release_half_width, rng['vehicle'])
+        self.energy = 0.0  # J the formation has drawn so far (a multirotor's, vehicle.power)
         self.ids = np.arange(scenario.maps, dtype=np.intp)
         self.alive = np.ones(scenario.maps, dtype=bool)
         self.goal = np.full(scenario.maps, NO_GOAL, dtype=np.intp)  # each MAP's goal after its last step
@@ -154,9 +163,10 @@ class World:
         rows = self.ids[self.alive]
         q, p = self.q[rows], self.p[rows]
         assoc = physics.associate(self.users, q, fp.r, self.scenario.association)
-        return Sensed(self.k, rows, q, p, physics.user_counts(assoc, len(rows)),
+        told = q if self.flight is None else self.flight.estimate(rows, q)
+        return Sensed(self.k, rows, told, p, physics.user_counts(assoc, len(rows)),
                       physics.cluster_coverage(self.users, assoc), physics.neighbour_pairs(q, fp.r),
-                      physics.coverage_ratio(assoc), assoc=assoc)
+                      physics.coverage_ratio(assoc), assoc=assoc, truth=None if self.flight is None else q)
 
     def advance(self, sensed: Sensed, u: np.ndarray, modes: np.ndarray, goals: np.ndarray,
                 integrate: bool = True) -> np.ndarray:
@@ -173,10 +183,18 @@ class World:
         row = np.array([self.k, t, sensed.coverage_ratio, lam2, len(rows), n_comp, *counts[:3]], dtype=float)
         if self.hearing is not None:  # under a channel: what the MAPs heard (hearing.LINK_COLUMNS)
             row = np.r_[row, self.hearing.row(self.k, rows, sensed.q, sensed.pairs)]
+        q = sensed.q if sensed.truth is None else sensed.truth
+        traj = [np.full(len(rows), self.k), np.full(len(rows), t), rows, q, sensed.p, modes, goals, sensed.n_users]
+        if self.flight is not None:  # a multirotor's (records.VEHICLE_COLUMNS, ESTIMATE_COLUMNS)
+            watts = vehicle.power(self.flight.air(rows, sensed.p))
+            row = np.r_[row, physics.least_distance(q), watts.mean() if len(rows) else 0.0, self.energy]
+            self.energy += float(watts.sum()) * self.scenario.dt
+            traj.append(sensed.q)
         self._metrics.append(row)
-        self._traj.append(np.column_stack([np.full(len(rows), self.k), np.full(len(rows), t), rows,
-                                           sensed.q, sensed.p, modes, goals, sensed.n_users]))
-        if integrate:
+        self._traj.append(np.column_stack(traj))
+        if integrate and self.flight is not None:
+            self.q[rows], self.p[rows] = self.flight.step(rows, q, sensed.p, u)
+        elif integrate:
             self.q[rows], self.p[rows] = physics.integrate(sensed.q, sensed.p, u, self.scenario.dt)
             if self.crowd is not None:
                 self.crowd.walk()
@@ -184,10 +202,12 @@ class World:
         return row
 
     def result(self) -> RunResult:
-        traj = np.concatenate(self._traj) if self._traj else np.zeros((0, 12))
+        columns = metrics_columns(self.scenario)
+        width = 12 + (3 if self.flight is not None else 0)
+        traj = np.concatenate(self._traj) if self._traj else np.zeros((0, width))
         motion = None
         if self._motion:
             steps, xy, present, label = zip(*self._motion)
             motion = Motion(np.array(steps), np.stack(xy), np.stack(present), np.stack(label))
-        return RunResult(self.scenario, self.drawn, np.array(self._metrics).reshape(-1, 9 + (len(LINK_COLUMNS) if self.hearing else 0)), traj, self.failed,
+        return RunResult(self.scenario, self.drawn, np.array(self._metrics).reshape(-1, len(columns)), traj, self.failed,
                          self.fail_step if self.scenario.fail_fraction > 0 else None, motion, list(self.events))

@@ -33,9 +33,11 @@ class Users:
 
 def streams(seed: int) -> dict[str, np.random.Generator]:
     """Independent random streams per purpose, so e.g. a failure fraction never moves the users."""
-    users, release, failure, walk = np.random.SeedSequence(seed).spawn(4)  # the first three as before 'walk'
+    # A child's draws do not depend on how many are spawned: each new purpose came last and moved none before it.
+    users, release, failure, walk, vehicle = np.random.SeedSequence(seed).spawn(5)
     return {'users': np.random.default_rng(users), 'release': np.random.default_rng(release),
-            'failure': np.random.default_rng(failure), 'walk': np.random.default_rng(walk)}
+            'failure': np.random.default_rng(failure), 'walk': np.random.default_rng(walk),
+            'vehicle': np.random.default_rng(vehicle)}
 
 
 def make_users(s: Scenario, rng: np.random.Generator) -> Users:
@@ -184,6 +186,13 @@ def _sparse_fiedler(pairs: NDArray[np.intp], n: int) -> float | None:
     except ArpackNoConvergence:
         return None
     return float(np.sort(values)[1])
+
+
+def least_distance(q: F64) -> float:
+    """The least distance between two of these positions (m); NaN for fewer than two."""
+    if len(q) < 2:
+        return float('nan')
+    return float(cKDTree(q).query(q, k=2)[0][:, 1].min())
 
 
 def integrate(q: F64, p: F64, u: F64, dt: float) -> tuple[F64, F64]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
@@ -17,6 +17,12 @@ METRICS_COLUMNS = ('step', 't', 'coverage_ratio', 'fiedler', 'alive', 'component
 TRAJECTORY_COLUMNS = ('step', 't', 'id', 'x', 'y', 'z', 'vx', 'vy', 'vz', 'mode', 'goal', 'user_count')
 _METRICS_FMT = ('%d', '%.10g', '%.10g', '%.10g', '%d', '%d', '%d', '%d', '%d')
 _TRAJECTORY_FMT = ('%d', '%.10g', '%d') + ('%.17g',) * 6 + ('%d', '%d', '%d')
+# A multirotor's run (world_sim/core/vehicle.py) adds to metrics.csv the least distance between two MAPs (m),
+# the formation's mean propulsion power (W) and the energy it drew before the step (J); to the trajectory, where
+# each MAP believed it was (its GNSS estimate, m) beside x, y, z, which stay the truth.
+VEHICLE_COLUMNS = ('min_distance', 'power', 'energy')
+_VEHICLE_FMT = ('%.10g',) * 3
+ESTIMATE_COLUMNS = ('x_est', 'y_est', 'z_est')
 TRAJECTORY_NPZ = 'trajectory.npz'
 # trajectory.npz's column types: the CSV's values exactly (t as computed, not printed to 10 digits)
 _TRAJECTORY_TYPES = (np.int32, np.float64, np.int32) + (np.float64,) * 6 + (np.int8, np.int16, np.int32)
@@ -27,29 +33,48 @@ def write_csv(path: Path, columns: tuple[str, ...], rows: np.ndarray, fmt: tuple
     np.savetxt(path, rows, fmt=list(fmt), delimiter=',', header=','.join(columns), comments='')
 
 
+def metrics_columns(scenario: Any) -> tuple[str, ...]:
+    """metrics.csv's columns for a run of this scenario: LINK_COLUMNS under a channel (hearing.py), then
+    VEHICLE_COLUMNS on a multirotor."""
+    from .hearing import LINK_COLUMNS
+    return (METRICS_COLUMNS + (() if scenario.links.perfect else LINK_COLUMNS)
+            + (() if scenario.vehicle.ideal else VEHICLE_COLUMNS))
+
+
 def write_metrics(path: Path, rows: np.ndarray) -> None:
-    """METRICS_COLUMNS, and a run under a channel's LINK_COLUMNS after them (hearing.py)."""
+    """METRICS_COLUMNS, then those of a channel and a multirotor as metrics_columns says (told by the width)."""
     from .hearing import LINK_COLUMNS, LINK_FMT
     rows = np.asarray(rows, dtype=float)
-    if rows.ndim == 2 and rows.shape[1] == len(METRICS_COLUMNS) + len(LINK_COLUMNS):
-        write_csv(path, METRICS_COLUMNS + LINK_COLUMNS, rows, _METRICS_FMT + LINK_FMT)
-    else:
-        write_csv(path, METRICS_COLUMNS, rows, _METRICS_FMT)
+    width = rows.shape[1] if rows.ndim == 2 else len(METRICS_COLUMNS)
+    columns, fmt = METRICS_COLUMNS, _METRICS_FMT
+    if width - len(METRICS_COLUMNS) in (len(LINK_COLUMNS), len(LINK_COLUMNS) + len(VEHICLE_COLUMNS)):
+        columns, fmt = columns + LINK_COLUMNS, fmt + LINK_FMT
+    if width - len(columns) == len(VEHICLE_COLUMNS):
+        columns, fmt = columns + VEHICLE_COLUMNS, fmt + _VEHICLE_FMT
+    write_csv(path, columns, rows, fmt)
+
+
+def trajectory_columns(rows: np.ndarray) -> tuple[str, ...]:
+    """TRAJECTORY_COLUMNS, and ESTIMATE_COLUMNS after them in a multirotor's run."""
+    wide = np.ndim(rows) == 2 and np.shape(rows)[1] == len(TRAJECTORY_COLUMNS) + len(ESTIMATE_COLUMNS)
+    return TRAJECTORY_COLUMNS + (ESTIMATE_COLUMNS if wide else ())
 
 
 def write_trajectory(path: Path, rows: np.ndarray) -> None:
     """trajectory.csv at path, and beside it trajectory.npz: one typed array per column (np.load(...)['x'])."""
-    write_csv(path, TRAJECTORY_COLUMNS, rows, _TRAJECTORY_FMT)
-    rows = np.asarray(rows, dtype=float).reshape(-1, len(TRAJECTORY_COLUMNS))
-    np.savez(path.with_name(TRAJECTORY_NPZ),
-             **{c: rows[:, i].astype(t) for i, (c, t) in enumerate(zip(TRAJECTORY_COLUMNS, _TRAJECTORY_TYPES))})
+    names = trajectory_columns(rows)
+    extra = len(names) - len(TRAJECTORY_COLUMNS)
+    write_csv(path, names, rows, _TRAJECTORY_FMT + ('%.17g',) * extra)
+    rows = np.asarray(rows, dtype=float).reshape(-1, len(names))
+    types = _TRAJECTORY_TYPES + (np.float64,) * extra
+    np.savez(path.with_name(TRAJECTORY_NPZ), **{c: rows[:, i].astype(t) for i, (c, t) in enumerate(zip(names, types))})
 
 
 def read_trajectory(folder: Path) -> dict[str, np.ndarray]:
     """A run's trajectory by column: from trajectory.npz, or trajectory.csv in a run recorded before it."""
     if (folder / TRAJECTORY_NPZ).exists():
         with np.load(folder / TRAJECTORY_NPZ) as f:
-            return {c: f[c].astype(float) for c in TRAJECTORY_COLUMNS}
+            return {c: f[c].astype(float) for c in TRAJECTORY_COLUMNS + ESTIMATE_COLUMNS if c in f.files}
     return read_csv(folder / 'trajectory.csv')
 
 

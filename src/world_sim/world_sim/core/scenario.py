@@ -14,6 +14,9 @@ from uav_agent.core.params import DERIVED, FlockParams
 from uav_agent.core.policies import POLICY_VALUES
 from uav_agent.core.policies import check as check_flock
 
+from . import vehicle as craft
+from .vehicle import Vehicle
+
 
 class ScenarioError(ValueError):
     """A scenario that cannot run; the message names the offending key."""
@@ -64,10 +67,14 @@ class Scenario:
     survey_period: float = 2.0
     # The radio between MAPs (uav_agent/core/links.py): by default the paper's, every state within r heard at once.
     links: Links = field(default_factory=Links)
+    # What the MAPs fly (world_sim/core/vehicle.py): by default the paper's unbounded double integrator.
+    vehicle: Vehicle = craft.IDEAL
 
     def __post_init__(self) -> None:
-        # The flock relies on links as long as the channel delivers (links.reach), however the scenario was made.
-        derived = {'reach': channel.reach(self.links, self.flock.r), 'hush': channel.hush(self.links)}
+        # The flock relies on links as long as the channel delivers (links.reach), however the scenario was made,
+        # and flies within the vehicle's envelope.
+        derived = {'reach': channel.reach(self.links, self.flock.r), 'hush': channel.hush(self.links),
+                   **self.vehicle.envelope()}
         if any(getattr(self.flock, name) != value for name, value in derived.items()):
             object.__setattr__(self, 'flock', replace(self.flock, **derived))
 
@@ -93,7 +100,8 @@ class Scenario:
         return out
 
 
-_TOP = {'name', 'seed', 'maps', 'duration', 'dt', 'flock', 'policies', 'radio', 'links', 'release', 'users', 'failure'}
+_TOP = {'name', 'seed', 'maps', 'duration', 'dt', 'flock', 'policies', 'radio', 'links', 'release', 'users', 'failure',
+        'vehicle'}
 _RADIO = {'rho', 'eta', 'association'}
 _RELEASE = {'center', 'half_width', 'initial_speed'}
 _CLUSTER = {'center', 'spread', 'size', 'velocity', 'waypoints', 'speed', 'start', 'end', 'walk'}
@@ -225,6 +233,10 @@ def parse(doc: Any) -> Scenario:
         links = channel.check(Links(**_section(doc, 'links', {f.name for f in fields(Links)}, required=False)))
     except ValueError as exc:
         raise ScenarioError(str(exc)) from None
+    try:
+        flown = craft.parse(doc['vehicle']) if 'vehicle' in doc else Scenario.vehicle
+    except ValueError as exc:
+        raise ScenarioError(str(exc)) from None
     survey = users.get('survey', Scenario.survey)
     if survey not in ('given', 'online'):
         raise ScenarioError(f"users.survey: must be 'given' or 'online', got {survey!r}")
@@ -250,6 +262,7 @@ def parse(doc: Any) -> Scenario:
         survey=survey,
         survey_period=_num('users.survey_period', users.get('survey_period', Scenario.survey_period)),
         links=links,
+        vehicle=flown,
     )
     _check(scenario)
     if scenario.fail_at is not None and scenario.fail_at >= scenario.duration:  # a file's own; --duration may cut it
@@ -270,6 +283,9 @@ def _check(s: Scenario) -> None:
         raise ScenarioError(f'maps: must be at least 1, got {s.maps}')
     if s.dt > s.duration:
         raise ScenarioError(f'dt: must not exceed duration ({s.duration}), got {s.dt}')
+    if not s.vehicle.ideal and not craft.packable(s.maps, s.release_half_width, s.vehicle.separation):
+        raise ScenarioError(f'vehicle.separation: {s.maps} MAPs cannot be released {s.vehicle.separation:g} m apart '
+                            f'in a square of side {2 * s.release_half_width:g} m (release.half_width)')
 
 
 
@@ -293,6 +309,7 @@ def to_doc(s: Scenario, policies: bool = True) -> dict[str, Any]:
         doc['failure'] = {'at': s.fail_at, 'fraction': s.fail_fraction}
     if s.links != Links():
         doc['links'] = s.links.as_dict()
+    doc['vehicle'] = s.vehicle.as_dict()
     return doc
 
 

@@ -1,0 +1,84 @@
+"""Eq. 9 flown within a multirotor's envelope: what a MAP commands when its speed, acceleration and the
+distance it keeps from others are bounded (scenario `vehicle:`, docs/vehicle.md).
+
+Three rules, each switched off by name (ablation.VEHICLE_RULES); none acts on the paper's vehicle, whose
+FlockParams have a_max = 0:
+- 'brake': the goal terms of eq. 12-13 aim at a speed the MAP can still stop from before its goal;
+- 'keep': a MAP brakes along each link on which it closes faster than it could stop before `keep` m;
+- 'priority': that braking is served first from the acceleration budget, eq. 9's terms from what is left.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .ablation import on
+from .params import FlockParams
+from .potentials import F64
+
+BRAKE_SHARE = 0.5  # of a_max, what a goal term plans to stop with: the rest is for the flocking terms and the lag
+
+
+def limited(fp: FlockParams) -> bool:
+    """Whether the MAP flies within an envelope (a multirotor), not the paper's double integrator."""
+    return fp.a_max > 0.0
+
+
+def stopping_speed(distance: F64, fp: FlockParams) -> F64:
+    """The speed from which a MAP stops within `distance` at BRAKE_SHARE * a_max, after its lag tau, within v_max."""
+    a = BRAKE_SHARE * fp.a_max
+    d = np.maximum(np.asarray(distance, dtype=float), 0.0)
+    v = -a * fp.tau + np.sqrt((a * fp.tau) ** 2 + 2.0 * a * d)  # v tau + v^2 / 2a = d
+    return np.minimum(v, fp.v_max)
+
+
+def capped(velocity: F64, distance: F64, fp: FlockParams) -> F64:
+    """Rule 'brake': a goal term's velocity (rows) shortened to stopping_speed(distance)."""
+    if not (limited(fp) and on('brake')):
+        return velocity
+    speed = np.linalg.norm(velocity, axis=-1, keepdims=True)
+    cap = stopping_speed(distance, fp)[..., None]
+    return np.where(speed > cap, velocity * (cap / np.maximum(speed, 1e-12)), velocity)
+
+
+def keep_apart(own_q: F64, own_p: F64, owner: NDArray[np.intp], nbr_q: F64, nbr_p: F64, fp: FlockParams) -> F64:
+    """Rule 'keep': per own MAP, the braking along its links that lets it stop `keep` m short of each neighbour.
+
+    On a link closing at c (m/s) with gap g = distance - keep - c tau, the MAP may close at sqrt(2 a_max g); it
+    brakes the excess away within tau (and at once, at a_max, when already inside keep), so a pair whose ends
+    both do so never meets, whatever eq. 9 asks for.
+    """
+    m = own_q.shape[0]
+    out = np.zeros((m, 3))
+    if owner.size == 0 or not on('keep'):
+        return out
+    dq = nbr_q - own_q[owner]
+    dist = np.maximum(np.linalg.norm(dq, axis=1), 1e-9)
+    n = dq / dist[:, None]
+    closing = np.einsum('ij,ij->i', own_p[owner] - nbr_p, n)
+    gap = np.maximum(dist - fp.keep - np.maximum(closing, 0.0) * fp.tau, 0.0)
+    excess = np.maximum(closing - np.sqrt(2.0 * fp.a_max * gap), 0.0)
+    push = np.minimum(excess / max(fp.tau, 1e-3), fp.a_max) + fp.a_max * np.clip((fp.keep - dist) / fp.keep, 0.0, 1.0)
+    edges = -n * push[:, None]
+    for axis in range(3):
+        out[:, axis] = np.bincount(owner, weights=edges[:, axis], minlength=m)
+    return saturate(out, fp.a_max)
+
+
+def saturate(u: F64, bound: F64 | float) -> F64:
+    """Rows shortened to at most `bound` (per row or for all), their direction kept."""
+    norm = np.linalg.norm(u, axis=1)
+    scale = np.where(norm > bound, np.asarray(bound) / np.maximum(norm, 1e-12), 1.0)
+    return u * scale[:, None]
+
+
+def command(u: F64, brake: F64, fp: FlockParams) -> F64:
+    """Rule 'priority': the acceleration a MAP commands from eq. 9's u and the braking of rule 'keep'.
+
+    The braking takes what it needs of a_max first and eq. 9 the rest, so no goal or flocking term can
+    spend the budget a MAP needs to keep its distance. Off, the two are summed and clipped together.
+    """
+    if on('priority'):
+        left = np.maximum(fp.a_max - np.linalg.norm(brake, axis=1), 0.0)
+        return saturate(brake + saturate(u, left), fp.a_max)
+    return saturate(u + brake, fp.a_max)

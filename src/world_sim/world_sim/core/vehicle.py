@@ -1,0 +1,212 @@
+"""The vehicle a MAP flies (scenario `vehicle:`, docs/vehicle.md): the paper's double integrator, or a multirotor
+whose autopilot follows the commanded acceleration with a lag, within its speed and acceleration, in gusty
+wind, knowing its own position through a GNSS receiver that errs. The world owns it: the truth, the estimate
+the MAP is told, and the power it draws (Zeng, Xu and Zhang 2019).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from uav_agent.core.checks import number
+from uav_agent.core.envelope import saturate
+
+F64 = NDArray[np.float64]
+MODELS = ('ideal', 'multirotor')
+# Horizontal drag per unit mass (1/s) through which a gust, the wind less the mean the autopilot's integrator
+# holds off, pushes the airframe: the linear drag of a 1-2 kg quadrotor (docs/vehicle.md).
+DRAG = 0.3
+GNSS_MARGIN = 3.0  # relative GNSS errors, in sigma of the difference of two receivers', a MAP keeps beyond separation
+
+
+@dataclass(frozen=True)
+class Wind:
+    speed: float = 5.0          # mean wind (m/s)
+    direction: float = 0.0      # where it blows towards, degrees anticlockwise from +x
+    gust: float = 1.5           # sigma of each horizontal gust component (m/s), a Gauss-Markov process ...
+    gust_time: float = 5.0      # ... of this correlation time (s)
+
+
+@dataclass(frozen=True)
+class Gnss:
+    sigma: float = 1.5          # sigma of each horizontal component of the position error (m), Gauss-Markov ...
+    time: float = 60.0          # ... of this correlation time (s)
+
+
+@dataclass(frozen=True)
+class Vehicle:
+    """The scenario's `vehicle:` section; the defaults are the shipped multirotor profile (docs/vehicle.md)."""
+
+    model: str = 'multirotor'
+    v_max: float = 15.0         # speed over the ground (m/s)
+    a_max: float = 4.0          # acceleration over the ground, wind included (m/s^2)
+    tau: float = 0.3            # lag of the autopilot's acceleration behind the command (s)
+    separation: float = 3.0     # the least distance two MAPs may come to (m)
+    wind: Wind = field(default_factory=Wind)
+    gnss: Gnss = field(default_factory=Gnss)
+
+    @property
+    def ideal(self) -> bool:
+        return self.model == 'ideal'
+
+    def envelope(self) -> dict[str, float]:
+        """What the MAPs are told (FlockParams' ENVELOPE): zeros on the paper's vehicle."""
+        if self.ideal:
+            return {'v_max': 0.0, 'a_max': 0.0, 'tau': 0.0, 'keep': 0.0}
+        keep = self.separation + GNSS_MARGIN * math.sqrt(2.0) * self.gnss.sigma
+        return {'v_max': self.v_max, 'a_max': self.a_max, 'tau': self.tau, 'keep': keep}
+
+    def as_dict(self) -> dict[str, Any]:
+        if self.ideal:
+            return {'model': 'ideal'}
+        out: dict[str, Any] = {f.name: getattr(self, f.name) for f in fields(self)}
+        out['wind'] = {f.name: getattr(self.wind, f.name) for f in fields(Wind)}
+        out['gnss'] = {f.name: getattr(self.gnss, f.name) for f in fields(Gnss)}
+        return out
+
+
+IDEAL = Vehicle(model='ideal')
+MULTIROTOR = Vehicle()
+
+
+def parse(doc: Any, where: str = 'vehicle') -> Vehicle:
+    """The `vehicle:` section: `model` and any key of the multirotor (the shipped profile's values for the rest).
+    ValueError naming the key for anything a vehicle cannot be."""
+    from .scenario import refuse_unknown
+    if not isinstance(doc, dict):
+        raise ValueError(f'{where}: expected a mapping')
+    model = doc.get('model', 'multirotor')
+    if model not in MODELS:
+        raise ValueError(f'{where}.model: must be one of {", ".join(MODELS)}, got {model!r}')
+    if model == 'ideal':
+        refuse_unknown(doc, {'model'}, f'{where}.')
+        return IDEAL
+    refuse_unknown(doc, {f.name for f in fields(Vehicle)}, f'{where}.')
+    values: dict[str, Any] = {'model': model}
+    for name, low_open in (('v_max', True), ('a_max', True), ('tau', False), ('separation', False)):
+        if name in doc:
+            values[name] = float(number(doc[name], f'{where}.{name}', low=0.0, low_open=low_open))
+    values['wind'] = _part(doc.get('wind', {}), Wind, f'{where}.wind', ('speed', 'gust'))
+    values['gnss'] = _part(doc.get('gnss', {}), Gnss, f'{where}.gnss', ('sigma',))
+    return Vehicle(**values)
+
+
+def _part(doc: Any, kind: type, where: str, zero_ok: tuple[str, ...]) -> Any:
+    from .scenario import refuse_unknown
+    if not isinstance(doc, dict):
+        raise ValueError(f'{where}: expected a mapping')
+    refuse_unknown(doc, {f.name for f in fields(kind)}, f'{where}.')
+    values = {}
+    for name, value in doc.items():
+        if name == 'direction':
+            values[name] = float(number(value, f'{where}.{name}'))
+        else:
+            values[name] = float(number(value, f'{where}.{name}', low=0.0, low_open=name not in zero_ok))
+    return kind(**values)
+
+
+def release(q: F64, p: F64, v: Vehicle, centre: tuple[float, float], half_width: float,
+            rng: np.random.Generator) -> tuple[F64, F64]:
+    """The release of a multirotor: no two MAPs nearer than `separation` (a MAP too near one before it is drawn
+    again in the square, from the vehicle's stream), none faster than v_max. The release stream's draws stay
+    as they were, so both vehicles leave the same seed's MAPs alike wherever those are far enough apart."""
+    q, p = q.copy(), saturate(p.copy(), v.v_max)
+    for _ in range(10_000):
+        near = cKDTree(q[:, :2]).query_pairs(v.separation, output_type='ndarray') if len(q) > 1 else ()
+        if len(near) == 0:
+            return q, p
+        again = np.unique(np.max(near, axis=1))
+        q[again, :2] = np.asarray(centre) + rng.uniform(-half_width, half_width, size=(len(again), 2))
+    raise ValueError(f'vehicle.separation: {v.separation:g} m cannot be kept among {len(q)} MAPs released in a '
+                     f'square of side {2 * half_width:g} m')
+
+
+def packable(maps: int, half_width: float, separation: float) -> bool:
+    """Whether `maps` MAPs fit into the release square `separation` apart with room to draw them at random:
+    discs of diameter separation covering at most half of it (random sequential packing jams near 55 %)."""
+    return maps * math.pi * (separation / 2.0) ** 2 <= 0.5 * (2.0 * half_width + separation) ** 2
+
+
+class Flight:
+    """A multirotor's state beyond q and p, for every MAP of a run: the acceleration its autopilot delivers,
+    its gust and its GNSS error. Each step draws for every MAP, flying or not, from the run's vehicle stream,
+    so a lost MAP never moves another's draws."""
+
+    def __init__(self, v: Vehicle, n: int, dt: float, rng: np.random.Generator) -> None:
+        self.v, self.dt, self.rng = v, dt, rng
+        self.lagged = np.zeros((n, 3))
+        self.gust = _stationary(rng, v.wind.gust, n)
+        self.error = _stationary(rng, v.gnss.sigma, n)
+        angle = math.radians(v.wind.direction)
+        self.mean_wind = v.wind.speed * np.array([math.cos(angle), math.sin(angle)])
+
+    def estimate(self, rows: NDArray[np.intp], q: F64) -> F64:
+        """Where the MAPs of these rows believe they are: the truth plus their GNSS error (horizontal)."""
+        out = q.copy()
+        out[:, :2] += self.error[rows]
+        return out
+
+    def air(self, rows: NDArray[np.intp], p: F64) -> F64:
+        """Each MAP's speed through the air (m/s): its ground velocity less the wind where it is."""
+        return np.linalg.norm(p[:, :2] - self.mean_wind - self.gust[rows], axis=1)
+
+    def step(self, rows: NDArray[np.intp], q: F64, p: F64, u: F64) -> tuple[F64, F64]:
+        """q and p one step on: the command u (m/s^2) followed with lag tau within a_max, the gust's drag
+        added and the sum held within a_max, the speed within v_max; held over the step as physics.integrate
+        holds u. Then every MAP's gust and GNSS error move on."""
+        v, dt = self.v, self.dt
+        follow = 1.0 - math.exp(-dt / v.tau) if v.tau > 0 else 1.0
+        command = saturate(u, v.a_max)
+        self.lagged[rows] += (command - self.lagged[rows]) * follow
+        push = np.zeros_like(command)
+        push[:, :2] = DRAG * self.gust[rows]
+        a = saturate(self.lagged[rows] + push, v.a_max)
+        p_next = saturate(p + a * dt, v.v_max)  # a projection: the step's acceleration only shrinks
+        a = (p_next - p) / dt
+        self.gust = _markov(self.rng, self.gust, v.wind.gust, v.wind.gust_time, dt)
+        self.error = _markov(self.rng, self.error, v.gnss.sigma, v.gnss.time, dt)
+        return q + p * dt + 0.5 * a * dt * dt, p_next
+
+
+def _stationary(rng: np.random.Generator, sigma: float, n: int) -> F64:
+    return rng.normal(0.0, sigma, size=(n, 2)) if sigma > 0 else np.zeros((n, 2))
+
+
+def _markov(rng: np.random.Generator, x: F64, sigma: float, time: float, dt: float) -> F64:
+    """A first-order Gauss-Markov process of stationary sigma and correlation time `time`, one step on (exact)."""
+    if sigma <= 0:
+        return x
+    keep = math.exp(-dt / time)
+    return keep * x + sigma * math.sqrt(1.0 - keep * keep) * rng.normal(size=x.shape)
+
+
+# Zeng, Xu and Zhang (IEEE TWC 2019), eq. 12 with their Table I: blade profile and induced power in hover (W), the
+# rotor's tip speed (m/s), the mean induced velocity in hover (m/s), fuselage drag ratio, air density (kg/m^3),
+# rotor solidity and disc area (m^2).
+P0, PI, U_TIP, V0, D0, RHO, SOLIDITY, AREA = 79.86, 88.63, 120.0, 4.03, 0.6, 1.225, 0.05, 0.503
+
+
+def power(airspeed: F64) -> F64:
+    """Propulsion power (W) of a rotary-wing UAV in level flight at this airspeed (m/s): eq. 12 of Zeng et al."""
+    v = np.asarray(airspeed, dtype=float)
+    blade = P0 * (1.0 + 3.0 * v ** 2 / U_TIP ** 2)
+    induced = PI * np.sqrt(np.sqrt(1.0 + v ** 4 / (4.0 * V0 ** 4)) - v ** 2 / (2.0 * V0 ** 2))
+    parasite = 0.5 * D0 * RHO * SOLIDITY * AREA * v ** 3
+    return blade + induced + parasite
+
+
+HOVER = float(power(0.0))  # W: 168.49
+
+
+def least_time(distance: float, v_max: float, a_max: float) -> float:
+    """The least time from rest to rest over `distance` within v_max and a_max (s)."""
+    if distance <= 0:
+        return 0.0
+    if distance >= v_max ** 2 / a_max:
+        return distance / v_max + v_max / a_max
+    return 2.0 * math.sqrt(distance / a_max)
