@@ -15,7 +15,7 @@ import numpy as np
 from geometry_msgs.msg import Point, Vector3
 from std_msgs.msg import Header
 from uav_flock_msgs.msg import (AgentState, Association, Clusters, Command, FailureEvent, LinkMetrics, Metrics,
-                                 NeighborList, PassedState, RoleGossip, Sensing, Users)
+                                 NeighborList, PassedState, RoleGossip, Sensing, Users, VehicleMetrics)
 
 
 def point(v: np.ndarray) -> Point:
@@ -241,7 +241,8 @@ class AssociationData(NamedTuple):
 
 
 class MetricsData(NamedTuple):
-    """/metrics: one row of metrics.csv (records.METRICS_COLUMNS, then under a channel hearing.LINK_COLUMNS)."""
+    """/metrics: one row of metrics.csv (records.METRICS_COLUMNS, then under a channel hearing.LINK_COLUMNS, then on
+    a multirotor records.VEHICLE_COLUMNS)."""
 
     step: int
     t: float
@@ -254,21 +255,28 @@ class MetricsData(NamedTuple):
     mode2: int
     # Under a channel: usable_fiedler, usable_components, heard_fiedler, heard_components, heard_share, oldest_used.
     links: Optional[tuple[float, int, float, int, float, int]] = None
+    # On a multirotor: min_distance, power, energy.
+    vehicle: Optional[tuple[float, float, float]] = None
 
     @classmethod
     def of_row(cls, row: Iterable[float]) -> 'MetricsData':
-        k, t, rc, lam2, alive, comp, m0, m1, m2, *heard = row
+        k, t, rc, lam2, alive, comp, m0, m1, m2, *rest = row
+        heard = rest[:len(LINK_FIELDS)] if len(rest) in (len(LINK_FIELDS), len(LINK_FIELDS) + len(VEHICLE_FIELDS)) else []
+        flown = rest[len(heard):]
         links = None if not heard else (float(heard[0]), int(heard[1]), float(heard[2]), int(heard[3]),
                                         float(heard[4]), int(heard[5]))
-        return cls(int(k), float(t), float(rc), float(lam2), int(alive), int(comp), int(m0), int(m1), int(m2), links)
+        vehicle = None if not flown else (float(flown[0]), float(flown[1]), float(flown[2]))
+        return cls(int(k), float(t), float(rc), float(lam2), int(alive), int(comp), int(m0), int(m1), int(m2), links,
+                   vehicle)
 
     def row(self) -> list[float]:
         """The metrics.csv row."""
-        return [*self[:9], *(self.links or ())]
+        return [*self[:9], *(self.links or ()), *(self.vehicle or ())]
 
     def to_msg(self, header: Header) -> Metrics:
         heard = [] if self.links is None else [LinkMetrics(**dict(zip(LINK_FIELDS, self.links)))]
-        return Metrics(header=header, **{f: getattr(self, f) for f in self._fields[:9]}, links=heard)
+        flown = [] if self.vehicle is None else [VehicleMetrics(**dict(zip(VEHICLE_FIELDS, self.vehicle)))]
+        return Metrics(header=header, **{f: getattr(self, f) for f in self._fields[:9]}, links=heard, vehicle=flown)
 
     @classmethod
     def from_msg(cls, msg: Any) -> 'MetricsData':
@@ -277,11 +285,16 @@ class MetricsData(NamedTuple):
             h = msg.links[0]
             links = (float(h.usable_fiedler), int(h.usable_components), float(h.heard_fiedler), int(h.heard_components),
                      float(h.heard_share), int(h.oldest_used))
+        vehicle = None
+        if len(msg.vehicle):
+            v = msg.vehicle[0]
+            vehicle = (float(v.min_distance), float(v.power), float(v.energy))
         return cls(int(msg.step), float(msg.t), float(msg.coverage_ratio), float(msg.fiedler), int(msg.alive),
-                   int(msg.components), int(msg.mode0), int(msg.mode1), int(msg.mode2), links)
+                   int(msg.components), int(msg.mode0), int(msg.mode1), int(msg.mode2), links, vehicle)
 
 
 LINK_FIELDS = ('usable_fiedler', 'usable_components', 'heard_fiedler', 'heard_components', 'heard_share', 'oldest_used')
+VEHICLE_FIELDS = ('min_distance', 'power', 'energy')  # records.VEHICLE_COLUMNS
 
 
 class FailureData(NamedTuple):

@@ -192,10 +192,11 @@ class World:
             traj.append(sensed.q)
         self._metrics.append(row)
         self._traj.append(np.column_stack(traj))
-        if integrate and self.flight is not None:
-            self.q[rows], self.p[rows] = self.flight.step(rows, q, sensed.p, u)
-        elif integrate:
-            self.q[rows], self.p[rows] = physics.integrate(sensed.q, sensed.p, u, self.scenario.dt)
+        if integrate:
+            if self.flight is not None:
+                self.q[rows], self.p[rows] = self.flight.step(rows, q, sensed.p, u)
+            else:
+                self.q[rows], self.p[rows] = physics.integrate(sensed.q, sensed.p, u, self.scenario.dt)
             if self.crowd is not None:
                 self.crowd.walk()
             self.k += 1

@@ -21,7 +21,8 @@ MODELS = ('ideal', 'multirotor')
 # Horizontal drag per unit mass (1/s) through which a gust, the wind less the mean the autopilot's integrator
 # holds off, pushes the airframe: the linear drag of a 1-2 kg quadrotor (docs/vehicle.md).
 DRAG = 0.3
-GNSS_MARGIN = 3.0  # relative GNSS errors, in sigma of the difference of two receivers', a MAP keeps beyond separation
+GNSS_MARGIN = 3.0  # sigma of the difference of two MAPs' own GNSS errors that a MAP keeps beyond separation ...
+KEEP_SLACK = 1.0   # ... and this much more (m): what a step and the lag let a braking pair close further
 
 
 @dataclass(frozen=True)
@@ -34,8 +35,11 @@ class Wind:
 
 @dataclass(frozen=True)
 class Gnss:
-    sigma: float = 1.5          # sigma of each horizontal component of the position error (m), Gauss-Markov ...
+    sigma: float = 1.5          # sigma of each horizontal component of a MAP's position error (m), Gauss-Markov ...
     time: float = 60.0          # ... of this correlation time (s)
+    # ... of which this much (sigma, m) is the receiver's own (multipath, noise); the rest (atmosphere, orbits,
+    # clocks) every receiver of the area shares, and it does not move one MAP relative to another.
+    own: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -58,7 +62,7 @@ class Vehicle:
         """What the MAPs are told (FlockParams' ENVELOPE): zeros on the paper's vehicle."""
         if self.ideal:
             return {'v_max': 0.0, 'a_max': 0.0, 'tau': 0.0, 'keep': 0.0}
-        keep = self.separation + GNSS_MARGIN * math.sqrt(2.0) * self.gnss.sigma
+        keep = self.separation + KEEP_SLACK + GNSS_MARGIN * math.sqrt(2.0) * self.gnss.own
         return {'v_max': self.v_max, 'a_max': self.a_max, 'tau': self.tau, 'keep': keep}
 
     def as_dict(self) -> dict[str, Any]:
@@ -92,7 +96,9 @@ def parse(doc: Any, where: str = 'vehicle') -> Vehicle:
         if name in doc:
             values[name] = float(number(doc[name], f'{where}.{name}', low=0.0, low_open=low_open))
     values['wind'] = _part(doc.get('wind', {}), Wind, f'{where}.wind', ('speed', 'gust'))
-    values['gnss'] = _part(doc.get('gnss', {}), Gnss, f'{where}.gnss', ('sigma',))
+    values['gnss'] = gnss = _part(doc.get('gnss', {}), Gnss, f'{where}.gnss', ('sigma', 'own'))
+    if gnss.own > gnss.sigma:
+        raise ValueError(f'{where}.gnss.own: part of sigma ({gnss.sigma:g} m), must not exceed it, got {gnss.own:g}')
     return Vehicle(**values)
 
 
@@ -112,18 +118,20 @@ def _part(doc: Any, kind: type, where: str, zero_ok: tuple[str, ...]) -> Any:
 
 def release(q: F64, p: F64, v: Vehicle, centre: tuple[float, float], half_width: float,
             rng: np.random.Generator) -> tuple[F64, F64]:
-    """The release of a multirotor: no two MAPs nearer than `separation` (a MAP too near one before it is drawn
-    again in the square, from the vehicle's stream), none faster than v_max. The release stream's draws stay
-    as they were, so both vehicles leave the same seed's MAPs alike wherever those are far enough apart."""
+    """The release of a multirotor: no two MAPs nearer than the distance they keep (separation and its margins,
+    Vehicle.envelope; a MAP too near one before it is drawn again in the square, from the vehicle's stream), none
+    faster than v_max. The release stream's draws stay as they were, so both vehicles leave the same seed's MAPs
+    alike wherever those are far enough apart."""
     q, p = q.copy(), saturate(p.copy(), v.v_max)
+    apart = v.envelope()['keep']
     for _ in range(10_000):
-        near = cKDTree(q[:, :2]).query_pairs(v.separation, output_type='ndarray') if len(q) > 1 else ()
+        near = cKDTree(q[:, :2]).query_pairs(apart, output_type='ndarray') if len(q) > 1 else ()
         if len(near) == 0:
             return q, p
         again = np.unique(np.max(near, axis=1))
         q[again, :2] = np.asarray(centre) + rng.uniform(-half_width, half_width, size=(len(again), 2))
-    raise ValueError(f'vehicle.separation: {v.separation:g} m cannot be kept among {len(q)} MAPs released in a '
-                     f'square of side {2 * half_width:g} m')
+    raise ValueError(f'vehicle.separation: {apart:g} m (with its margins) cannot be kept among {len(q)} MAPs '
+                     f'released in a square of side {2 * half_width:g} m')
 
 
 def packable(maps: int, half_width: float, separation: float) -> bool:
@@ -141,14 +149,16 @@ class Flight:
         self.v, self.dt, self.rng = v, dt, rng
         self.lagged = np.zeros((n, 3))
         self.gust = _stationary(rng, v.wind.gust, n)
-        self.error = _stationary(rng, v.gnss.sigma, n)
+        self.shared_sigma = math.sqrt(max(v.gnss.sigma ** 2 - v.gnss.own ** 2, 0.0))
+        self.shared = _stationary(rng, self.shared_sigma, 1)  # one error every MAP's receiver has
+        self.own = _stationary(rng, v.gnss.own, n)
         angle = math.radians(v.wind.direction)
         self.mean_wind = v.wind.speed * np.array([math.cos(angle), math.sin(angle)])
 
     def estimate(self, rows: NDArray[np.intp], q: F64) -> F64:
         """Where the MAPs of these rows believe they are: the truth plus their GNSS error (horizontal)."""
         out = q.copy()
-        out[:, :2] += self.error[rows]
+        out[:, :2] += self.shared + self.own[rows]
         return out
 
     def air(self, rows: NDArray[np.intp], p: F64) -> F64:
@@ -169,7 +179,8 @@ class Flight:
         p_next = saturate(p + a * dt, v.v_max)  # a projection: the step's acceleration only shrinks
         a = (p_next - p) / dt
         self.gust = _markov(self.rng, self.gust, v.wind.gust, v.wind.gust_time, dt)
-        self.error = _markov(self.rng, self.error, v.gnss.sigma, v.gnss.time, dt)
+        self.shared = _markov(self.rng, self.shared, self.shared_sigma, v.gnss.time, dt)
+        self.own = _markov(self.rng, self.own, v.gnss.own, v.gnss.time, dt)
         return q + p * dt + 0.5 * a * dt * dt, p_next
 
 
