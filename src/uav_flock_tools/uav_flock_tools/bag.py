@@ -321,7 +321,7 @@ def summary(run: BagRun) -> dict[str, Any]:
         'scheduled_failure': None if not run.scenario.get('fail_fraction') else
         {'t_s': _number(run.scenario.get('fail_at')), 'fraction': float(run.scenario['fail_fraction'])},
         # under a channel between MAPs (hearing.LINK_COLUMNS): what they heard, over the run
-        'channel': None if m.shape[1] <= len(records.METRICS_COLUMNS) else {
+        'channel': None if not records.has_links(m) else {
             'usable_connected': float(np.mean(m[:, 9] > 0)), 'heard_connected': float(np.mean(m[:, 11] > 0)),
             'heard_share': float(m[:, 13].mean()), 'oldest_used': int(m[:, 14].max())},
     }

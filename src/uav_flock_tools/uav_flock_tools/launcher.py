@@ -152,6 +152,7 @@ class Run:
         said = [f'{maps} in {len(p.groups)} process{"es" if len(p.groups) != 1 else ""}, {pace}, '
                 f'ROS_DOMAIN_ID={p.claim.domain}, discovery {found}, run folder {p.run}']
         said += [] if s.links.perfect else [f'radio between MAPs: {describe(s.links)}']
+        said += [] if s.vehicle.ideal else [f'vehicle: {s.vehicle.describe()}']
         said += [] if p.secure is None else [secure.banner(p.secure)]
         said += [f'MAPs {p.remote[0]}-{p.remote[-1]} join from other hosts: ./uav-flock agents --join '
                  f'{p.server_address} --ids {p.remote[0]}-{p.remote[-1]}{secure.join_option(p.secure)} '

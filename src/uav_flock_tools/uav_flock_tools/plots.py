@@ -9,6 +9,7 @@ import matplotlib
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from world_sim.core import records  # noqa: E402
 from world_sim.core.physics import label_centroids  # noqa: E402
 
 # The MSDs (xy, cluster id) at a time, for runs whose users move.
@@ -91,6 +92,25 @@ def channel(t: np.ndarray, metrics: np.ndarray, title: str, path: Path, events: 
     finish(top, '', FIEDLER_LABEL, title, events)
     low.plot(t, 100 * metrics[:, 13], lw=1.2, color='tab:grey')
     finish(low, 'time t (s)', 'states heard (%)', '')
+    return save(fig, path)
+
+
+def flight(t: np.ndarray, metrics: np.ndarray, separation: float, title: str, path: Path,
+           events: Sequence[Event] = ()) -> Path:
+    """A multirotor's run: coverage, the formation's mean propulsion power against hover, and the least distance
+    between two MAPs against the separation they must keep, on one time axis (records.VEHICLE_COLUMNS)."""
+    from world_sim.core.vehicle import HOVER
+    fig, (cov, power, apart) = plt.subplots(3, 1, figsize=(6.4, 7.2), sharex=True)
+    cov.plot(t, 100 * metrics[:, 2], lw=1.4, color='tab:blue')
+    cov.set_ylim(0, 100)
+    finish(cov, '', 'coverage R_c (%)', title, events)
+    power.plot(t, records.vehicle_column(metrics, 'power'), lw=1.4, color='tab:red', label='mean per MAP')
+    power.axhline(HOVER, color='grey', ls='--', lw=1, label=f'hover ({HOVER:.1f} W)')
+    finish(power, '', 'propulsion power (W)', '')
+    apart.plot(t, records.vehicle_column(metrics, 'min_distance'), lw=1.2, color='tab:green', label='least distance')
+    apart.axhline(separation, color='tab:red', ls='--', lw=1, label=f'separation ({separation:g} m)')
+    apart.set_ylim(bottom=0)
+    finish(apart, 'time t (s)', 'least distance\nbetween two MAPs (m)', '')
     return save(fig, path)
 
 
@@ -307,11 +327,11 @@ class FormationMovie:
 def run_figures(metrics: np.ndarray, traj: dict[str, np.ndarray], users_xy: np.ndarray | None,
                 users_cluster: np.ndarray | None, centroids: np.ndarray | None, r: float, label: str,
                 folder: Path, events: Sequence[Event] = (), users_at: UsersAt | None = None,
-                radio: str | None = None) -> list[Path]:
+                radio: str | None = None, separation: float | None = None) -> list[Path]:
     """The figures of one run: coverage, Fiedler value, mode counts, formation snapshots and animation.
 
     metrics rows follow the METRICS_COLUMNS order; without MSDs the formation pictures are left out; radio: the
-    channel between MAPs in words, for links.png's title. The
+    channel between MAPs in words, for links.png's title; separation: a multirotor's (flight.png). The
     animation, the costliest, is drawn by a forked child meanwhile (on a machine of one core, here after).
     """
     animated = users_xy is not None and users_cluster is not None and centroids is not None and len(traj['t'])
@@ -326,9 +346,11 @@ def run_figures(metrics: np.ndarray, traj: dict[str, np.ndarray], users_xy: np.n
             fiedler_series([(label, t, metrics[:, 3])], f'Connectivity, {label}', folder / 'fiedler.png', events),
             mode_counts(t, metrics[:, 6:9], f'Modes, {label}', folder / 'modes.png'),
         ]
-        if metrics.shape[1] > 9:  # under a channel: the graphs of what the MAPs could and did hear (hearing.py)
+        if records.has_links(metrics):  # under a channel: the graphs of what the MAPs could and did hear (hearing.py)
             out.append(channel(t, metrics, f'Radio between MAPs, {label}' + (f'\n{radio}' if radio else ''),
                                folder / 'links.png', events))
+        if separation is not None and records.vehicle_column(metrics, 'power') is not None:
+            out.append(flight(t, metrics, separation, f'Flight, {label}', folder / 'flight.png', events))
         if child is not None:
             end = float(traj['t'].max())
             times = sorted({0.0, round(end / 4, 1), round(end / 2, 1), end})

@@ -17,6 +17,7 @@ from typing import Iterable, NamedTuple, Optional, Sequence
 import numpy as np
 
 import foxglove
+from world_sim.core import records
 from world_sim.core.physics import neighbour_pairs
 from foxglove.channels import LogChannel, SceneUpdateChannel
 from foxglove.messages import (Color, CylinderPrimitive, LinePrimitive, LinePrimitiveLineType, Log, LogLevel, Point3,
@@ -102,7 +103,7 @@ def metrics(row: Sequence[float]) -> dict:
     step, t, coverage_ratio, fiedler, alive, components = row[:6]
     out = {'step': int(step), 't': float(t), 'coverage_ratio': float(coverage_ratio), 'fiedler': float(fiedler),
            'alive': int(alive), 'components': int(components)}
-    if len(row) > 9:  # hearing.LINK_COLUMNS
+    if records.has_links(row):  # hearing.LINK_COLUMNS
         out.update(usable_fiedler=float(row[9]), heard_fiedler=float(row[11]), heard_share=float(row[13]),
                    oldest_used=int(row[14]))
     return out

@@ -48,7 +48,8 @@ def write_run(result: RunResult, folder: Path, label: str, pictures: bool = True
     radio = None if result.scenario.links.perfect else describe(result.scenario.links)
     return plots.run_figures(result.metrics, trajectory_columns(result), u.xyz[:, :2], u.cluster, u.centroids,
                              result.scenario.flock.r, f'{result.scenario.name}, {label}', folder,
-                             [*events, *events_of(result.scenario)], moving, radio)
+                             [*events, *events_of(result.scenario)], moving, radio,
+                             None if result.scenario.vehicle.ideal else result.scenario.vehicle.separation)
 
 
 def simulate(scenario: Scenario, progress: Optional[Callable[[int], None]] = None) -> tuple[RunResult, bool]:

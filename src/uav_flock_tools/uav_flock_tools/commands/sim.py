@@ -23,7 +23,7 @@ def handle(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from uav_agent.core.links import describe
-    from world_sim.core import hearing
+    from world_sim.core import hearing, outcome, records
 
     from .. import plots, simrun
     cmd = args.command
@@ -38,6 +38,8 @@ def handle(args: argparse.Namespace) -> int:
         print(note, file=sys.stderr, flush=True)
     if not base.links.perfect:
         print(f'radio between MAPs: {describe(base.links)}', flush=True)
+    if not base.vehicle.ideal:
+        print(f'vehicle: {base.vehicle.describe()}', flush=True)
     several = len(runs) > 1
     total = sum(s.steps for s in runs)
     done: list[tuple[str, object]] = []
@@ -64,8 +66,10 @@ def handle(args: argparse.Namespace) -> int:
         m = r.metrics
         print(f'{label}: t = {m[-1, 1]:.1f} s, R_c = {100 * m[-1, 2]:.1f} %, Fiedler = {m[-1, 3]:.4f}, '
               f'components = {int(m[-1, 5])}, alive = {int(m[-1, 4])}')
-        if m.shape[1] > 9:  # under a channel (world_sim/core/hearing.py)
+        if records.has_links(m):  # under a channel (world_sim/core/hearing.py)
             print(f'{" " * len(label)}  {hearing.summary(m)}')
+        if not r.scenario.vehicle.ideal:
+            print(f'{" " * len(label)}  {outcome.flight_summary(r.scenario, m, r.trajectory, r.users.centroids)}')
     if several:
         table = simrun.write_summary([r for _, r in done], out)
         print('\n'.join(['', 'Mean ± std over the seeds (time to success: first t with R_c ≥ 95 % and λ2 > 0):',

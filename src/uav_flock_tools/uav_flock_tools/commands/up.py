@@ -76,9 +76,12 @@ def handle(args: argparse.Namespace) -> int:
         return code or 1
     simrun.write_run(result, out, f'{s.maps} MAPs, seed {s.seed} (distributed)')
     m = result.metrics
-    if m.shape[1] > 9:  # under a channel (world_sim/core/hearing.py): what the MAPs heard, as sim says it
+    from world_sim.core import outcome, records
+    if records.has_links(m):  # under a channel (world_sim/core/hearing.py): what the MAPs heard, as sim says it
         from world_sim.core import hearing
         print(f'uav-flock up: radio: {hearing.summary(m)}')
+    if not s.vehicle.ideal:
+        print(f'uav-flock up: flight: {outcome.flight_summary(s, m, result.trajectory, result.users.centroids)}')
     print(f'{s.maps} MAPs, seed {s.seed}: t = {m[-1, 1]:.1f} s, R_c = {100 * m[-1, 2]:.1f} %, '
           f'Fiedler = {m[-1, 3]:.4f}, alive = {int(m[-1, 4])}; results in {out}')
     if args.record:

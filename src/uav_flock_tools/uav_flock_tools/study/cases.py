@@ -11,6 +11,7 @@ import numpy as np
 from uav_agent.core.clusters import mst_edges
 from uav_agent.core.state import M1
 from world_sim.core import layouts
+from world_sim.core import records
 from world_sim.core.records import METRICS_COLUMNS
 from world_sim.core.scenario import Cluster, Scenario
 
@@ -127,7 +128,7 @@ def figures(m: np.ndarray, dt: float, event: Optional[float]) -> dict[str, Optio
     hearing.LINK_COLUMNS, whose first is the usable graph's lambda2); None where a run that never converged, or
     has no event, has none."""
     t, rc, disc = m[:, 1], m[:, 2], m[:, 3] > 0
-    connected = m[:, len(METRICS_COLUMNS)] > 0 if m.shape[1] > len(METRICS_COLUMNS) else disc
+    connected = m[:, len(METRICS_COLUMNS)] > 0 if records.has_links(m) else disc
     ok = (rc >= 0.95) & connected
     out: dict[str, Optional[float]] = dict.fromkeys(FIGURES)
     out['ends_ok'] = float(ok[-int(round(HELD_S / dt)):].all())

@@ -13,7 +13,7 @@ import numpy as np
 
 from uav_agent.core.clusters import mst_edges, segment_distance
 
-from . import layouts
+from . import layouts, vehicle
 from .records import METRICS_COLUMNS, TRAJECTORY_COLUMNS
 from .scenario import Scenario
 
@@ -54,6 +54,46 @@ def judge(s: Scenario, metrics: np.ndarray, trajectory: np.ndarray) -> Outcome:
     per_cluster, per_edge, astray = place(s, xy)
     return Outcome(cov >= COVERED and connected, first, cov, connected, per_cluster, per_edge, astray,
                    int(np.count_nonzero(mode == 0)))
+
+
+def t_star(s: Scenario, centroids: np.ndarray) -> float:
+    """T*, the physical bound on a time to success (s): the largest, over clusters, of the least time a MAP at rest
+    at the nearest point of the release square needs, within the vehicle's v_max and a_max, to come to rest where
+    its coverage disc (ground radius rho) reaches the cluster's centroid. Infinite on the paper's vehicle."""
+    if s.vehicle.ideal:
+        return float('inf')
+    centre, half = np.asarray(s.release_center), s.release_half_width
+    rho = layouts.ground_radius(s)
+    far = max(float(np.linalg.norm(c - np.clip(c, centre - half, centre + half))) - rho for c in np.asarray(centroids))
+    return vehicle.least_time(far, s.vehicle.v_max, s.vehicle.a_max)
+
+
+def flown(trajectory: np.ndarray, dt: float) -> tuple[float, float]:
+    """The top speed (m/s) and the top acceleration (m/s^2) over the ground of any MAP, read from trajectory rows
+    (TRAJECTORY_COLUMNS: a MAP's velocity from one step to the next, wherever it was recorded at both)."""
+    col = {c: trajectory[:, i] for i, c in enumerate(TRAJECTORY_COLUMNS)}
+    v = np.column_stack([col['vx'], col['vy'], col['vz']])
+    order = np.lexsort((col['step'], col['id']))
+    same = (np.diff(col['id'][order]) == 0) & (np.diff(col['step'][order]) == 1)
+    dv = np.diff(v[order], axis=0)[same]
+    top_a = float(np.linalg.norm(dv, axis=1).max() / dt) if len(dv) else 0.0
+    return float(np.linalg.norm(v, axis=1).max()) if len(v) else 0.0, top_a
+
+
+def flight_summary(s: Scenario, metrics: np.ndarray, trajectory: np.ndarray, centroids: np.ndarray) -> str:
+    """A multirotor's run in a line: how it flew (from the records, not the code), what it cost, and its time to
+    success against T*."""
+    from .records import vehicle_column
+    speed, accel = flown(trajectory, s.dt)
+    least = vehicle_column(metrics, 'min_distance')
+    power = vehicle_column(metrics, 'power')
+    energy = vehicle_column(metrics, 'energy')
+    bound, first = t_star(s, centroids), time_to_success(metrics)
+    success = (f'success at {first:.1f} s = {first / bound:.2f} T*' if np.isfinite(first) else 'no success') \
+        + f' (T* = {bound:.1f} s)'
+    return (f'least distance {np.nanmin(least):.2f} m (separation {s.vehicle.separation:g} m), top speed {speed:.1f} '
+            f'm/s, top acceleration {accel:.2f} m/s^2; mean power {power.mean():.1f} W (hover '
+            f'{vehicle.HOVER:.1f} W), energy {energy[-1] / 1e3:.1f} kJ; {success}')
 
 
 def place(s: Scenario, xy: np.ndarray) -> tuple[tuple[int, ...], tuple[int, ...], int]:

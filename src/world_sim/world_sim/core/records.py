@@ -41,6 +41,22 @@ def metrics_columns(scenario: Any) -> tuple[str, ...]:
             + (() if scenario.vehicle.ideal else VEHICLE_COLUMNS))
 
 
+def has_links(metrics: np.ndarray) -> bool:
+    """Whether metrics rows (or one row) carry hearing.LINK_COLUMNS after METRICS_COLUMNS: a run under a channel."""
+    from .hearing import LINK_COLUMNS
+    extra = np.shape(metrics)[-1] - len(METRICS_COLUMNS)
+    return extra in (len(LINK_COLUMNS), len(LINK_COLUMNS) + len(VEHICLE_COLUMNS))
+
+
+def vehicle_column(metrics: np.ndarray, name: str) -> Optional[np.ndarray]:
+    """A multirotor's VEHICLE_COLUMNS column of metrics rows (they come last); None on the paper's vehicle."""
+    from .hearing import LINK_COLUMNS
+    extra = np.shape(metrics)[-1] - len(METRICS_COLUMNS)
+    if extra not in (len(VEHICLE_COLUMNS), len(LINK_COLUMNS) + len(VEHICLE_COLUMNS)):
+        return None
+    return np.asarray(metrics)[..., np.shape(metrics)[-1] - len(VEHICLE_COLUMNS) + VEHICLE_COLUMNS.index(name)]
+
+
 def write_metrics(path: Path, rows: np.ndarray) -> None:
     """METRICS_COLUMNS, then those of a channel and a multirotor as metrics_columns says (told by the width)."""
     from .hearing import LINK_COLUMNS, LINK_FMT

@@ -65,6 +65,16 @@ class Vehicle:
         keep = self.separation + KEEP_SLACK + GNSS_MARGIN * math.sqrt(2.0) * self.gnss.own
         return {'v_max': self.v_max, 'a_max': self.a_max, 'tau': self.tau, 'keep': keep}
 
+    def describe(self) -> str:
+        """The vehicle in words, as `sim` and `up` state it at the start of a run."""
+        if self.ideal:
+            return "the paper's double integrator, unbounded"
+        w, g = self.wind, self.gnss
+        return (f'multirotor: {self.v_max:g} m/s, {self.a_max:g} m/s^2, lag {self.tau:g} s, keeps '
+                f'{self.envelope()["keep"]:.1f} m (separation {self.separation:g} m); wind {w.speed:g} m/s towards '
+                f'{w.direction:g} deg, gusts {w.gust:g} m/s over {w.gust_time:g} s; GNSS error {g.sigma:g} m '
+                f'({g.own:g} m its own) over {g.time:g} s')
+
     def as_dict(self) -> dict[str, Any]:
         if self.ideal:
             return {'model': 'ideal'}
