@@ -72,6 +72,31 @@ def test_lockstep_equals_the_batch_simulator_over_a_lossy_late_channel(tmp_path:
         'the channel changes the run'
 
 
+def test_lockstep_equals_the_batch_simulator_on_a_multirotor(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """The world owns the vehicle (lag, limits, gusts, GNSS error): the MAPs decide from the estimate it tells
+    them, as the batch simulator's do, to the bit; the records keep the truth and the estimate apart."""
+    drawn = cli('layouts', '--count', '1', '--clusters', '3', '--seed', '4', '--out', str(tmp_path / 'layouts'))
+    assert drawn.returncode == 0, drawn.stderr
+    doc = yaml.safe_load((tmp_path / 'layouts' / 'layout-000.yaml').read_text())
+    doc['vehicle'] = {'model': 'multirotor', 'wind': {'speed': 6.0, 'gust': 2.0}, 'gnss': {'sigma': 2.0, 'own': 0.8}}
+    (tmp_path / 'multirotor.yaml').write_text(yaml.safe_dump(doc))
+    args = ('--scenario', str(tmp_path / 'multirotor.yaml'), '--maps', '24', '--duration', '8', '--fail-at', '4',
+            '--fail-fraction', '0.2')
+    distributed = cli('up', *args, '--agents-per-process', '6', '--out', str(tmp_path / 'up'), env=ros_env)
+    assert distributed.returncode == 0, distributed.stdout + distributed.stderr
+    batch = cli('sim', *args, '--out', str(tmp_path / 'sim'))
+    assert batch.returncode == 0, batch.stderr
+    for name in ('trajectory.csv', 'metrics.csv'):
+        assert (tmp_path / 'up' / name).read_bytes() == (tmp_path / 'sim' / name).read_bytes(), name
+    assert 'vehicle: multirotor: 15 m/s' in distributed.stdout and 'vehicle: multirotor: 15 m/s' in batch.stdout
+    flight = [line.split('least distance')[1] for line in distributed.stdout.splitlines() if 'least distance' in line]
+    assert flight and flight == [line.split('least distance')[1] for line in batch.stdout.splitlines()
+                                 if 'least distance' in line], distributed.stdout + batch.stdout
+    traj = read_csv(tmp_path / 'sim' / 'trajectory.csv')
+    assert np.abs(traj['x_est'] - traj['x']).max() > 0.1, 'the MAPs fly on an estimate, not the truth'
+    assert (tmp_path / 'sim' / 'flight.png').exists()
+
+
 def test_packed_agents_give_the_same_run(tmp_path: Path, ros_env: dict[str, str]) -> None:
     """Also with a scheduled failure: a failed MAP sharing its process with live ones falls silent."""
     args = ('--maps', '9', '--seed', '1', '--duration', '4', '--fail-at', '2', '--fail-fraction', '0.3')

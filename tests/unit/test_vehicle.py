@@ -1,0 +1,172 @@
+"""The vehicle (world_sim/core/vehicle.py) and the envelope rules (uav_agent/core/envelope.py): the paper's vehicle
+unchanged to the byte, a multirotor within its limits as its records show, its error processes as specified."""
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from uav_agent.core.links import Links
+from uav_flock_tools.batch import BatchSimulator
+from uav_flock_tools.layouts import policy_sets
+from world_sim.core import layouts, outcome, records, vehicle
+from world_sim.core.scenario import Scenario, ScenarioError, load, parse, to_doc
+
+
+def digest(s: Scenario) -> str:
+    r = BatchSimulator(s).run()
+    return hashlib.sha256(np.ascontiguousarray(r.metrics).tobytes()
+                          + np.ascontiguousarray(r.trajectory).tobytes()).hexdigest()[:16]
+
+
+# Taken on main before the vehicle existed (3ad26f0): the paper's vehicle must fly these runs to the same bits.
+IDEAL_DIGESTS = {'paper20': '33aef5d4cbac2155', 'layout0': '266b1f0bad378c25', 'layout1': 'c480f8fff8b96554',
+                 'layout2': '607b906b31075b24', 'alpha': '9bce9a02accf367f'}
+
+
+def ideal_runs(paper: Scenario) -> dict[str, Scenario]:
+    runs = {'paper20': paper.with_overrides(duration=20.0)}
+    rng = np.random.default_rng(7)
+    for i in range(3):
+        s = layouts.draw(paper, layouts.LayoutSpec(), rng)
+        runs[f'layout{i}'] = replace(s, maps=int(round(1.5 * layouts.floor(s).total)), duration=15.0)
+    runs['alpha'] = replace(paper, duration=10.0, links=Links(delivery='alpha', z1=0.8, loss=0.3, latency=2))
+    return runs
+
+
+def test_the_ideal_vehicle_flies_the_runs_of_before_to_the_bit(paper_scenario_path: str) -> None:
+    paper = load(paper_scenario_path)
+    assert paper.vehicle.ideal
+    got = {name: digest(s) for name, s in ideal_runs(paper).items()}
+    assert got == IDEAL_DIGESTS
+
+
+@pytest.fixture(scope='module')
+def multirotor_run(request: pytest.FixtureRequest) -> tuple[Scenario, object]:
+    from ament_index_python.packages import get_package_share_directory
+    import os
+    paper = load(os.path.join(get_package_share_directory('world_sim'), 'config', 'paper.yaml'))
+    s = replace(paper, vehicle=vehicle.MULTIROTOR, duration=20.0)
+    return s, BatchSimulator(s).run()
+
+
+def test_a_multirotor_flies_within_its_envelope_as_its_records_show(multirotor_run: tuple) -> None:
+    s, r = multirotor_run
+    speed, accel = outcome.flown(r.trajectory, s.dt)
+    assert speed <= s.vehicle.v_max + 1e-9 and accel <= s.vehicle.a_max + 1e-6, (speed, accel)
+    assert speed > 0.9 * s.vehicle.v_max, 'the limit is reached, so the check could fail'
+    least = records.vehicle_column(r.metrics, 'min_distance')
+    assert np.nanmin(least) >= s.vehicle.separation, np.nanmin(least)
+
+
+def test_a_multirotor_run_records_truth_and_estimate_apart(multirotor_run: tuple) -> None:
+    s, r = multirotor_run
+    cols = records.columns(r.trajectory, records.trajectory_columns(r.trajectory))
+    error = np.hypot(cols['x_est'] - cols['x'], cols['y_est'] - cols['y'])
+    assert 0.1 < error.mean() < 4 * s.vehicle.gnss.sigma
+    assert np.array_equal(cols['z_est'], cols['z']), 'the error is horizontal'
+    assert records.metrics_columns(s)[-3:] == records.VEHICLE_COLUMNS
+
+
+def test_the_release_keeps_maps_apart_and_within_v_max() -> None:
+    v = vehicle.MULTIROTOR
+    rng = np.random.default_rng(1)
+    q = np.column_stack([rng.uniform(-40, 40, (90, 2)), np.full(90, 20.0)])
+    p = np.column_stack([rng.uniform(-20, 20, (90, 2)), np.zeros(90)])
+    q2, p2 = vehicle.release(q, p, v, (0.0, 0.0), 40.0, np.random.default_rng(2))
+    d = np.linalg.norm(q2[:, None, :2] - q2[None, :, :2], axis=-1) + np.eye(90) * 1e9
+    assert d.min() >= v.envelope()['keep'] > v.separation
+    assert np.linalg.norm(p2, axis=1).max() <= v.v_max + 1e-12
+    stayed = np.all(q2 == q, axis=1)
+    assert 0.2 < stayed.mean() < 1, 'MAPs far enough apart stay where the release stream put them, others move'
+
+
+def test_the_autopilot_follows_a_command_with_its_lag() -> None:
+    v = replace(vehicle.MULTIROTOR, wind=vehicle.Wind(0.0, 0.0, 0.0, 5.0), gnss=vehicle.Gnss(0.0, 60.0, 0.0))
+    f = vehicle.Flight(v, 1, 0.1, np.random.default_rng(0))
+    q, p = np.zeros((1, 3)), np.zeros((1, 3))
+    rows = np.array([0])
+    speeds = []
+    for _ in range(30):
+        q, p = f.step(rows, q, p, np.array([[2.0, 0.0, 0.0]]))
+        speeds.append(p[0, 0])
+    accel = np.diff([0.0, *speeds]) / 0.1
+    expect = 2.0 * (1 - np.exp(-0.1 * np.arange(1, 31) / v.tau))
+    assert accel == pytest.approx(expect, rel=1e-9)
+    q, p = f.step(rows, q, np.array([[0.0, 14.9, 0.0]]), np.array([[0.0, 50.0, 0.0]]))
+    assert np.linalg.norm(p) == pytest.approx(v.v_max), 'a command beyond the envelope is flown at its edge'
+
+
+def test_gnss_error_and_gusts_have_their_sigma_and_correlation() -> None:
+    v = replace(vehicle.MULTIROTOR, gnss=vehicle.Gnss(sigma=2.0, time=10.0, own=1.2),
+                wind=vehicle.Wind(speed=0.0, gust=1.5, gust_time=5.0))
+    n, steps, dt = 400, 600, 0.1
+    f = vehicle.Flight(v, n, dt, np.random.default_rng(3))
+    own, gust = [], []
+    rows, zero = np.arange(n), np.zeros((n, 3))
+    for _ in range(steps):
+        own.append(f.own.copy())
+        gust.append(f.gust.copy())
+        f.step(rows, zero, zero, zero)
+    own_a, gust_a = np.array(own), np.array(gust)
+    assert own_a.std() == pytest.approx(1.2, rel=0.05)
+    assert gust_a.std() == pytest.approx(1.5, rel=0.05)
+    lag = int(round(5.0 / dt))
+    corr = np.mean(gust_a[lag:] * gust_a[:-lag]) / gust_a.var()
+    assert corr == pytest.approx(math.exp(-1.0), abs=0.05)
+    assert f.shared_sigma == pytest.approx(math.sqrt(2.0 ** 2 - 1.2 ** 2))
+
+
+def test_zeng_power_hovers_at_their_figure_and_is_least_in_forward_flight() -> None:
+    assert vehicle.HOVER == pytest.approx(168.49, abs=0.01)
+    speeds = np.linspace(0, 30, 301)
+    watts = vehicle.power(speeds)
+    assert 8 < speeds[np.argmin(watts)] < 14 and watts[-1] > vehicle.HOVER
+
+
+def test_t_star_of_the_paper_layout(paper_scenario_path: str) -> None:
+    s = replace(load(paper_scenario_path), vehicle=vehicle.MULTIROTOR)
+    r = BatchSimulator(s.with_overrides(duration=0.1)).run()
+    assert outcome.t_star(s, r.users.centroids) == pytest.approx(14.2, abs=0.05)
+    assert vehicle.least_time(10.0, 15.0, 4.0) == pytest.approx(2 * math.sqrt(10 / 4))
+
+
+@pytest.mark.parametrize('section, message', [
+    ({'model': 'plane'}, 'vehicle.model: must be one of ideal, multirotor'),
+    ({'model': 'multirotor', 'v_max': -1}, 'vehicle.v_max'),
+    ({'model': 'multirotor', 'vmax': 3}, 'vehicle.vmax: unknown key; did you mean v_max?'),
+    ({'model': 'ideal', 'v_max': 3}, 'vehicle.v_max: unknown key'),
+    ({'model': 'multirotor', 'gnss': {'sigma': 1.0, 'own': 2.0}}, 'vehicle.gnss.own'),
+    ({'model': 'multirotor', 'wind': {'gust_time': 0}}, 'vehicle.wind.gust_time'),
+    ({'model': 'multirotor', 'separation': 30}, 'vehicle.separation: 90 MAPs cannot be released'),
+])
+def test_a_bad_vehicle_is_refused_naming_its_key(paper_scenario_path: str, section: dict, message: str) -> None:
+    import yaml
+    doc = yaml.safe_load(open(paper_scenario_path))
+    doc['vehicle'] = section
+    with pytest.raises(ScenarioError, match=message.replace('?', r'\?')):
+        parse(doc)
+
+
+def test_the_vehicle_reads_back_and_tells_the_maps_its_envelope(paper_scenario_path: str) -> None:
+    s = replace(load(paper_scenario_path), vehicle=vehicle.MULTIROTOR)
+    assert parse(to_doc(s)) == s
+    assert s.flock.a_max == 4.0 and s.flock.keep == pytest.approx(s.vehicle.envelope()['keep'])
+    assert load(paper_scenario_path).flock.a_max == 0.0
+
+
+def test_every_envelope_rule_acts_on_a_multirotor_run() -> None:
+    """Each rule of ablation.VEHICLE_RULES, switched off alone, changes a short multirotor run (and none acts on
+    the paper's vehicle: test_the_ideal_vehicle_flies_the_runs_of_before_to_the_bit)."""
+    from ament_index_python.packages import get_package_share_directory
+    import os
+    from uav_agent.core.ablation import VEHICLE_RULES, switched_off
+    paper = load(os.path.join(get_package_share_directory('world_sim'), 'config', 'paper.yaml'))
+    s = replace(paper, vehicle=vehicle.MULTIROTOR, duration=5.0, flock=policy_sets(paper)['default'])
+    base = digest(s)
+    for rule in VEHICLE_RULES:
+        with switched_off([rule]):
+            assert digest(s) != base, rule
