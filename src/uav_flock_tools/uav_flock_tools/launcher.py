@@ -207,7 +207,7 @@ class Run:
                       '-p', f'scenario:={p.scenario_path}', '-p', f'maps:={s.maps}',
                       '-p', f'seed:={s.seed}', '-p', f'duration:={float(s.duration)}', '-p', f'out:={p.run}',
                       '-p', f'pid_table:={p.run / "pids.json"}', '-p', f'start_timeout:={p.start_timeout}',
-                      '-p', f'sync:={p.sync}', '-p', f'rate:={float(p.rate)}']
+                      '-p', f'sync:={p.sync}', '-p', f'rate:={float(p.rate)}', '-p', f'vehicle:={s.vehicle.model}']
         if p.record:
             world_args += ['-p', 'record:=true']
         if s.fail_at is not None:

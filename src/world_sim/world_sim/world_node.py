@@ -67,7 +67,7 @@ def sim_time(t: float) -> Time:
 
 
 # Parameters that override the scenario, each with the default that means "the scenario's value".
-SCENARIO_OVERRIDES = {'maps': 0, 'seed': -1, 'duration': 0.0, 'fail_at': -1.0, 'fail_fraction': -1.0}
+SCENARIO_OVERRIDES = {'maps': 0, 'seed': -1, 'duration': 0.0, 'fail_at': -1.0, 'fail_fraction': -1.0, 'vehicle': ''}
 
 
 class WorldNode(Node):

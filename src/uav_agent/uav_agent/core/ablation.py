@@ -40,8 +40,12 @@ CHANNEL_RULES = {
 # The vehicle's (core/envelope.py): how a MAP flies eq. 9 within a multirotor's envelope. None of them acts on the
 # paper's vehicle.
 VEHICLE_RULES = {
-    'brake': "a goal term aims at a speed from which the MAP stops before its goal, within v_max (envelope.capped)",
+    'brake': 'a goal term aims at a speed from which the MAP stops before its goal, within its cruise speed, and a '
+             'MAP faster than that brakes back (envelope.capped, envelope.governor)',
     'keep': 'a MAP brakes along a link it closes on faster than it could stop keep m short (envelope.keep_apart)',
+    'lead': "eq. 9's flocking terms taken where the MAPs will be four lags ahead: the damping a lagged link needs "
+            '(envelope.flocking_within)',
+    'soften': "eq. 9's flocking terms halved on a lagged vehicle (envelope.flocking_within)",
     'priority': "that braking is served first from a_max, eq. 9's terms from what is left (envelope.command)",
 }
 RULES.update(CHANNEL_RULES)

@@ -113,7 +113,10 @@ def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer]
     target is q^r for M0/M2 rows; bridge_a/bridge_b are q_1^r/q_2^r for M1 rows (ignored elsewhere);
     ref_vel (n, 3, 3) the velocities of target, bridge_a and bridge_b (None: all still).
     """
-    u = flocking_terms(own_q, own_p, own_nu, owner, nbr_q, nbr_p, nbr_nu, fp, apart)
+    if envelope.limited(fp):
+        u = envelope.flocking_within(flocking_terms, own_q, own_p, own_nu, owner, nbr_q, nbr_p, nbr_nu, fp, apart)
+    else:
+        u = flocking_terms(own_q, own_p, own_nu, owner, nbr_q, nbr_p, nbr_nu, fp, apart)
     bridging = np.asarray(mode) == M1
     v = np.zeros((len(own_q), 3, 3)) if ref_vel is None else ref_vel
     h = goal_term(own_q, own_p, target, fp, v[:, 0])
@@ -122,4 +125,5 @@ def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer]
                                   v[bridging, 1], v[bridging, 2])
     if not envelope.limited(fp):
         return u + h
-    return envelope.command(u + h, envelope.keep_apart(own_q, own_p, owner, nbr_q, nbr_p, fp), fp)
+    brake = envelope.keep_apart(own_q, own_p, owner, nbr_q, nbr_p, fp) + envelope.governor(own_p, fp)
+    return envelope.command(u + h, brake, fp)

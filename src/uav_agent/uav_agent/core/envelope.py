@@ -1,13 +1,17 @@
 """Eq. 9 flown within a multirotor's envelope: what a MAP commands when its speed, acceleration and the
 distance it keeps from others are bounded (scenario `vehicle:`, docs/vehicle.md).
 
-Three rules, each switched off by name (ablation.VEHICLE_RULES); none acts on the paper's vehicle, whose
+Five rules, each switched off by name (ablation.VEHICLE_RULES); none acts on the paper's vehicle, whose
 FlockParams have a_max = 0:
-- 'brake': the goal terms of eq. 12-13 aim at a speed the MAP can still stop from before its goal;
+- 'lead' and 'soften': the flocking terms taken ahead of the lag, and softened (flocking_within);
+- 'brake': the goal terms of eq. 12-13 aim at a speed the MAP can still stop from before its goal, within its
+  cruise speed;
 - 'keep': a MAP brakes along each link on which it closes faster than it could stop before `keep` m;
 - 'priority': that braking is served first from the acceleration budget, eq. 9's terms from what is left.
 """
 from __future__ import annotations
+
+from typing import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,6 +21,9 @@ from .params import FlockParams
 from .potentials import F64
 
 BRAKE_SHARE = 0.5  # of a_max, what a goal term plans to stop with: the rest is for the flocking terms and the lag
+LEAD_LAGS = 4.0    # rule 'lead': how many lags ahead the flocking terms are taken ...
+STEP_S = 0.1       # ... each lag with the step's hold (dt of every shipped scenario) added
+SOFTEN = 0.5       # rule 'soften': the flocking terms' share a lagged MAP flies
 
 
 def limited(fp: FlockParams) -> bool:
@@ -29,7 +36,14 @@ def stopping_speed(distance: F64, fp: FlockParams) -> F64:
     a = BRAKE_SHARE * fp.a_max
     d = np.maximum(np.asarray(distance, dtype=float), 0.0)
     v = -a * fp.tau + np.sqrt((a * fp.tau) ** 2 + 2.0 * a * d)  # v tau + v^2 / 2a = d
-    return np.minimum(v, fp.v_max)
+    return np.minimum(v, fp.v_max)  # the speed the MAP plans to fly at most: the vehicle's cruise, or its v_max
+
+
+def sight_speed(r: float, keep: float, a_max: float, tau: float) -> float:
+    """The cruise speed at which two MAPs meeting head-on where they first hear each other (r apart) stop keep m
+    short, each braking at a_max after its lag: 2 v tau + v^2 / a_max = r - keep (docs/vehicle.md)."""
+    room = max(r - keep, 0.0)
+    return float(a_max * (-tau + np.sqrt(tau ** 2 + room / a_max)))
 
 
 def capped(velocity: F64, distance: F64, fp: FlockParams) -> F64:
@@ -39,6 +53,20 @@ def capped(velocity: F64, distance: F64, fp: FlockParams) -> F64:
     speed = np.linalg.norm(velocity, axis=-1, keepdims=True)
     cap = stopping_speed(distance, fp)[..., None]
     return np.where(speed > cap, velocity * (cap / np.maximum(speed, 1e-12)), velocity)
+
+
+def flocking_within(terms: Callable[..., F64], own_q: F64, own_p: F64, own_nu: F64, owner: NDArray[np.intp],
+                    nbr_q: F64, nbr_p: F64, nbr_nu: F64, fp: FlockParams, apart: NDArray[np.integer] | None) -> F64:
+    """Eq. 9's flocking terms (control.flocking_terms) as a lagged MAP flies them.
+
+    Rule 'lead': taken where the MAP and its neighbours will be LEAD_LAGS (tau + STEP_S) ahead at their
+    velocities. A link of Phi is a spring of up to 6 /s^2 at d; behind a lag tau a spring needs damping above
+    tau times its stiffness or it oscillates, and the lead gives each link that damping (a dashpot of the
+    spring's stiffness times the lead). Rule 'soften': the terms scaled by SOFTEN, the springs with them.
+    """
+    lead = LEAD_LAGS * (fp.tau + STEP_S) if on('lead') else 0.0
+    u = terms(own_q + lead * own_p, own_p, own_nu, owner, nbr_q + lead * nbr_p, nbr_p, nbr_nu, fp, apart)
+    return SOFTEN * u if on('soften') else u
 
 
 def keep_apart(own_q: F64, own_p: F64, owner: NDArray[np.intp], nbr_q: F64, nbr_p: F64, fp: FlockParams) -> F64:
@@ -72,12 +100,21 @@ def saturate(u: F64, bound: F64 | float) -> F64:
     return u * scale[:, None]
 
 
+def governor(own_p: F64, fp: FlockParams) -> F64:
+    """Rule 'brake' for a MAP faster than it plans to fly (cruise): the excess taken off within tau, along its
+    velocity; nothing while it flies within its cruise speed."""
+    speed = np.linalg.norm(own_p, axis=1)
+    over = np.maximum(speed - fp.v_max, 0.0) if on('brake') else np.zeros(len(own_p))
+    return -own_p / np.maximum(speed, 1e-12)[:, None] * np.minimum(over / max(fp.tau, 1e-3), fp.a_max)[:, None]
+
+
 def command(u: F64, brake: F64, fp: FlockParams) -> F64:
     """Rule 'priority': the acceleration a MAP commands from eq. 9's u and the braking of rule 'keep'.
 
     The braking takes what it needs of a_max first and eq. 9 the rest, so no goal or flocking term can
     spend the budget a MAP needs to keep its distance. Off, the two are summed and clipped together.
     """
+    brake = saturate(brake, fp.a_max)
     if on('priority'):
         left = np.maximum(fp.a_max - np.linalg.norm(brake, axis=1), 0.0)
         return saturate(brake + saturate(u, left), fp.a_max)

@@ -192,8 +192,10 @@ SCENARIO_HELP = 'scenario YAML file, or a shipped name (default: paper)'
 BAG_HELP = 'the bag folder: RUN/bag for `up --record`, or just RUN'
 
 
-def add_scenario_options(p: argparse.ArgumentParser, grid: bool, failures: bool = True) -> None:
-    """grid: lists of MAP counts and seeds (a batch sweep); else one of each (a single distributed run)."""
+def add_scenario_options(p: argparse.ArgumentParser, grid: bool, failures: bool = True,
+                         vehicle: str | None = None) -> None:
+    """grid: lists of MAP counts and seeds (a batch sweep); else one of each (a single distributed run); vehicle:
+    the default of --vehicle (None: the scenario's own)."""
     p.add_argument('--scenario', default='paper', help=SCENARIO_HELP)
     if grid:
         p.add_argument('--maps', type=count_list, help='MAP count(s), e.g. 90 or 40,60,80,100 (default: scenario)')
@@ -202,6 +204,9 @@ def add_scenario_options(p: argparse.ArgumentParser, grid: bool, failures: bool 
         p.add_argument('--maps', type=positive_int, help='MAP count, e.g. 90 (default: scenario)')
         p.add_argument('--seed', type=non_negative_int, help='seed, e.g. 3 (default: scenario)')
     p.add_argument('--duration', type=positive_float, help='simulated time in s (default: scenario)')
+    p.add_argument('--vehicle', choices=('ideal', 'multirotor'), default=vehicle,
+                   help="what the MAPs fly: the paper's unbounded double integrator, or the shipped multirotor "
+                        f"(docs/vehicle.md; default: {vehicle or 'the scenario' + chr(39) + 's own'})")
     if failures:
         p.add_argument('--fail-at', type=positive_float,
                        help="time of the random failure in s (default: the scenario's failure.at; paper: none)")

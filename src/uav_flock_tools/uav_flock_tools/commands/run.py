@@ -11,7 +11,7 @@ SUMMARY = 'the main job: a scenario (the paper with 90 MAPs) distributed and rec
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    add_scenario_options(p, grid=False, failures=False)
+    add_scenario_options(p, grid=False, failures=False, vehicle='multirotor')
     p.add_argument('--batch', action='store_true', help='in one process with the batch simulator instead (seconds)')
     add_view_option(p)
     p.add_argument('--out', help='output folder (default: runs/run-<time>)')
@@ -21,7 +21,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def handle(args: argparse.Namespace) -> int:
     """The main job: a scenario (the paper's with 90 MAPs by default), distributed and recorded, then its report."""
     ns = argparse.Namespace(command='run', scenario=args.scenario, maps=args.maps, seed=args.seed,
-                            duration=args.duration, fail_at=None, fail_fraction=None,
+                            duration=args.duration, fail_at=None, fail_fraction=None, vehicle=args.vehicle,
                             out=args.out or str(default_out('run')), replace=args.replace)
     if args.batch:
         if args.view is not None:

@@ -27,7 +27,7 @@ def handle(args: argparse.Namespace) -> int:
 
     from .. import plots, simrun
     cmd = args.command
-    base = simrun.load_scenario(args.scenario)
+    base = simrun.load_scenario(args.scenario).with_overrides(vehicle=args.vehicle)
     check_run_options(cmd, base, args)
     maps = args.maps or [base.maps]
     seeds = args.seed or [base.seed]

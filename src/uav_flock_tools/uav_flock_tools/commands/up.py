@@ -49,7 +49,7 @@ def handle(args: argparse.Namespace) -> int:
     base = simrun.load_scenario(args.scenario)
     check_run_options(cmd, base, args)
     s = base.with_overrides(maps=args.maps, seed=args.seed, duration=args.duration, fail_at=args.fail_at,
-                            fail_fraction=args.fail_fraction)
+                            fail_fraction=args.fail_fraction, vehicle=args.vehicle)
     if args.rate != 1.0 and args.sync != 'realtime':
         raise UsageError(f'{cmd}: --rate sets the pace of --sync realtime; lockstep runs as fast as it can')
     if args.listen is not None:

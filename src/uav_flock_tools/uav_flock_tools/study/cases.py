@@ -31,7 +31,11 @@ HELD_S = 10.0  # a run "ends covered and connected" when it is so over its last 
 # the share of time after it that the disc graph is connected. Connected is lambda2 > 0 of the usable graph:
 # the disc graph under the paper's channel; under a `links:` channel the links that deliver half of what is
 # sent over them (docs/links.md), of which the disc graph is the share `disc`.
-FIGURES = ('converged', 'connected', 'outage', 'rc', 'recovery', 'ends_ok', 'end_rc', 'end_components', 'disc')
+FIGURES = ('converged', 'connected', 'outage', 'rc', 'recovery', 'ends_ok', 'end_rc', 'end_components', 'disc',
+           *('t_star', 'least_distance', 'top_speed', 'top_accel', 'power', 'energy'))
+# A multirotor's (docs/vehicle.md; None on the ideal vehicle): T* (s), the least distance between two MAPs (m),
+# the top speed (m/s) and acceleration (m/s^2) over the ground read from the trajectory, the formation's mean
+# power per MAP after convergence (W; over the whole run if it never converged) and the energy it drew (J).
 
 
 def lb_along(s: Scenario, until: float) -> int:
@@ -121,6 +125,19 @@ def outage_s(down: np.ndarray, dt: float) -> float:
         run = run + 1 if d else 0
         longest = max(longest, run)
     return longest * dt
+
+
+def flight_figures(s: Scenario, m: np.ndarray, trajectory: np.ndarray, centroids: np.ndarray,
+                   converged: Optional[float]) -> dict[str, Optional[float]]:
+    """FIGURES of a multirotor's run (records.VEHICLE_COLUMNS and the trajectory); none on the ideal vehicle."""
+    if s.vehicle.ideal:
+        return {}
+    from world_sim.core import outcome
+    speed, accel = outcome.flown(trajectory, s.dt)
+    after = m[:, 1] >= (converged if converged is not None else 0.0)
+    return {'t_star': outcome.t_star(s, centroids), 'least_distance': float(np.nanmin(records.vehicle_column(m, 'min_distance'))),
+            'top_speed': speed, 'top_accel': accel, 'power': float(records.vehicle_column(m, 'power')[after].mean()),
+            'energy': float(records.vehicle_column(m, 'energy')[-1])}
 
 
 def figures(m: np.ndarray, dt: float, event: Optional[float]) -> dict[str, Optional[float]]:

@@ -34,7 +34,7 @@ def execute(run: Run) -> dict[str, Any]:
     from uav_agent.core import ablation
 
     from ..batch import BatchSimulator
-    from .cases import figures
+    from .cases import figures, flight_figures
     t0 = time.perf_counter()
     row: dict[str, Any] = {'key': run.key, 'layout': run.layout, 'seed': run.seed, 'kind': run.kind,
                            'variant': run.variant, 'maps': None, 'duration': None, **dict.fromkeys(FIGURES), 'error': None}
@@ -48,7 +48,9 @@ def execute(run: Run) -> dict[str, Any]:
                 wipe_at(kind, sim, rng)
                 sim.step()
             sim.step(integrate=False)
-        row.update(figures(sim.result().metrics, s.dt, EVENT_S.get(kind)))
+        result = sim.result()
+        row.update(figures(result.metrics, s.dt, EVENT_S.get(kind)))
+        row.update(flight_figures(s, result.metrics, result.trajectory, result.users.centroids, row['converged']))
     except Exception as exc:  # noqa: BLE001 -- the row carries it
         row['error'] = f'{type(exc).__name__}: {exc} | {traceback.format_exc(limit=-1).strip().splitlines()[-2].strip()}'
     row.update(wall_s=time.perf_counter() - t0, host=socket.gethostname())

@@ -77,6 +77,27 @@ def markdown(lines: list[dict[str, Any]], base: str) -> str:
     return '\n'.join([head, *body]) + '\n'
 
 
+def flight(rows: list[dict[str, Any]]) -> str:
+    """A multirotor's lines (docs/vehicle.md): time to success against T*, least distance, the envelope as flown,
+    power after convergence against hover; '' when no run flew one."""
+    if not any(r.get('t_star') is not None for r in rows):
+        return ''
+    from world_sim.core.vehicle import HOVER
+    out = ['| kind | variant | converged / T*: median | worst | least distance (m) | top speed (m/s) | '
+           'top acceleration (m/s²) | power after convergence / hover: mean | worst |', '|---' * 9 + '|']
+    for kind in dict.fromkeys(r['kind'] for r in rows):
+        for variant in dict.fromkeys(r['variant'] for r in rows):
+            cell = [r for r in rows if r['kind'] == kind and r['variant'] == variant and r.get('t_star') is not None]
+            if not cell:
+                continue
+            ratio = np.array([r['converged'] / r['t_star'] if r['converged'] is not None else np.inf for r in cell])
+            power = np.array([r['power'] / HOVER for r in cell])
+            out.append(f"| {kind} | {variant} | {np.median(ratio):.2f} | {ratio.max():.2f} | "
+                       f"{min(r['least_distance'] for r in cell):.2f} | {max(r['top_speed'] for r in cell):.2f} | "
+                       f"{max(r['top_accel'] for r in cell):.2f} | {power.mean():.3f} | {power.max():.3f} |")
+    return '\n## Flight (multirotor)\n\n' + '\n'.join(out) + '\n'
+
+
 def write(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     """summary.md, summary.csv and connected.png beside the table."""
     lines = cells(rows)
@@ -84,7 +105,7 @@ def write(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     (out / 'summary.md').write_text(f'# Study: {len(rows)} runs\n\n"Connected" is the share of time lambda2 > 0 after the '
                                     'first step covered (R_c >= 95 %) and connected, 0 for a run that never got there; under a links: channel, '
                                     'of the usable graph (docs/links.md).\n\n'
-                                    + markdown(lines, base))
+                                    + markdown(lines, base) + flight(rows))
     with open(out / 'summary.csv', 'w', newline='') as f:
         w = csv.DictWriter(f, fieldnames=list(lines[0]) if lines else ['kind'])
         w.writeheader()

@@ -73,8 +73,10 @@ class Scenario:
     def __post_init__(self) -> None:
         # The flock relies on links as long as the channel delivers (links.reach), however the scenario was made,
         # and flies within the vehicle's envelope.
-        derived = {'reach': channel.reach(self.links, self.flock.r), 'hush': channel.hush(self.links),
-                   **self.vehicle.envelope()}
+        reach = channel.reach(self.links, self.flock.r)
+        if not self.vehicle.ideal:  # and lays its links short of r by what the MAPs' positions may err by
+            reach = min(reach or self.flock.r, self.flock.r - self.vehicle.margin)
+        derived = {'reach': reach, 'hush': channel.hush(self.links), **self.vehicle.envelope()}
         if any(getattr(self.flock, name) != value for name, value in derived.items()):
             object.__setattr__(self, 'flock', replace(self.flock, **derived))
 
@@ -94,6 +96,11 @@ class Scenario:
     def with_overrides(self, **kw: Any) -> 'Scenario':
         """The scenario with some values replaced (None keeps the scenario's), each checked as in a file."""
         values = {f.name: getattr(self, f.name) for f in fields(self)}
+        if isinstance(kw.get('vehicle'), str):  # a model by name: the file's own vehicle if it is one, else the profile
+            try:
+                kw['vehicle'] = self.vehicle if kw['vehicle'] == self.vehicle.model else craft.by_name(kw['vehicle'])
+            except ValueError as exc:
+                raise ScenarioError(str(exc)) from None
         values.update({k: _OVERRIDABLE[k](v) if k in _OVERRIDABLE else v for k, v in kw.items() if v is not None})
         out = Scenario(**values)
         _check(out)

@@ -51,6 +51,7 @@ class Vehicle:
     a_max: float = 4.0          # acceleration over the ground, wind included (m/s^2)
     tau: float = 0.3            # lag of the autopilot's acceleration behind the command (s)
     separation: float = 3.0     # the least distance two MAPs may come to (m)
+    cruise: float = 0.0         # the speed the MAPs plan to fly at most (m/s; 0: v_max), docs/vehicle.md
     wind: Wind = field(default_factory=Wind)
     gnss: Gnss = field(default_factory=Gnss)
 
@@ -58,19 +59,26 @@ class Vehicle:
     def ideal(self) -> bool:
         return self.model == 'ideal'
 
+    @property
+    def margin(self) -> float:
+        """How far (m) two MAPs' true distance may differ from what they plan it to be: their own GNSS errors
+        (GNSS_MARGIN sigma of the difference) and what a step and the lag let them drift (KEEP_SLACK)."""
+        return 0.0 if self.ideal else KEEP_SLACK + GNSS_MARGIN * math.sqrt(2.0) * self.gnss.own
+
     def envelope(self) -> dict[str, float]:
         """What the MAPs are told (FlockParams' ENVELOPE): zeros on the paper's vehicle."""
         if self.ideal:
             return {'v_max': 0.0, 'a_max': 0.0, 'tau': 0.0, 'keep': 0.0}
-        keep = self.separation + KEEP_SLACK + GNSS_MARGIN * math.sqrt(2.0) * self.gnss.own
-        return {'v_max': self.v_max, 'a_max': self.a_max, 'tau': self.tau, 'keep': keep}
+        return {'v_max': min(self.cruise or self.v_max, self.v_max), 'a_max': self.a_max, 'tau': self.tau,
+                'keep': self.separation + self.margin}
 
     def describe(self) -> str:
         """The vehicle in words, as `sim` and `up` state it at the start of a run."""
         if self.ideal:
             return "the paper's double integrator, unbounded"
         w, g = self.wind, self.gnss
-        return (f'multirotor: {self.v_max:g} m/s, {self.a_max:g} m/s^2, lag {self.tau:g} s, keeps '
+        cruise = f', cruising at {self.envelope()["v_max"]:g}' if self.cruise else ''
+        return (f'multirotor: {self.v_max:g} m/s{cruise}, {self.a_max:g} m/s^2, lag {self.tau:g} s, keeps '
                 f'{self.envelope()["keep"]:.1f} m (separation {self.separation:g} m); wind {w.speed:g} m/s towards '
                 f'{w.direction:g} deg, gusts {w.gust:g} m/s over {w.gust_time:g} s; GNSS error {g.sigma:g} m '
                 f'({g.own:g} m its own) over {g.time:g} s')
@@ -88,6 +96,13 @@ IDEAL = Vehicle(model='ideal')
 MULTIROTOR = Vehicle()
 
 
+def by_name(model: str) -> Vehicle:
+    """The vehicle a model's name stands for on a command line: the ideal one, or the shipped profile."""
+    if model not in MODELS:
+        raise ValueError(f'vehicle: must be one of {", ".join(MODELS)}, got {model!r}')
+    return IDEAL if model == 'ideal' else MULTIROTOR
+
+
 def parse(doc: Any, where: str = 'vehicle') -> Vehicle:
     """The `vehicle:` section: `model` and any key of the multirotor (the shipped profile's values for the rest).
     ValueError naming the key for anything a vehicle cannot be."""
@@ -102,7 +117,7 @@ def parse(doc: Any, where: str = 'vehicle') -> Vehicle:
         return IDEAL
     refuse_unknown(doc, {f.name for f in fields(Vehicle)}, f'{where}.')
     values: dict[str, Any] = {'model': model}
-    for name, low_open in (('v_max', True), ('a_max', True), ('tau', False), ('separation', False)):
+    for name, low_open in (('v_max', True), ('a_max', True), ('tau', False), ('separation', False), ('cruise', False)):
         if name in doc:
             values[name] = float(number(doc[name], f'{where}.{name}', low=0.0, low_open=low_open))
     values['wind'] = _part(doc.get('wind', {}), Wind, f'{where}.wind', ('speed', 'gust'))

@@ -1,0 +1,96 @@
+"""The paper's layout on the shipped multirotor beside the paper's ideal vehicle, the radio of docs/links.md flown
+again on the multirotor, and what the vehicle costs the batch simulator (docs/vehicle.md).
+
+Run: ./uav-flock exec python benchmarks/bench_vehicle.py [--seeds 5] [--cost-only]
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+from typing import Any
+
+import numpy as np
+
+from uav_agent.core.links import Links
+from uav_flock_tools.batch import BatchSimulator
+from uav_flock_tools.simrun import load_scenario
+from world_sim.core import outcome, records, vehicle
+from world_sim.core.scenario import Scenario
+
+
+def flown(s: Scenario) -> dict[str, Any]:
+    """One run's figures: time to success (and / T* on a multirotor), share of time connected after it, the
+    least distance, the envelope as the trajectory shows it, mean power and energy."""
+    r = BatchSimulator(s).run()
+    m = r.metrics
+    first = outcome.time_to_success(m)
+    after = m[:, 1] >= first if np.isfinite(first) else np.zeros(len(m), bool)
+    speed, accel = outcome.flown(r.trajectory, s.dt)
+    least = records.vehicle_column(m, 'min_distance')
+    if least is None:  # the ideal vehicle records none: from its trajectory
+        from world_sim.core.physics import least_distance
+        cols = records.columns(r.trajectory)
+        least = np.array([least_distance(np.column_stack([cols['x'], cols['y'], cols['z']])[cols['step'] == k])
+                          for k in np.unique(cols['step'])])
+    power = records.vehicle_column(m, 'power')
+    return {'first': first, 't_star': outcome.t_star(dataclasses.replace(s, vehicle=vehicle.MULTIROTOR), r.users.centroids),
+            'connected': float((m[after, 3] > 0).mean()) if after.any() else float('nan'),
+            'least': float(np.nanmin(least)), 'speed': speed, 'accel': accel,
+            'power': float(power.mean()) if power is not None else float('nan'),
+            'energy': float(records.vehicle_column(m, 'energy')[-1]) if power is not None else float('nan')}
+
+
+def table(label: str, rows: list[dict[str, Any]]) -> str:
+    first = np.array([r['first'] for r in rows])
+    ok = np.isfinite(first)
+    ratio = first / np.array([r['t_star'] for r in rows])
+    return (f"| {label} | {ok.sum()}/{len(rows)} | {np.median(first):.1f} | {np.median(ratio):.2f} (worst {ratio.max():.2f}) | "
+            f"{100 * np.nanmean([r['connected'] for r in rows]):.1f} % | {min(r['least'] for r in rows):.2f} | "
+            f"{max(r['speed'] for r in rows):.1f} | {max(r['accel'] for r in rows):.1f} | "
+            f"{np.nanmean([r['power'] for r in rows]):.1f} | {np.nanmean([r['energy'] for r in rows]) / 1e3:.1f} |")
+
+
+HEAD = ('| vehicle | success | time to success, median (s) | / T*: median | connected after success | least distance (m) '
+        '| top speed (m/s) | top acceleration (m/s²) | mean power (W) | energy (kJ) |\n|---|---|---|---|---|---|---|---|---|---|')
+
+
+def cost(maps: int, steps: int) -> str:
+    """Wall time of `steps` steps at `maps` MAPs on each vehicle, A B A B, best of two each."""
+    base = load_scenario('paper').with_overrides(maps=maps, duration=steps * 0.1)
+    spread = dataclasses.replace(base, release_half_width=max(base.release_half_width, 4.0 * np.sqrt(maps)))
+    times: dict[str, list[float]] = {'ideal': [], 'multirotor': []}
+    for _ in range(2):
+        for name, v in (('ideal', vehicle.IDEAL), ('multirotor', vehicle.MULTIROTOR)):
+            s = dataclasses.replace(spread, vehicle=v)
+            t0 = time.perf_counter()
+            BatchSimulator(s).run()
+            times[name].append(time.perf_counter() - t0)
+    a, b = min(times['ideal']), min(times['multirotor'])
+    return f'{maps} MAPs, {steps} steps: ideal {a:.2f} s, multirotor {b:.2f} s, ratio {b / a:.3f}'
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument('--seeds', type=int, default=5)
+    ap.add_argument('--cost-only', action='store_true')
+    args = ap.parse_args()
+    if not args.cost_only:
+        paper = load_scenario('paper')
+        seeds = range(args.seeds)
+        print("The paper's layout, Algorithm 2, 90 MAPs, 60 s, seeds 0-" f'{args.seeds - 1}:\n' + HEAD, flush=True)
+        for label, v in (('ideal (the paper\'s)', vehicle.IDEAL), ('multirotor (shipped profile)', vehicle.MULTIROTOR)):
+            print(table(label, [flown(dataclasses.replace(paper, seed=k, vehicle=v)) for k in seeds]), flush=True)
+        print("\nThe radio of docs/links.md on the paper's layout, multirotor:\n" + HEAD, flush=True)
+        for loss in (0.3, 0.5):
+            radio = Links(delivery='alpha', z1=0.8, loss=loss, latency=2)
+            rows = [flown(dataclasses.replace(paper, seed=k, vehicle=vehicle.MULTIROTOR, links=radio)) for k in seeds]
+            print(table(f'alpha, z1 0.8, loss {loss:g}, latency 2', rows), flush=True)
+    print('\nWhat the vehicle costs the batch simulator (release square widened so every run is packable):', flush=True)
+    for maps, steps in ((100, 200), (1000, 20)):
+        print(cost(maps, steps), flush=True)
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
