@@ -290,11 +290,6 @@ def _check(s: Scenario) -> None:
         raise ScenarioError(f'maps: must be at least 1, got {s.maps}')
     if s.dt > s.duration:
         raise ScenarioError(f'dt: must not exceed duration ({s.duration}), got {s.dt}')
-    apart = s.vehicle.envelope()['keep']
-    if not s.vehicle.ideal and not craft.packable(s.maps, s.release_half_width, apart):
-        raise ScenarioError(f'vehicle.separation: {s.maps} MAPs cannot be released {apart:.1f} m apart (separation '
-                            f'and its margins, docs/vehicle.md) in a square of side {2 * s.release_half_width:g} m '
-                            '(release.half_width)')
 
 
 

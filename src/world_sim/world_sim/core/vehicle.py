@@ -144,25 +144,28 @@ def _part(doc: Any, kind: type, where: str, zero_ok: tuple[str, ...]) -> Any:
 def release(q: F64, p: F64, v: Vehicle, centre: tuple[float, float], half_width: float,
             rng: np.random.Generator) -> tuple[F64, F64]:
     """The release of a multirotor: no two MAPs nearer than the distance they keep (separation and its margins,
-    Vehicle.envelope; a MAP too near one before it is drawn again in the square, from the vehicle's stream), none
-    faster than v_max. The release stream's draws stay as they were, so both vehicles leave the same seed's MAPs
+    Vehicle.envelope; a MAP too near one before it is drawn again in the square, widened if too small (roomy),
+    from the vehicle's stream), none faster than v_max. The release stream's draws stay as they were, so both vehicles leave the same seed's MAPs
     alike wherever those are far enough apart."""
     q, p = q.copy(), saturate(p.copy(), v.v_max)
     apart = v.envelope()['keep']
+    half_width = roomy(len(q), half_width, apart)
     for _ in range(10_000):
         near = cKDTree(q[:, :2]).query_pairs(apart, output_type='ndarray') if len(q) > 1 else ()
         if len(near) == 0:
             return q, p
         again = np.unique(np.max(near, axis=1))
         q[again, :2] = np.asarray(centre) + rng.uniform(-half_width, half_width, size=(len(again), 2))
-    raise ValueError(f'vehicle.separation: {apart:g} m (with its margins) cannot be kept among {len(q)} MAPs '
+    raise ValueError(f'vehicle.separation: {apart:g} m (with its margins) could not be kept among {len(q)} MAPs '
                      f'released in a square of side {2 * half_width:g} m')
 
 
-def packable(maps: int, half_width: float, separation: float) -> bool:
-    """Whether `maps` MAPs fit into the release square `separation` apart with room to draw them at random:
-    discs of diameter separation covering at most half of it (random sequential packing jams near 55 %)."""
-    return maps * math.pi * (separation / 2.0) ** 2 <= 0.5 * (2.0 * half_width + separation) ** 2
+def roomy(maps: int, half_width: float, apart: float) -> float:
+    """The half width of a release square that holds `maps` MAPs `apart` m apart with room to draw them at random
+    (discs of diameter `apart` covering at most 40 % of it; random sequential packing jams near 55 %): the
+    scenario's, or wider about the same centre when that is too small."""
+    need = math.sqrt(maps * math.pi * (apart / 2.0) ** 2 / 0.4) / 2.0 - apart / 2.0
+    return max(half_width, need)
 
 
 class Flight:
