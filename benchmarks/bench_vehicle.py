@@ -1,7 +1,7 @@
 """The paper's layout on the shipped multirotor beside the paper's ideal vehicle, the radio of docs/links.md flown
 again on the multirotor, and what the vehicle costs the batch simulator (docs/vehicle.md).
 
-Run: ./uav-flock exec python benchmarks/bench_vehicle.py [--seeds 5] [--cost-only]
+Run: ./uav-flock exec python benchmarks/bench_vehicle.py [--seeds 5] [--cost-only | --no-cost]
 """
 from __future__ import annotations
 
@@ -48,7 +48,8 @@ def table(label: str, rows: list[dict[str, Any]]) -> str:
     return (f"| {label} | {ok.sum()}/{len(rows)} | {np.median(first):.1f} | {np.median(ratio):.2f} (worst {ratio.max():.2f}) | "
             f"{100 * np.nanmean([r['connected'] for r in rows]):.1f} % | {min(r['least'] for r in rows):.2f} | "
             f"{max(r['speed'] for r in rows):.1f} | {max(r['accel'] for r in rows):.1f} | "
-            f"{np.nanmean([r['power'] for r in rows]):.1f} | {np.nanmean([r['energy'] for r in rows]) / 1e3:.1f} |")
+            + (f"{np.mean([r['power'] for r in rows]):.1f} | {np.mean([r['energy'] for r in rows]) / 1e3:.1f} |"
+               if np.isfinite(rows[0]['power']) else '– | – |'))
 
 
 HEAD = ('| vehicle | success | time to success, median (s) | / T*: median | connected after success | least distance (m) '
@@ -73,7 +74,8 @@ def cost(maps: int, steps: int) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument('--seeds', type=int, default=5)
-    ap.add_argument('--cost-only', action='store_true')
+    ap.add_argument('--cost-only', action='store_true', help='only what the vehicle costs the simulator')
+    ap.add_argument('--no-cost', action='store_true', help='leave out what the vehicle costs (it times runs)')
     args = ap.parse_args()
     if not args.cost_only:
         paper = load_scenario('paper')
@@ -86,6 +88,8 @@ def main() -> int:
             radio = Links(delivery='alpha', z1=0.8, loss=loss, latency=2)
             rows = [flown(dataclasses.replace(paper, seed=k, vehicle=vehicle.MULTIROTOR, links=radio)) for k in seeds]
             print(table(f'alpha, z1 0.8, loss {loss:g}, latency 2', rows), flush=True)
+    if args.no_cost:
+        return 0
     print('\nWhat the vehicle costs the batch simulator (release square widened so every run is packable):', flush=True)
     for maps, steps in ((100, 200), (1000, 20)):
         print(cost(maps, steps), flush=True)

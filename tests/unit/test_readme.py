@@ -33,9 +33,11 @@ def runs_of_the_readme() -> list[list[str]]:
 
 
 def scenario_of(words: list[str]) -> Scenario:
-    """The scenario a README run flies (its --scenario, the paper's by default)."""
+    """The scenario a README run flies (its --scenario, the paper's by default), on the vehicle it flies (its
+    --vehicle; `run` flies the multirotor unless told)."""
     name = readme_check.option(words, '--scenario')
-    return load_scenario(COPIES.get(str(name), name or 'paper'))
+    vehicle = readme_check.option(words, '--vehicle') or ('multirotor' if words[1] == 'run' else None)
+    return load_scenario(COPIES.get(str(name), name or 'paper')).with_overrides(vehicle=vehicle)
 
 
 def maps_of(words: list[str], scenario: Scenario) -> list[int]:

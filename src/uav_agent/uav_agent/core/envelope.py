@@ -73,8 +73,9 @@ def keep_apart(own_q: F64, own_p: F64, owner: NDArray[np.intp], nbr_q: F64, nbr_
     """Rule 'keep': per own MAP, the braking along its links that lets it stop `keep` m short of each neighbour.
 
     On a link closing at c (m/s) with gap g = distance - keep - c tau, the MAP may close at sqrt(2 a_max g); it
-    brakes the excess away within tau (and at once, at a_max, when already inside keep), so a pair whose ends
-    both do so never meets, whatever eq. 9 asks for.
+    brakes the excess away within tau (and at once, at a_max, when already inside keep). A pair whose ends both
+    do so stops short whatever eq. 9 asks for, provided they first hear each other (r apart) closing no faster
+    than twice sight_speed: faster, no braking within r can stop them (docs/vehicle.md).
     """
     m = own_q.shape[0]
     out = np.zeros((m, 3))
