@@ -408,7 +408,7 @@ def test_echo_and_topics_show_a_live_run(tmp_path: Path, ros_env: dict[str, str]
     body = echoed.stdout.split('---')[0]
     msg = yaml.safe_load(body)
     assert list(msg) == ['header', 'step', 't', 'coverage_ratio', 'fiedler', 'alive', 'components', 'mode0',
-                         'mode1', 'mode2', 'links'] and msg['alive'] == 4 and msg['links'] == [], msg
+                         'mode1', 'mode2', 'links', 'vehicle'] and msg['alive'] == 4 and msg['links'] == [], msg
     assert '/map_3/state [uav_flock_msgs/msg/AgentState]' in listed.stdout
     assert '/metrics [uav_flock_msgs/msg/Metrics]' in listed.stdout
     # Once the run has ended, its topics are gone: both say so at once rather than wait and list nothing.

@@ -286,8 +286,9 @@ class MetricsData(NamedTuple):
             links = (float(h.usable_fiedler), int(h.usable_components), float(h.heard_fiedler), int(h.heard_components),
                      float(h.heard_share), int(h.oldest_used))
         vehicle = None
-        if len(msg.vehicle):
-            v = msg.vehicle[0]
+        flown = getattr(msg, 'vehicle', ())  # absent from bags recorded before the field: their type is in the bag
+        if len(flown):
+            v = flown[0]
             vehicle = (float(v.min_distance), float(v.power), float(v.energy))
         return cls(int(msg.step), float(msg.t), float(msg.coverage_ratio), float(msg.fiedler), int(msg.alive),
                    int(msg.components), int(msg.mode0), int(msg.mode1), int(msg.mode2), links, vehicle)
