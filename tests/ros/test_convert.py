@@ -83,7 +83,15 @@ def same(a: NamedTuple, b: NamedTuple) -> bool:
         (x is None and y is None) or (hasattr(x, '_fields') and same(x, y))
         or (isinstance(x, tuple) and any(hasattr(e, '_fields') for e in x)
             and len(x) == len(y) and all(same(e, f) for e, f in zip(x, y)))
-        or (x is not None and y is not None and np.array_equal(x, y)) for x, y in zip(a, b))
+        or (x is not None and y is not None and equal(x, y)) for x, y in zip(a, b))
+
+
+def equal(x: object, y: object) -> bool:
+    """Values equal, NaN to NaN included: the world reports no least distance (NaN) under two MAPs."""
+    try:
+        return bool(np.array_equal(x, y, equal_nan=True))
+    except TypeError:  # strings and other values NaN means nothing to
+        return bool(np.array_equal(x, y))
 
 
 def expected(v: NamedTuple) -> NamedTuple:

@@ -10,6 +10,7 @@ its /map_<id>/state for step k. Then, by sync mode:
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import os
 import signal
 import sys
@@ -76,6 +77,10 @@ FLUSH_S = 1.0  # at the end, how long the last states and commands may take to b
 # secured run's agents over three hosts once all said the run was finished, and one process of a joining host
 # was still there 60 s later (Fast DDS's TCP teardown), holding `agents --join` that waits for it.
 TEARDOWN_S = 15.0
+# ... and if even that timer cannot run (a teardown in C that holds the GIL: so it was on a joining host of a secured
+# run, whose four processes all stayed over 120 s), the kernel ends the process by this signal: `agents --join`
+# takes it as a process whose run had ended (join.py).
+TEARDOWN_SIGNAL = signal.SIGALRM
 
 
 class AgentNode(Node):
@@ -610,7 +615,13 @@ def main(argv: Optional[list[str]] = None) -> int:
 
 
 def leave_after(seconds: float, code: int) -> None:
-    """End this process with code if it is still here after seconds (a daemon timer; see TEARDOWN_S)."""
+    """End this process with code if it is still here after seconds (a daemon timer; see TEARDOWN_S); failing
+    that, the threads' tracebacks into the log and, for a run that ended well, TEARDOWN_SIGNAL (both need no GIL)."""
+    faulthandler.dump_traceback_later(seconds + 5.0, exit=code != 0)
+    if code == 0:
+        signal.signal(TEARDOWN_SIGNAL, signal.SIG_DFL)
+        signal.alarm(int(seconds) + 10)
+
     def leave() -> None:
         print(f'uav_agent_node: the DDS participant took over {seconds:.0f} s to go: leaving without it', flush=True)
         sys.stderr.flush()

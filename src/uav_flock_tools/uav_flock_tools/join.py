@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 from typing import Optional
 
+from uav_agent.agent_node import TEARDOWN_SIGNAL
 from uav_flock_ros.processes import CRASH_DIR, LINKS_LOG_DIR, write_params
 
 from . import secure
@@ -127,7 +128,9 @@ def join(address: str, ids: list[int], out: Path, agents_per_process: int, timeo
     if interrupted:
         print('uav-flock agents: interrupted; every agent process of this host ended', flush=True)
         return 130
-    failed = [g[0] for g, c in zip(groups, codes) if c not in (0, None)]
+    failed = [g[0] for g, c in zip(groups, codes) if c not in (0, None, -TEARDOWN_SIGNAL)]
+    hung = [g[0] for g, c in zip(groups, codes) if c == -TEARDOWN_SIGNAL]
     print(f'uav-flock agents: the run ended; {len(groups) - len(failed)} of {len(groups)} processes ended cleanly'
+          + (f' ({len(hung)} left their DDS participant behind at teardown: {hung})' if hung else '')
           + (f' (see {logs}/agents_<first id>.log for {failed})' if failed else ''), flush=True)
     return 0 if not failed else 1
