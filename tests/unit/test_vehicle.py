@@ -182,3 +182,34 @@ def test_every_envelope_rule_acts_on_a_multirotor_run() -> None:
     for rule in VEHICLE_RULES:
         with switched_off([rule]):
             assert digest(s) != base, rule
+
+
+def closest_pass(speed: float, lateral: float) -> float:
+    """Two calm multirotors flying at each other at `speed`, `lateral` m off a head-on course, from where they first
+    hear each other (the paper's r = 24 m), commanding only what envelope.keep_apart asks: their least distance."""
+    from uav_agent.core import envelope
+    from uav_agent.core.params import FlockParams
+    v = replace(vehicle.MULTIROTOR, wind=vehicle.Wind(0.0, 0.0, 0.0, 5.0), gnss=vehicle.Gnss(0.0, 60.0, 0.0))
+    fp = replace(FlockParams(), v_max=v.v_max, a_max=v.a_max, tau=v.tau, keep=v.envelope()['keep'])
+    f = vehicle.Flight(v, 2, 0.1, np.random.default_rng(0))
+    q = np.array([[0.0, 0.0, 20.0], [24.0, lateral, 20.0]])
+    p = np.array([[speed, 0.0, 0.0], [-speed, 0.0, 0.0]])
+    owner, other = np.array([0, 1]), np.array([1, 0])
+    least = np.inf
+    for _ in range(40):
+        brake = envelope.keep_apart(q, p, owner, q[other], p[other], fp)
+        q, p = f.step(np.arange(2), q, p, envelope.command(np.zeros((2, 3)), brake, fp))
+        least = min(least, float(np.linalg.norm(q[0] - q[1])))
+    return least
+
+
+@pytest.mark.parametrize('speed, lateral', [(10.0, 0.0), (10.0, 1.0), (12.0, 2.0)])
+def test_swerve_lets_two_maps_that_can_no_longer_stop_miss(speed: float, lateral: float) -> None:
+    """At 10 m/s each, braking alone needs about 31 m to stop keep m short: heard at 24 m, two MAPs on a collision
+    course pass within the separation unless they turn away from each other (rule 'swerve'). Head-on at 12 m/s
+    each, not even that is enough (docs/vehicle.md)."""
+    from uav_agent.core.ablation import switched_off
+    with switched_off(['swerve']):
+        braking = closest_pass(speed, lateral)
+    assert braking < vehicle.MULTIROTOR.separation, 'braking alone would have stopped them: the case tests nothing'
+    assert closest_pass(speed, lateral) >= vehicle.MULTIROTOR.separation

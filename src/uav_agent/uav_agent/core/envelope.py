@@ -7,6 +7,8 @@ FlockParams have a_max = 0:
 - 'brake': the goal terms of eq. 12-13 aim at a speed the MAP can still stop from before its goal, within its
   cruise speed;
 - 'keep': a MAP brakes along each link on which it closes faster than it could stop before `keep` m;
+- 'swerve': and on a link whose closest approach falls within `keep` m, it turns away from it (to its right when
+  head-on, as pilots do), which the pair can still do where braking alone no longer stops them;
 - 'priority': that braking is served first from the acceleration budget, eq. 9's terms from what is left.
 """
 from __future__ import annotations
@@ -89,9 +91,29 @@ def keep_apart(own_q: F64, own_p: F64, owner: NDArray[np.intp], nbr_q: F64, nbr_
     excess = np.maximum(closing - np.sqrt(2.0 * fp.a_max * gap), 0.0)
     push = np.minimum(excess / max(fp.tau, 1e-3), fp.a_max) + fp.a_max * np.clip((fp.keep - dist) / fp.keep, 0.0, 1.0)
     edges = -n * push[:, None]
+    if on('swerve'):
+        edges = edges + swerve(dq, nbr_p - own_p[owner], fp.a_max * (excess > 0.0), fp)
     for axis in range(3):
         out[:, axis] = np.bincount(owner, weights=edges[:, axis], minlength=m)
     return saturate(out, fp.a_max)
+
+
+def swerve(dq: F64, dv: F64, push: F64, fp: FlockParams) -> F64:
+    """Rule 'swerve': per link (neighbour at dq, moving at dv relative to the MAP) on which rule 'keep' brakes, push
+    (a_max) away from where the neighbour will be at their closest approach, if that falls within keep m.
+
+    Braking from a closing speed c needs c^2 / 2 a_max of room, turning aside by keep only about keep / c of time:
+    two MAPs crossing at 15 m/s each cannot stop within r of each other, but they can still miss. Both ends of a
+    link turn away from each other, so the pair's miss distance grows at 2 a_max; head-on (no side to turn away
+    from) each turns to its right, which is again away from the other.
+    """
+    speed2 = np.maximum(np.einsum('ij,ij->i', dv, dv), 1e-12)
+    t_cpa = np.maximum(-np.einsum('ij,ij->i', dq, dv) / speed2, 0.0)
+    miss = dq + dv * t_cpa[:, None]
+    gap = np.linalg.norm(miss, axis=1)
+    right = np.column_stack([dv[:, 1], -dv[:, 0], np.zeros(len(dv))]) / np.sqrt(speed2)[:, None]
+    side = np.where((gap > 1e-3)[:, None], -miss / np.maximum(gap, 1e-12)[:, None], right)
+    return side * (push * (gap < fp.keep))[:, None]
 
 
 def saturate(u: F64, bound: F64 | float) -> F64:
