@@ -69,7 +69,7 @@ def test_late_copies_of_past_steps_are_counted_not_warned(tmp_path: Path, ros_en
 def test_an_agent_stuck_at_teardown_in_a_call_that_holds_the_gil_still_goes(tmp_path: Path) -> None:
     """The teardown's own timer needs the GIL; a DDS teardown that holds it (seen on a joining host of a secured
     run) is ended by the kernel with TEARDOWN_SIGNAL, after the threads' tracebacks are in the log."""
-    from uav_agent.agent_node import TEARDOWN_SIGNAL
+    from uav_flock_ros.processes import TEARDOWN_SIGNAL
     code = ('from uav_agent.agent_node import leave_after; import ctypes; leave_after(0.5, 0); '
             'ctypes.PyDLL(None).sleep(60)')  # libc's sleep, called without releasing the GIL
     done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=50)

@@ -34,6 +34,7 @@ from std_msgs.msg import Header, Int64
 from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
 from uav_flock_ros import convert
 from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, checked_ros_args, make_executor, take_waiting
+from uav_flock_ros.processes import TEARDOWN_SIGNAL
 from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STEP_QOS, is_realtime
 
 from .core import links
@@ -76,11 +77,8 @@ FLUSH_S = 1.0  # at the end, how long the last states and commands may take to b
 # At the end, how long the nodes and the participant may take to go before the process leaves without them: a
 # secured run's agents over three hosts once all said the run was finished, and one process of a joining host
 # was still there 60 s later (Fast DDS's TCP teardown), holding `agents --join` that waits for it.
-TEARDOWN_S = 15.0
-# ... and if even that timer cannot run (a teardown in C that holds the GIL: so it was on a joining host of a secured
-# run, whose four processes all stayed over 120 s), the kernel ends the process by this signal: `agents --join`
-# takes it as a process whose run had ended (join.py).
-TEARDOWN_SIGNAL = signal.SIGALRM
+TEARDOWN_S = 15.0  # ... and if even that timer cannot run (all four processes of a joining host of a secured run
+# stayed over 120 s: a teardown in C that holds the GIL), the kernel ends the process by processes.TEARDOWN_SIGNAL.
 
 
 class AgentNode(Node):

@@ -14,8 +14,7 @@ import time
 from pathlib import Path
 from typing import Optional
 
-from uav_agent.agent_node import TEARDOWN_SIGNAL
-from uav_flock_ros.processes import CRASH_DIR, LINKS_LOG_DIR, write_params
+from uav_flock_ros.processes import CRASH_DIR, LINKS_LOG_DIR, TEARDOWN_SIGNAL, write_params
 
 from . import secure
 from .domains import DISCOVERY_BASE_PORT, adopt, ros_env

@@ -92,15 +92,15 @@ def keep_apart(own_q: F64, own_p: F64, owner: NDArray[np.intp], nbr_q: F64, nbr_
     push = np.minimum(excess / max(fp.tau, 1e-3), fp.a_max) + fp.a_max * np.clip((fp.keep - dist) / fp.keep, 0.0, 1.0)
     edges = -n * push[:, None]
     if on('swerve'):
-        edges = edges + swerve(dq, nbr_p - own_p[owner], fp.a_max * (excess > 0.0), fp)
+        edges = edges + swerve(dq, nbr_p - own_p[owner], excess > 0.0, fp)
     for axis in range(3):
         out[:, axis] = np.bincount(owner, weights=edges[:, axis], minlength=m)
     return saturate(out, fp.a_max)
 
 
-def swerve(dq: F64, dv: F64, push: F64, fp: FlockParams) -> F64:
-    """Rule 'swerve': per link (neighbour at dq, moving at dv relative to the MAP) on which rule 'keep' brakes, push
-    (a_max) away from where the neighbour will be at their closest approach, if that falls within keep m.
+def swerve(dq: F64, dv: F64, braking: NDArray[np.bool_], fp: FlockParams) -> F64:
+    """Rule 'swerve': per link (neighbour at dq, moving at dv relative to the MAP) on which rule 'keep' is braking,
+    a_max away from where the neighbour will be at their closest approach, if that falls within keep m.
 
     Braking from a closing speed c needs c^2 / 2 a_max of room, turning aside by keep only about keep / c of time:
     two MAPs crossing at 15 m/s each cannot stop within r of each other, but they can still miss. Both ends of a
@@ -113,7 +113,7 @@ def swerve(dq: F64, dv: F64, push: F64, fp: FlockParams) -> F64:
     gap = np.linalg.norm(miss, axis=1)
     right = np.column_stack([dv[:, 1], -dv[:, 0], np.zeros(len(dv))]) / np.sqrt(speed2)[:, None]
     side = np.where((gap > 1e-3)[:, None], -miss / np.maximum(gap, 1e-12)[:, None], right)
-    return side * (push * (gap < fp.keep))[:, None]
+    return side * (fp.a_max * (braking & (gap < fp.keep)))[:, None]
 
 
 def saturate(u: F64, bound: F64 | float) -> F64:
