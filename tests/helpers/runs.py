@@ -54,6 +54,31 @@ def wait_for_line(proc: subprocess.Popen[str], needle: str, timeout: float) -> l
     raise AssertionError(f'{needle!r} not printed within {timeout} s:\n' + ''.join(seen))
 
 
+def ended(proc: subprocess.Popen[str], timeout: float, run: Path) -> str:
+    """The rest of what `up` prints until it ends; if it does not end in time, a failure that says where it was
+    (its last lines, the processes still there, the last lines of each log) instead of a bare timeout."""
+    try:
+        return proc.communicate(timeout=timeout)[0]
+    except subprocess.TimeoutExpired as exc:
+        said = exc.output.decode(errors='replace') if isinstance(exc.output, bytes) else (exc.output or '')
+        left = [f'{pid}: {Path(f"/proc/{pid}/cmdline").read_text(errors="replace").replace(chr(0), " ")[:160]}'
+                for pid in descendants(proc.pid)]
+        logs = [f'--- {log.name}\n' + '\n'.join(log.read_text(errors='replace').splitlines()[-15:])
+                for log in sorted((run / 'logs').glob('*.log'))]
+        raise AssertionError(f'up did not end within {timeout} s; it printed last:\n'
+                             + '\n'.join(said.splitlines()[-10:]) + '\nstill running:\n' + '\n'.join(left)
+                             + '\n' + '\n'.join(logs)) from None
+
+
+def descendants(pid: int) -> list[int]:
+    """Every process under pid, children first (from /proc; gone ones skipped)."""
+    try:
+        kids = [int(c) for t in Path(f'/proc/{pid}/task').iterdir() for c in (t / 'children').read_text().split()]
+    except OSError:
+        return []
+    return kids + [d for k in kids for d in descendants(k)]
+
+
 def dropped_ids(text: str, cause: str = 'killed') -> list[int]:
     """The MAP ids of world_sim's 'dropped MAPs [..] (cause)' lines."""
     return sorted(int(i) for line in text.splitlines() if f'({cause})' in line

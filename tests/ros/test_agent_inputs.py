@@ -66,11 +66,12 @@ def test_late_copies_of_past_steps_are_counted_not_warned(tmp_path: Path, ros_en
     assert 'ignored 1 late copies of past steps (1 from neighbour states)' in out, out
 
 
-def test_an_agent_stuck_at_teardown_in_a_call_that_holds_the_gil_still_goes(tmp_path: Path) -> None:
+def test_a_node_process_stuck_at_teardown_in_a_call_that_holds_the_gil_still_goes(tmp_path: Path) -> None:
     """The teardown's own timer needs the GIL; a DDS teardown that holds it (seen on a joining host of a secured
-    run) is ended by the kernel with TEARDOWN_SIGNAL, after the threads' tracebacks are in the log."""
+    run, and of world_sim after its recorder was killed) is ended by the kernel with TEARDOWN_SIGNAL, after the
+    threads' tracebacks are in the log. Agents and world_sim both leave by processes.leave_after."""
     from uav_flock_ros.processes import TEARDOWN_SIGNAL
-    code = ('from uav_agent.agent_node import leave_after; import ctypes; leave_after(0.5, 0); '
+    code = ('from uav_flock_ros.processes import leave_after; import ctypes; leave_after(0.5, 0, \'node\'); '
             'ctypes.PyDLL(None).sleep(60)')  # libc's sleep, called without releasing the GIL
     done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=50)
     assert done.returncode == -TEARDOWN_SIGNAL, (done.returncode, done.stderr)

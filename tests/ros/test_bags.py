@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from helpers.runs import cli, dead, up, wait_for_line
+from helpers.runs import cli, dead, ended, up, wait_for_line
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
@@ -344,7 +344,7 @@ def test_a_recorder_that_dies_is_reported_and_the_run_goes_on(tmp_path: Path, ro
                     if 'uav_flock_recorder' in Path(f'/proc/{pid}/cmdline').read_text(errors='replace')]
         assert len(recorder) == 1, 'up started one recorder'
         os.kill(recorder[0], signal.SIGKILL)
-        rest, _ = proc.communicate(timeout=120)
+        rest = ended(proc, 120, run)
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -10,11 +10,9 @@ its /map_<id>/state for step k. Then, by sync mode:
 from __future__ import annotations
 
 import argparse
-import faulthandler
 import os
 import signal
 import sys
-import threading
 import time
 from dataclasses import fields
 from pathlib import Path
@@ -34,7 +32,7 @@ from std_msgs.msg import Header, Int64
 from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
 from uav_flock_ros import convert
 from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, checked_ros_args, make_executor, take_waiting
-from uav_flock_ros.processes import TEARDOWN_SIGNAL
+from uav_flock_ros.processes import leave_after
 from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STEP_QOS, is_realtime
 
 from .core import links
@@ -607,27 +605,9 @@ def main(argv: Optional[list[str]] = None) -> int:
                 process.renew(why, lambda: stop.received)
     finally:
         code = 1 if any(n.stopped and not n.run_finished for n in process.nodes) else 0
-        leave_after(TEARDOWN_S, code)
+        leave_after(TEARDOWN_S, code, 'uav_agent_node')
         process.close()
     return code
-
-
-def leave_after(seconds: float, code: int) -> None:
-    """End this process with code if it is still here after seconds (a daemon timer; see TEARDOWN_S); failing
-    that, the threads' tracebacks into the log and, for a run that ended well, TEARDOWN_SIGNAL (both need no GIL)."""
-    faulthandler.dump_traceback_later(seconds + 5.0, exit=code != 0)
-    if code == 0:
-        signal.signal(TEARDOWN_SIGNAL, signal.SIG_DFL)
-        signal.alarm(int(seconds) + 10)
-
-    def leave() -> None:
-        print(f'uav_agent_node: the DDS participant took over {seconds:.0f} s to go: leaving without it', flush=True)
-        sys.stderr.flush()
-        os._exit(code)
-
-    timer = threading.Timer(seconds, leave)
-    timer.daemon = True
-    timer.start()
 
 
 if __name__ == '__main__':
