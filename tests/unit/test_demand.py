@@ -141,6 +141,22 @@ def test_a_map_in_transit_passes_others_at_half_d_where_unrelated_settled_maps_k
     assert u(server_of_1, 0.3 * P.d, passing)[0] < alone(server_of_1)[0] - 1.0, 'closer than d/2 it repels'
 
 
+def test_on_a_lagged_vehicle_a_relay_and_its_servers_only_repel() -> None:
+    """Rule 'loose': behind a lag the servers' pull held relays inside their cluster and the chain never spanned
+    its gap; on the paper's vehicle they attract as before, and fellow relays always do."""
+    from uav_agent.core.ablation import switched_off
+    from uav_agent.core.policies import ALLOCATIONS
+    from uav_agent.core.state import APART, RELATED
+    lagged = replace(P, v_max=15.0, a_max=4.0, tau=0.3, keep=6.1)
+    demand = ALLOCATIONS['demand']
+    relay, fellow, server = Told(M1, 0, (0, 1)), Told(M1, 0, (0, 1)), Told(M2, 1, None)
+    assert demand.link(relay, server, P) == RELATED and demand.link(server, relay, P) == RELATED
+    assert demand.link(relay, server, lagged) == APART and demand.link(server, relay, lagged) == APART
+    assert demand.link(relay, fellow, lagged) == RELATED
+    with switched_off(['loose']):
+        assert demand.link(relay, server, lagged) == RELATED
+
+
 @settings(max_examples=60, deadline=None)
 @given(st.integers(2, 7), st.integers(0, 2**32 - 1), st.floats(0.3, 3.0))
 def test_every_role_gets_its_share_of_any_id_range(k: int, seed: int, scale: float) -> None:

@@ -31,7 +31,7 @@ class Nearest:
                   clusters: ClusterMap, fp: FlockParams) -> 'state.Reference':
         return state.hold(mem, *state.aim(mem, q, clusters))
 
-    def link(self, a: Told, b: Told) -> int:
+    def link(self, a: Told, b: Told, fp: FlockParams) -> int:
         return state.RELATED if a.goal == b.goal else state.APART
 
 

@@ -35,9 +35,10 @@ class Allocation(Protocol):
                   clusters: ClusterMap, fp: FlockParams) -> Reference:
         """What eq. 9's goal term aims at."""
 
-    def link(self, a: Told, b: Told) -> int:
+    def link(self, a: Told, b: Told, fp: FlockParams) -> int:
         """What the link between two MAPs that stated a and b is to the flocking terms: state.RELATED (all
-        of eq. 10), APART (repulsion within d only) or PASSING (repulsion within d/2 only)."""
+        of eq. 10), APART (repulsion within d only) or PASSING (repulsion within d/2 only); fp says what they
+        fly (envelope.limited)."""
 
 
 ALLOCATIONS: dict[str, Allocation] = {
@@ -74,7 +75,7 @@ def reference(mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told
 def links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[int]:
     """For each neighbour heard, what its link to this MAP (as decided this step) is to the flocking terms."""
     own, allocation = Told.of(mem), ALLOCATIONS[fp.allocation]
-    return [allocation.link(own, t) for t in heard]
+    return [allocation.link(own, t, fp) for t in heard]
 
 
 def hearsay(fp: FlockParams) -> bool:

@@ -88,6 +88,6 @@ class Algorithm2:
                              np.array([v, va, vb]))
         return hold(mem, here, v)
 
-    def link(self, a: Told, b: Told) -> int:
+    def link(self, a: Told, b: Told, fp: FlockParams) -> int:
         """Every neighbour alike: the paper's flocking terms take them all."""
         return RELATED

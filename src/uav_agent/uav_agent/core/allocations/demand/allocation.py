@@ -12,6 +12,7 @@ import numpy as np
 from ...clusters import NO_GOAL, ClusterMap, Edge
 from ...state import APART, M0, M1, M2, NOBODY, PASSING, RELATED, Memory, Near, Reference, Told, aim, hold
 from . import keys
+from ... import envelope
 from ...ablation import on
 from .layout import Roles
 from .memory import Mine, gossip_of
@@ -307,6 +308,14 @@ def related(a: Told, b: Told) -> bool:
     return a.goal == b.goal
 
 
+def loose(a: Told, b: Told, fp: FlockParams) -> bool:
+    """Rule 'loose': on a lagged vehicle a relay and the servers of its edge only repel. Behind the lag the
+    bridge term is a velocity loop (envelope.capped) that eq. 10's pull and the standstill of a dozen servers
+    outweigh: relays bound out along their edge stayed inside the cluster's lattice and the chain never
+    spanned its gap (docs/vehicle.md). The chain rule alone places a relay; fellow relays still attract."""
+    return envelope.limited(fp) and (a.mode == M1) != (b.mode == M1) and on('loose')
+
+
 def en_route(mem: Mine, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) -> int:
     """The cluster a MAP in transit heads for first: the next one along the tree from the cluster it is at,
     or NO_GOAL to go straight to its role.
@@ -397,9 +406,10 @@ class Demand:
             here = here + np.array([*mine.hold, 0.0])
         return hold(mine, here, v)
 
-    def link(self, a: Told, b: Told) -> int:
-        """Only related MAPs attract (control.flocking_terms); unrelated ones of which one is on its way to a
-        new role pass each other at d/2 (docs/dynamics.md, "Passing at d/2")."""
+    def link(self, a: Told, b: Told, fp: FlockParams) -> int:
+        """Only related MAPs attract (control.flocking_terms), and on a lagged vehicle not a relay and a server
+        (rule 'loose'); unrelated ones of which one is on its way to a new role pass each other at d/2
+        (docs/dynamics.md, "Passing at d/2")."""
         if related(a, b):
-            return RELATED
+            return APART if loose(a, b, fp) else RELATED
         return PASSING if (gossip_of(a).transit or gossip_of(b).transit) and on('passing') else APART
