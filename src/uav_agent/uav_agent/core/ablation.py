@@ -17,7 +17,7 @@ RULES = {
     'swing': 'swinging chains: relays of a swapped edge swing about the shared cluster (demand.pivot)',
     'tree': 'along the tree: a MAP in transit flies cluster to cluster (demand.en_route)',
     'chain': 'leaving by the chain: a MAP in transit leaves its disc along the relay chain (demand.leg_aim)',
-    'passing': 'passing at d/2: unrelated MAPs in transit repel within d/2 only (policies.apart_links)',
+    'passing': 'passing at d/2: unrelated MAPs in transit repel within d/2 only (demand.Demand.link)',
     'straight': 'released relays of a standing chain fly straight along it (demand.demand_switch)',
     'vacate': 'vacated roles: a role heard of by nobody for VACANT_STEPS is declared lost (vacancy.vacate)',
     'short': 'short roles: a relay that finds its chain taut asks for more MAPs (demand.tally)',
