@@ -75,6 +75,17 @@ def test_the_smoke_study_is_twelve_rows_with_the_figures_of_each_run(local: Path
     assert (local / 'connected.png').stat().st_size > 0
 
 
+def test_every_column_of_the_table_is_documented_and_pandas_reads_it(local: Path) -> None:
+    """docs/studies.md, "The table", names every column a study writes; pandas reads it as the docs say."""
+    import re
+    import pandas
+    table = pandas.read_parquet(local / 'results.parquet')
+    doc = (Path(__file__).resolve().parents[2] / 'docs' / 'studies.md').read_text()
+    section = doc.split('## The table', 1)[1].split('\n## ', 1)[0]
+    missing = sorted(set(table.columns) - set(re.findall(r'`(\w+)`', section)))
+    assert len(table) == 12 and not missing, f'columns not in docs/studies.md: {missing}'
+
+
 def test_on_a_scheduler_and_two_worker_processes_a_killed_worker_loses_no_row(local: Path, tmp_path: Path) -> None:
     port = free_port()
     address = f'tcp://127.0.0.1:{port}'
