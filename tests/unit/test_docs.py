@@ -29,3 +29,28 @@ def test_every_file_a_doc_names_exists(doc: Path) -> None:
                       and not any(f == m or f.endswith('/' + m) for f in files)
                       and not (doc.parent / m).exists()})
     assert not missing, f'{doc.relative_to(ROOT)} names files that do not exist: {missing}'
+
+
+def test_every_key_of_a_run_folder_is_in_the_docs(tmp_path: Path) -> None:
+    """docs/design.md, "A run's records", names every column and key a run folder's files hold."""
+    import json
+
+    import numpy as np
+    from world_sim.core import records
+    from world_sim.core.hearing import LINK_COLUMNS
+    from world_sim.core.physics import Users
+    users = Users(np.zeros((2, 3)), np.zeros(2, dtype=np.intp), np.zeros((1, 2)), np.ones(1))
+    motion = records.Motion(np.zeros(1), np.zeros((1, 2, 2)), np.ones((1, 2), bool), np.zeros((1, 2)))
+    records.write_users(tmp_path / records.USERS_FILE, users, motion)
+    records.write_failures(tmp_path / records.FAILURES_FILE, np.array([1]), 3, [(3, [1], 'scheduled')])
+    with np.load(tmp_path / records.USERS_FILE) as f:
+        keys = set(f.files)
+    doc = json.loads((tmp_path / records.FAILURES_FILE).read_text())
+    keys |= set(doc) | set(doc['events'][0])
+    keys |= {*records.METRICS_COLUMNS, *records.TRAJECTORY_COLUMNS, *records.ESTIMATE_COLUMNS,
+             *records.VEHICLE_COLUMNS}
+    text = (ROOT / 'docs' / 'design.md').read_text()
+    section = text.split("## A run's records", 1)[1].split('\n## ', 1)[0]
+    missing = sorted(keys - set(re.findall(r'`(\w+)`', section)))
+    assert 'hearing.LINK_COLUMNS' in section and LINK_COLUMNS, 'the channel columns are named by their constant'
+    assert not missing, f"docs/design.md, \"A run's records\", does not name: {missing}"
