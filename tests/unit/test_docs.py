@@ -54,3 +54,12 @@ def test_every_key_of_a_run_folder_is_in_the_docs(tmp_path: Path) -> None:
     missing = sorted(keys - set(re.findall(r'`(\w+)`', section)))
     assert 'hearing.LINK_COLUMNS' in section and LINK_COLUMNS, 'the channel columns are named by their constant'
     assert not missing, f"docs/design.md, \"A run's records\", does not name: {missing}"
+
+
+def test_the_glossary_names_every_rule() -> None:
+    """docs/design.md's glossary lists every rule a study can switch off, by the name `without:` takes."""
+    from uav_agent.core.ablation import RULES
+    text = (ROOT / 'docs' / 'design.md').read_text()
+    glossary = text.split('## Glossary', 1)[1].split('\n## ', 1)[0]
+    named = set(re.findall(r'^\| `(\w+)` \|', glossary, flags=re.M))
+    assert not set(RULES) - named, f'rules missing from the glossary: {sorted(set(RULES) - named)}'
