@@ -112,10 +112,13 @@ if [ ! -f "$VENV_STAMP" ] || [ "$(cat "$VENV_STAMP")" != "$VENV_KEY" ] || [ ! -x
 fi
 
 # ---------------------------------------------------------------- stage 2: colcon build
+# What colcon builds from: every file's contents but a package's Python modules, which --symlink-install serves
+# from src/ as they are (the package folder is a link), so an edit needs no build; their names still count.
 ws_inputs() {
   echo "$VENV_KEY"
-  (cd "$ROOT" && find -L ros2_ws/src -type f ! -path '*/__pycache__/*' ! -name '*.pyc' -print0 \
-     | sort -z | xargs -0 sha256sum)
+  (cd "$ROOT" && find -L ros2_ws/src -type f ! -path '*/__pycache__/*' ! -name '*.pyc' \( ! -name '*.py' -o -name setup.py \) -print0 \
+     | sort -z | xargs -0 sha256sum
+   find -L ros2_ws/src -type f -name '*.py' ! -name setup.py ! -path '*/__pycache__/*' | sort)
 }
 WS_KEY="$(ws_inputs | sha)"
 WS_STAMP="$WS/.uav-flock-stamp"
