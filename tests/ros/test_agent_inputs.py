@@ -71,7 +71,7 @@ def test_a_node_process_stuck_at_teardown_in_a_call_that_holds_the_gil_still_goe
     run, and of world_sim after its recorder was killed) is ended by the kernel with TEARDOWN_SIGNAL, after the
     threads' tracebacks are in the log. Agents and world_sim both leave by processes.leave_after."""
     from uav_flock_ros.processes import TEARDOWN_SIGNAL
-    code = ('from uav_flock_ros.processes import leave_after; import ctypes; leave_after(0.5, 0, \'node\'); '
+    code = ('from uav_flock_ros.processes import leave_after; import ctypes; leave_after(0, \'node\', 0.5); '
             'ctypes.PyDLL(None).sleep(60)')  # libc's sleep, called without releasing the GIL
     done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=50)
     assert done.returncode == -TEARDOWN_SIGNAL, (done.returncode, done.stderr)

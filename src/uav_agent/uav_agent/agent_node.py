@@ -72,11 +72,6 @@ RENEW_AFTER_S = 30.0
 RENEW_TIMES = 3
 RENEW_WAIT_S = 30.0  # how long the new nodes may take to have their sensing before the old ones go anyway
 FLUSH_S = 1.0  # at the end, how long the last states and commands may take to be acknowledged by every reader
-# At the end, how long the nodes and the participant may take to go before the process leaves without them: a
-# secured run's agents over three hosts once all said the run was finished, and one process of a joining host
-# was still there 60 s later (Fast DDS's TCP teardown), holding `agents --join` that waits for it.
-TEARDOWN_S = 15.0  # ... and if even that timer cannot run (all four processes of a joining host of a secured run
-# stayed over 120 s: a teardown in C that holds the GIL), the kernel ends the process by processes.TEARDOWN_SIGNAL.
 
 
 class AgentNode(Node):
@@ -605,7 +600,7 @@ def main(argv: Optional[list[str]] = None) -> int:
                 process.renew(why, lambda: stop.received)
     finally:
         code = 1 if any(n.stopped and not n.run_finished for n in process.nodes) else 0
-        leave_after(TEARDOWN_S, code, 'uav_agent_node')
+        leave_after(code, 'uav_agent_node')  # processes.TEARDOWN_S
         process.close()
     return code
 

@@ -16,6 +16,11 @@ import yaml
 # In a run folder, beside pids.json: one empty file per MAP that `uav-flock kill` ended inside a process
 # that lives on for its other MAPs (world_sim drops those MAPs as it drops one whose process is gone).
 CRASH_DIR = 'crash'
+# How long a node's DDS participant may take to go once its run ended and its records are written, before the
+# process leaves without it: a secured run's agents over three hosts all said the run was finished and one process
+# of a joining host was still there 60 s later; a run whose recorder was SIGKILLed once did not end within 120 s
+# in CI (world_sim's teardown the suspect).
+TEARDOWN_S = 15.0
 # The signal by which a node process whose run ended well leaves when its DDS teardown holds the GIL (so no Python
 # timer can end it): the process that started it takes that end as a clean one (leave_after; join.py, launcher.py).
 TEARDOWN_SIGNAL = signal.SIGALRM
@@ -37,7 +42,7 @@ def process_alive(pid: int) -> bool:
         return False
 
 
-def leave_after(seconds: float, code: int, who: str) -> None:
+def leave_after(code: int, who: str, seconds: float = TEARDOWN_S) -> None:
     """End this process with code if it is still here after seconds (a daemon timer), its records written: a
     DDS teardown has held agents over 120 s. If even that timer cannot run (a teardown in C holding the GIL),
     the threads' tracebacks go into the log and, for a run that ended well, the kernel ends the process by

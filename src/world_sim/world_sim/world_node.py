@@ -54,9 +54,6 @@ SHOWN_WAITING = 12  # MAP ids a stall's log line names (a city's first step wait
 RESEND_AFTER_S = 2.0
 START_REPORT_S = 5.0
 FINISHED_ACK_S = 2.0  # at most this long for every agent to acknowledge /events/finished before exit
-# ... and then how long the node and the participant may take to go: a run whose recorder was SIGKILLed once
-# did not end within 120 s in CI, its records written (a DDS teardown, as agents' were seen to hang, is the suspect).
-TEARDOWN_S = 15.0
 # realtime: a pace below this fraction of the one asked for, over the last SLOW_WINDOW_S of simulated time (the
 # start-up's first steps left out: their discovery is no measure of the run's pace), is reported once.
 SLOW_AFTER_S = 2.0
@@ -497,7 +494,7 @@ def main(argv: Optional[list[str]] = None) -> int:
             node.finished_pub.wait_for_all_acked(Duration(seconds=FINISHED_ACK_S))
     finally:
         code = 0 if getattr(node, 'ok', False) else 1
-        leave_after(TEARDOWN_S, code, 'world_sim')  # the records are written: nothing is lost past here
+        leave_after(code, 'world_sim')  # the records are written: nothing is lost past here
         node.destroy_node()
         rclpy.try_shutdown()
     return code

@@ -9,10 +9,10 @@ from typing import TYPE_CHECKING, NamedTuple, Optional, Sequence
 
 import numpy as np
 
+from ... import envelope
 from ...clusters import NO_GOAL, ClusterMap, Edge
 from ...state import APART, M0, M1, M2, NOBODY, PASSING, RELATED, Memory, Near, Reference, Told, aim, hold
 from . import keys
-from ... import envelope
 from ...ablation import on
 from .layout import Roles
 from .memory import Mine, gossip_of
