@@ -10,7 +10,6 @@ its /map_<id>/state for step k. Then, by sync mode:
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import sys
 import time
