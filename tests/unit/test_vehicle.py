@@ -2,6 +2,7 @@
 unchanged to the byte, a multirotor within its limits as its records show, its error processes as specified."""
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 from dataclasses import replace
@@ -177,11 +178,18 @@ def test_every_envelope_rule_acts_on_a_multirotor_run() -> None:
     import os
     from uav_agent.core.ablation import VEHICLE_RULES, switched_off
     paper = load(os.path.join(get_package_share_directory('world_sim'), 'config', 'paper.yaml'))
-    s = replace(paper, vehicle=vehicle.MULTIROTOR, duration=5.0, flock=policy_sets(paper)['default'])
-    base = digest(s)
+    # Rule 'traffic' acts only once a MAP closes on one faster than it could stop: not in the first 5 s.
+    later = {'traffic': 12.0}
     for rule in VEHICLE_RULES:
+        s = replace(paper, vehicle=vehicle.MULTIROTOR, duration=later.get(rule, 5.0), flock=policy_sets(paper)['default'])
+        base = digest_of(s)
         with switched_off([rule]):
             assert digest(s) != base, rule
+
+
+@functools.cache
+def digest_of(s: Scenario) -> str:
+    return digest(s)
 
 
 def closest_pass(speed: float, lateral: float) -> float:
@@ -213,3 +221,53 @@ def test_swerve_lets_two_maps_that_can_no_longer_stop_miss(speed: float, lateral
         braking = closest_pass(speed, lateral)
     assert braking < vehicle.MULTIROTOR.separation, 'braking alone would have stopped them: the case tests nothing'
     assert closest_pass(speed, lateral) >= vehicle.MULTIROTOR.separation
+
+
+def test_the_traffic_receiver_passes_on_the_most_urgent_broadcasts_in_range() -> None:
+    """vehicle.traffic: within range only, at most TRAFFIC_MOST per MAP, the fast closer before the nearer still
+    one, ascending; None on a vehicle without a receiver."""
+    v = vehicle.MULTIROTOR
+    most = vehicle.TRAFFIC_MOST
+    q = np.zeros((most + 3, 3))
+    q[1:most + 1, 0] = 10.0 + np.arange(most)             # still MAPs 10, 11, ... m east of MAP 0
+    q[most + 1] = [-40.0, 0.0, 0.0]                      # one 40 m west, flying at MAP 0 at 15 m/s
+    q[most + 2] = [0.0, v.traffic + 1.0, 0.0]            # one out of range
+    p = np.zeros_like(q)
+    p[most + 1, 0] = 15.0
+    pairs = vehicle.traffic(q, q, p, v)
+    mine = pairs[pairs[:, 0] == 0, 1]
+    assert len(mine) == most and most + 2 not in mine
+    assert most + 1 in mine and most not in mine         # the closer taken, the farthest still one left out
+    assert np.all(np.diff(mine) > 0) and np.all(np.diff(pairs[:, 0]) >= 0)
+    assert vehicle.traffic(q, q, p, replace(v, traffic=0.0)) is None
+    assert vehicle.traffic(q, q, p, vehicle.IDEAL) is None
+
+
+@pytest.mark.parametrize('traffic', [True, False])
+def test_a_traffic_receiver_keeps_two_maps_at_full_speed_apart(traffic: bool) -> None:
+    """Head-on at v_max each, two MAPs that first hear each other at r = 24 m pass within the separation; with the
+    broadcasts their receivers take in from 100 m they stop short (rule 'traffic', docs/vehicle.md)."""
+    from uav_agent.core import envelope
+    from uav_agent.core.control import control_input
+    from uav_agent.core.params import FlockParams
+    v = replace(vehicle.MULTIROTOR, wind=vehicle.Wind(0.0, 0.0, 0.0, 5.0), gnss=vehicle.Gnss(0.0, 60.0, 0.0),
+                traffic=vehicle.MULTIROTOR.traffic if traffic else 0.0)
+    fp = replace(FlockParams(), **v.envelope())
+    f = vehicle.Flight(v, 2, 0.1, np.random.default_rng(0))
+    q = np.array([[0.0, 0.0, 20.0], [150.0, 0.0, 20.0]])
+    p = np.array([[v.v_max, 0.0, 0.0], [-v.v_max, 0.0, 0.0]])
+    goal, least = q[::-1].copy(), np.inf  # each bound for where the other set out from
+    for _ in range(150):
+        heard = np.argwhere(np.linalg.norm(q[:, None] - q[None], axis=-1) <= fp.r)
+        heard = heard[heard[:, 0] != heard[:, 1]]
+        seen = vehicle.traffic(q, q, p, v)
+        u = control_input(q, p, np.zeros(2), np.zeros(2, dtype=np.intp), goal, q, q, heard[:, 0], q[heard[:, 1]],
+                          p[heard[:, 1]], np.zeros(len(heard)), fp, None, None,
+                          None if seen is None else (seen[:, 0], q[seen[:, 1]], p[seen[:, 1]]))
+        q, p = f.step(np.arange(2), q, p, u)
+        least = min(least, float(np.linalg.norm(q[0] - q[1])))
+    if traffic:
+        assert least >= v.separation
+    else:
+        assert least < v.separation, 'heard at r alone they would have kept apart: the case tests nothing'
+    assert envelope.limited(fp)

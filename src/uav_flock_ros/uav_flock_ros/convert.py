@@ -15,7 +15,7 @@ import numpy as np
 from geometry_msgs.msg import Point, Vector3
 from std_msgs.msg import Header
 from uav_flock_msgs.msg import (AgentState, Association, Clusters, Command, FailureEvent, LinkMetrics, Metrics,
-                                 NeighborList, PassedState, RoleGossip, Sensing, Users, VehicleMetrics)
+                                 NeighborList, PassedState, RoleGossip, Sensing, Traffic, Users, VehicleMetrics)
 
 
 def point(v: np.ndarray) -> Point:
@@ -143,7 +143,8 @@ class CommandData(NamedTuple):
 
 
 class SensingData(NamedTuple):
-    """/map_<id>/sensing: one MAP's own q, p, N_u and r_g at step k, and its neighbours within r."""
+    """/map_<id>/sensing: one MAP's own q, p, N_u and r_g at step k, its neighbours within r, and the broadcasts
+    its traffic receiver took in (a multirotor's, vehicle.traffic)."""
 
     id: int
     step: int
@@ -154,19 +155,27 @@ class SensingData(NamedTuple):
     neighbour_ids: np.ndarray       # ascending
     distances: np.ndarray           # m, one per neighbour
     clusters_version: int = 0
+    traffic_ids: np.ndarray = np.zeros(0, dtype=np.intp)  # ascending
+    traffic_q: np.ndarray = np.zeros((0, 3))               # (t, 3) m, as each broadcasts it
+    traffic_p: np.ndarray = np.zeros((0, 3))               # (t, 3) m/s
 
     def to_msg(self, header: Header) -> Sensing:
         return Sensing(header=header, id=int(self.id), step=int(self.step), position=point(self.q),
                        velocity=vector(self.p), user_count=int(self.n_users), goal_coverage=float(self.goal_coverage),
                        clusters_version=int(self.clusters_version),
                        neighbors=NeighborList(id=int(self.id), ids=np.asarray(self.neighbour_ids, np.uint32).tolist(),
-                                              distances=np.asarray(self.distances, dtype=float).tolist()))
+                                              distances=np.asarray(self.distances, dtype=float).tolist()),
+                       traffic=Traffic(ids=np.asarray(self.traffic_ids, np.uint32).tolist(),
+                                       positions=[point(v) for v in self.traffic_q],
+                                       velocities=[vector(v) for v in self.traffic_p]))
 
     @classmethod
     def from_msg(cls, msg: Any) -> 'SensingData':
+        t = msg.traffic
         return cls(int(msg.id), int(msg.step), xyz(msg.position), xyz(msg.velocity), int(msg.user_count),
                    float(msg.goal_coverage), np.asarray(msg.neighbors.ids, dtype=np.intp),
-                   np.asarray(msg.neighbors.distances, dtype=float), int(getattr(msg, 'clusters_version', 0)))
+                   np.asarray(msg.neighbors.distances, dtype=float), int(getattr(msg, 'clusters_version', 0)),
+                   np.asarray(t.ids, dtype=np.intp), xyz_rows(t.positions), xyz_rows(t.velocities))
 
 
 class UsersData(NamedTuple):

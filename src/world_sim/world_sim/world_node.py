@@ -233,12 +233,13 @@ class WorldNode(Node):
         for row, i in enumerate(s.ids.tolist()):
             if only is not None and i not in only:
                 continue
-            nbr = s.neighbours(row)
+            nbr, seen = s.neighbours(row), s.heard_traffic(row)
             goal = int(w.goal[i])
             self.sensing_pubs[i].publish(convert.SensingData(
                 i, s.k, s.q[row], s.p[row], int(s.n_users[row]),
                 float(s.cluster_coverage[goal]) if goal != NO_GOAL else 0.0, s.ids[nbr],
-                np.linalg.norm(s.q[nbr] - s.q[row], axis=1), w.clusters_version).to_msg(hdr))
+                np.linalg.norm(s.q[nbr] - s.q[row], axis=1), w.clusters_version, s.ids[seen], s.q[seen],
+                s.p[seen]).to_msg(hdr))
 
     def on_command(self, sender: int, raw: Command) -> None:
         msg = convert.CommandData.from_msg(raw)

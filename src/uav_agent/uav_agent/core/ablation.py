@@ -43,6 +43,8 @@ VEHICLE_RULES = {
     'brake': 'a goal term aims at a speed from which the MAP stops before its goal, within its cruise speed, and a '
              'MAP faster than that brakes back (envelope.capped, envelope.governor)',
     'keep': 'a MAP brakes along a link it closes on faster than it could stop keep m short (envelope.keep_apart)',
+    'traffic': "rules keep and swerve act on the position broadcasts a MAP receives within the vehicle's traffic "
+               'range (the most urgent eight, vehicle.traffic), not on the neighbours it hears within r',
     'swerve': 'a MAP braking on a link also turns away from where that neighbour will be at their closest approach, '
               'to its right when head-on (envelope.swerve)',
     'lead': "eq. 9's flocking terms taken where the MAPs will be four lags ahead: the damping a lagged link needs "

@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import envelope
+from .ablation import on
 from .clusters import segment_distance
 from .params import FlockParams
 from .potentials import F64, action, bump, sigma_abs, sigma_grad, sigma_norm
@@ -107,11 +108,13 @@ def connectivity_potential(q: F64, q1: F64, q2: F64, fp: FlockParams) -> F64:
 def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer], target: F64,
                   bridge_a: F64, bridge_b: F64, owner: NDArray[np.intp], nbr_q: F64, nbr_p: F64,
                   nbr_nu: F64, fp: FlockParams, apart: NDArray[np.integer] | None = None,
-                  ref_vel: F64 | None = None) -> F64:
+                  ref_vel: F64 | None = None,
+                  traffic: tuple[NDArray[np.intp], F64, F64] | None = None) -> F64:
     """u_i of eq. 9 for every own MAP: flocking terms plus the goal term its mode selects.
 
     target is q^r for M0/M2 rows; bridge_a/bridge_b are q_1^r/q_2^r for M1 rows (ignored elsewhere);
-    ref_vel (n, 3, 3) the velocities of target, bridge_a and bridge_b (None: all still).
+    ref_vel (n, 3, 3) the velocities of target, bridge_a and bridge_b (None: all still); traffic the owner row,
+    position and velocity of each broadcast the MAPs' traffic receivers took in (rule 'traffic').
     """
     if envelope.limited(fp):
         u = envelope.flocking_within(flocking_terms, own_q, own_p, own_nu, owner, nbr_q, nbr_p, nbr_nu, fp, apart)
@@ -125,5 +128,6 @@ def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer]
                                   v[bridging, 1], v[bridging, 2])
     if not envelope.limited(fp):
         return u + h
-    brake = envelope.keep_apart(own_q, own_p, owner, nbr_q, nbr_p, fp) + envelope.governor(own_p, fp)
+    seen = traffic if traffic is not None and fp.traffic > 0 and on('traffic') else (owner, nbr_q, nbr_p)
+    brake = envelope.keep_apart(own_q, own_p, *seen, fp) + envelope.governor(own_p, fp)
     return envelope.command(u + h, brake, fp)

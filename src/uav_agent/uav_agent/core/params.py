@@ -15,8 +15,8 @@ OPEN_CHOICES: dict[str, tuple[str, ...]] = {
     'edge_choice': ('nearest', 'keep_nearest', 'share'),
 }
 # FlockParams fields a scenario sets from its other sections (`links:`, `vehicle:`), not from `flock:`
-DERIVED = ('reach', 'hush', 'v_max', 'a_max', 'tau', 'keep')
-ENVELOPE = ('v_max', 'a_max', 'tau', 'keep')  # the vehicle's, 0 on the paper's (core/envelope.py)
+DERIVED = ('reach', 'hush', 'v_max', 'a_max', 'tau', 'keep', 'traffic')
+ENVELOPE = ('v_max', 'a_max', 'tau', 'keep', 'traffic')  # the vehicle's, 0 on the paper's (core/envelope.py)
 
 
 @dataclass(frozen=True)
@@ -50,11 +50,13 @@ class FlockParams:
     hush: int = 0
     # The envelope the MAP flies in (core/envelope.py), from the scenario's `vehicle:`; all 0 on the paper's
     # unbounded double integrator. Speed (m/s) and acceleration (m/s^2) over the ground, the autopilot's lag
-    # (s), and the least distance the MAP keeps from another: the vehicle's separation plus its GNSS margin (m).
+    # (s), the least distance the MAP keeps from another: the vehicle's separation plus its GNSS margin (m), and
+    # the range of its traffic receiver (m; 0: none), whose broadcasts rules keep and swerve then act on.
     v_max: float = 0.0
     a_max: float = 0.0
     tau: float = 0.0
     keep: float = 0.0
+    traffic: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}

@@ -46,6 +46,8 @@ class Sensed:
     # Where the MAPs are (n, 3), when that is not where they believe they are (q: their GNSS estimate, what they
     # are told and tell); None: q is the truth. Association, coverage, range and the records take the truth.
     truth: Optional[np.ndarray] = None
+    # A multirotor's traffic receiver (vehicle.traffic): ordered pairs (row, row) of the broadcasts each row receives.
+    traffic: Optional[np.ndarray] = None
 
     def __post_init__(self) -> None:
         self.bounds = np.searchsorted(self.pairs[:, 0], np.arange(len(self.ids) + 1)).tolist()
@@ -53,6 +55,13 @@ class Sensed:
     def neighbours(self, row: int) -> np.ndarray:
         """Rows of the neighbours of row, ascending."""
         return self.pairs[self.bounds[row]:self.bounds[row + 1], 1]
+
+    def heard_traffic(self, row: int) -> np.ndarray:
+        """Rows whose broadcasts row's traffic receiver took in, ascending (none without a receiver)."""
+        if self.traffic is None:
+            return np.zeros(0, dtype=np.intp)
+        lo, hi = np.searchsorted(self.traffic[:, 0], [row, row + 1])
+        return self.traffic[lo:hi, 1]
 
 
 class World:
@@ -166,7 +175,8 @@ class World:
         told = q if self.flight is None else self.flight.estimate(rows, q)
         return Sensed(self.k, rows, told, p, physics.user_counts(assoc, len(rows)),
                       physics.cluster_coverage(self.users, assoc), physics.neighbour_pairs(q, fp.r),
-                      physics.coverage_ratio(assoc), assoc=assoc, truth=None if self.flight is None else q)
+                      physics.coverage_ratio(assoc), assoc=assoc, truth=None if self.flight is None else q,
+                      traffic=None if self.flight is None else vehicle.traffic(q, told, p, self.flight.v))
 
     def advance(self, sensed: Sensed, u: np.ndarray, modes: np.ndarray, goals: np.ndarray,
                 integrate: bool = True) -> np.ndarray:

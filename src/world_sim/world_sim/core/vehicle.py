@@ -52,6 +52,7 @@ class Vehicle:
     tau: float = 0.3            # lag of the autopilot's acceleration behind the command (s)
     separation: float = 3.0     # the least distance two MAPs may come to (m)
     cruise: float = 0.0         # the speed the MAPs plan to fly at most (m/s; 0: v_max), docs/vehicle.md
+    traffic: float = 100.0      # range (m) at which a MAP receives the others' position broadcasts (0: none)
     wind: Wind = field(default_factory=Wind)
     gnss: Gnss = field(default_factory=Gnss)
 
@@ -68,9 +69,9 @@ class Vehicle:
     def envelope(self) -> dict[str, float]:
         """What the MAPs are told (FlockParams' ENVELOPE): zeros on the paper's vehicle."""
         if self.ideal:
-            return {'v_max': 0.0, 'a_max': 0.0, 'tau': 0.0, 'keep': 0.0}
+            return {'v_max': 0.0, 'a_max': 0.0, 'tau': 0.0, 'keep': 0.0, 'traffic': 0.0}
         return {'v_max': min(self.cruise or self.v_max, self.v_max), 'a_max': self.a_max, 'tau': self.tau,
-                'keep': self.separation + self.margin}
+                'keep': self.separation + self.margin, 'traffic': self.traffic}
 
     def describe(self) -> str:
         """The vehicle in words, as `sim` and `up` state it at the start of a run."""
@@ -78,8 +79,9 @@ class Vehicle:
             return "the paper's double integrator, unbounded"
         w, g = self.wind, self.gnss
         cruise = f', cruising at {self.envelope()["v_max"]:g}' if self.cruise else ''
+        hears = f'traffic within {self.traffic:g} m' if self.traffic else 'no traffic receiver'
         return (f'multirotor: {self.v_max:g} m/s{cruise}, {self.a_max:g} m/s^2, lag {self.tau:g} s, keeps '
-                f'{self.envelope()["keep"]:.1f} m (separation {self.separation:g} m); wind {w.speed:g} m/s towards '
+                f'{self.envelope()["keep"]:.1f} m (separation {self.separation:g} m, {hears}); wind {w.speed:g} m/s towards '
                 f'{w.direction:g} deg, gusts {w.gust:g} m/s over {w.gust_time:g} s; GNSS error {g.sigma:g} m '
                 f'({g.own:g} m its own) over {g.time:g} s')
 
@@ -117,7 +119,8 @@ def parse(doc: Any, where: str = 'vehicle') -> Vehicle:
         return IDEAL
     refuse_unknown(doc, {f.name for f in fields(Vehicle)}, f'{where}.')
     values: dict[str, Any] = {'model': model}
-    for name, low_open in (('v_max', True), ('a_max', True), ('tau', False), ('separation', False), ('cruise', False)):
+    for name, low_open in (('v_max', True), ('a_max', True), ('tau', False), ('separation', False), ('cruise', False),
+                           ('traffic', False)):
         if name in doc:
             values[name] = float(number(doc[name], f'{where}.{name}', low=0.0, low_open=low_open))
     values['wind'] = _part(doc.get('wind', {}), Wind, f'{where}.wind', ('speed', 'gust'))
@@ -139,6 +142,30 @@ def _part(doc: Any, kind: type, where: str, zero_ok: tuple[str, ...]) -> Any:
         else:
             values[name] = float(number(value, f'{where}.{name}', low=0.0, low_open=name not in zero_ok))
     return kind(**values)
+
+
+TRAFFIC_MOST = 8  # the most broadcasts a MAP's traffic receiver passes on each step: the most urgent
+
+
+def traffic(truth: F64, told: F64, p: F64, v: Vehicle) -> NDArray[np.intp] | None:
+    """Ordered pairs (i, j) of rows, sorted by i then j: the broadcasts (position as j's GNSS tells it, velocity)
+    that MAP i receives, from those within v.traffic m (truth), the TRAFFIC_MOST most urgent: least room left
+    once it had braked to a stop along the line between them, as its rule 'keep' would. None: no receiver."""
+    if v.ideal or v.traffic <= 0:
+        return None
+    if len(truth) < 2:
+        return np.zeros((0, 2), dtype=np.intp)
+    pairs = cKDTree(truth).query_pairs(v.traffic, output_type='ndarray')
+    both = np.concatenate([pairs, pairs[:, ::-1]]).astype(np.intp)
+    dq = told[both[:, 1]] - told[both[:, 0]]
+    dist = np.maximum(np.linalg.norm(dq, axis=1), 1e-9)
+    closing = np.maximum(np.einsum('ij,ij->i', p[both[:, 0]] - p[both[:, 1]], dq) / dist, 0.0)
+    room = dist - closing * v.tau - closing ** 2 / (2.0 * v.a_max)
+    order = np.lexsort((both[:, 1], room, both[:, 0]))
+    both = both[order]
+    first = np.searchsorted(both[:, 0], both[:, 0], side='left')
+    chosen = both[np.arange(len(both)) - first < TRAFFIC_MOST]
+    return chosen[np.lexsort((chosen[:, 1], chosen[:, 0]))]
 
 
 def release(q: F64, p: F64, v: Vehicle, centre: tuple[float, float], half_width: float,
