@@ -224,21 +224,23 @@ def test_swerve_lets_two_maps_that_can_no_longer_stop_miss(speed: float, lateral
 
 
 def test_the_traffic_receiver_passes_on_the_most_urgent_broadcasts_in_range() -> None:
-    """vehicle.traffic: within range only, at most TRAFFIC_MOST per MAP, the fast closer before the nearer still
-    one, ascending; None on a vehicle without a receiver."""
+    """vehicle.traffic: within range only, only those rule 'keep' acts on, at most TRAFFIC_MOST per MAP, a fast
+    closer before a nearer still one, ascending; None on a vehicle without a receiver."""
     v = vehicle.MULTIROTOR
-    most = vehicle.TRAFFIC_MOST
-    q = np.zeros((most + 3, 3))
-    q[1:most + 1, 0] = 10.0 + np.arange(most)             # still MAPs 10, 11, ... m east of MAP 0
-    q[most + 1] = [-40.0, 0.0, 0.0]                      # one 40 m west, flying at MAP 0 at 15 m/s
-    q[most + 2] = [0.0, v.traffic + 1.0, 0.0]            # one out of range
+    most, keep = vehicle.TRAFFIC_MOST, v.envelope()['keep']
+    q = np.zeros((most + 4, 3))
+    angle = np.arange(most - 1) * np.pi / 4
+    q[1:most, :2] = (2.0 + 0.4 * np.arange(most - 1))[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])
+    q[most] = [0.0, keep - 0.6, 0.0]            # still, within keep: acted on, the least urgent
+    q[most + 1] = [-30.0, 0.0, 0.0]             # flying at MAP 0 at 15 m/s: cannot stop short
+    q[most + 2] = [0.0, -(keep + 2.0), 0.0]     # still, beyond keep: nothing to act on
+    q[most + 3] = [v.traffic + 1.0, 0.0, 0.0]   # flying at MAP 0 at 15 m/s, out of range
     p = np.zeros_like(q)
-    p[most + 1, 0] = 15.0
+    p[most + 1, 0], p[most + 3, 0] = 15.0, -15.0
     pairs = vehicle.traffic(q, q, p, v)
     mine = pairs[pairs[:, 0] == 0, 1]
-    assert len(mine) == most and most + 2 not in mine
-    assert most + 1 in mine and most not in mine         # the closer taken, the farthest still one left out
-    assert np.all(np.diff(mine) > 0) and np.all(np.diff(pairs[:, 0]) >= 0)
+    assert mine.tolist() == [*range(1, most), most + 1]
+    assert np.all(np.diff(pairs[:, 0]) >= 0)
     assert vehicle.traffic(q, q, p, replace(v, traffic=0.0)) is None
     assert vehicle.traffic(q, q, p, vehicle.IDEAL) is None
 

@@ -149,20 +149,30 @@ TRAFFIC_MOST = 8  # the most broadcasts a MAP's traffic receiver passes on each 
 
 def traffic(truth: F64, told: F64, p: F64, v: Vehicle) -> NDArray[np.intp] | None:
     """Ordered pairs (i, j) of rows, sorted by i then j: the broadcasts (position as j's GNSS tells it, velocity)
-    that MAP i receives, from those within v.traffic m (truth), the TRAFFIC_MOST most urgent: least room left
-    once it had braked to a stop along the line between them, as its rule 'keep' would. None: no receiver."""
+    that MAP i's traffic receiver passes on, of those within v.traffic m (truth). Only those rule 'keep' acts on,
+    whose room left once MAP i had braked to a stop along the line between them is below keep (links it
+    closes on faster than it could stop keep m short, or nearer than keep): the rule adds nothing for the
+    others. Of those, the TRAFFIC_MOST with least room. None: no receiver."""
     if v.ideal or v.traffic <= 0:
         return None
     if len(truth) < 2:
         return np.zeros((0, 2), dtype=np.intp)
-    pairs = cKDTree(truth).query_pairs(v.traffic, output_type='ndarray')
-    both = np.concatenate([pairs, pairs[:, ::-1]]).astype(np.intp)
-    dq = told[both[:, 1]] - told[both[:, 0]]
+    keep = v.envelope()['keep']
+    fastest = 2.0 * float(np.linalg.norm(p, axis=1).max())  # no two MAPs close faster
+    reach = keep + fastest * v.tau + fastest ** 2 / (2.0 * v.a_max)  # no pair farther apart (told) is acted on
+    if reach < v.traffic:  # the same pairs, found among fewer
+        pairs = cKDTree(told).query_pairs(reach, output_type='ndarray')
+        pairs = pairs[np.linalg.norm(truth[pairs[:, 1]] - truth[pairs[:, 0]], axis=1) <= v.traffic]
+    else:
+        pairs = cKDTree(truth).query_pairs(v.traffic, output_type='ndarray')
+    dq = told[pairs[:, 1]] - told[pairs[:, 0]]
     dist = np.maximum(np.linalg.norm(dq, axis=1), 1e-9)
-    closing = np.maximum(np.einsum('ij,ij->i', p[both[:, 0]] - p[both[:, 1]], dq) / dist, 0.0)
+    closing = np.maximum(np.einsum('ij,ij->i', p[pairs[:, 0]] - p[pairs[:, 1]], dq) / dist, 0.0)  # the same both ways
     room = dist - closing * v.tau - closing ** 2 / (2.0 * v.a_max)
-    order = np.lexsort((both[:, 1], room, both[:, 0]))
-    both = both[order]
+    acting = room < keep
+    pairs, room = pairs[acting], room[acting]
+    both, room = np.concatenate([pairs, pairs[:, ::-1]]).astype(np.intp), np.concatenate([room, room])
+    both = both[np.lexsort((both[:, 1], room, both[:, 0]))]
     first = np.searchsorted(both[:, 0], both[:, 0], side='left')
     chosen = both[np.arange(len(both)) - first < TRAFFIC_MOST]
     return chosen[np.lexsort((chosen[:, 1], chosen[:, 0]))]
