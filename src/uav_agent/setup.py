@@ -21,7 +21,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'uav_agent_node = uav_agent.agent_node:main',
+            'uav_agent_node = uav_agent.agent_process:main',
         ],
     },
 )

@@ -26,7 +26,7 @@ def test_late_copies_of_past_steps_are_counted_not_warned(tmp_path: Path, ros_en
     """A neighbour's state of step 0 arriving again after step 1 is normal on a busy DDS: no warning in a
     healthy run, and the count in the log at the end."""
     params = write_params(tmp_path / 'params.yaml', {**FlockParams().as_dict(), 'sync': 'lockstep'})
-    agent = subprocess.Popen([sys.executable, '-m', 'uav_agent.agent_node', '--ids', '0', '--ros-args',
+    agent = subprocess.Popen([sys.executable, '-m', 'uav_agent.agent_process', '--ids', '0', '--ros-args',
                               '--params-file', str(params)], env=ros_env, stdout=subprocess.PIPE,
                              stderr=subprocess.STDOUT, text=True)
     rclpy.init()

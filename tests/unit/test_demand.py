@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 from uav_agent.core.agent import Neighbourhood, agent_step
 from uav_agent.core.allocations.algorithm2 import mode_switch
 from uav_agent.core.allocations.demand import layout
-from uav_agent.core.allocations.demand.allocation import (Chain, anchored, demand_switch, en_route,
-                                                          hushed, pivot, relay_place, swing_place)
+from uav_agent.core.allocations.demand.allocation import demand_switch, en_route
+from uav_agent.core.allocations.demand.chain import Chain, anchored, hushed, pivot, relay_place, swing_place
 from uav_agent.core.allocations.demand.memory import Gossip, Mine
 from uav_agent.core.clusters import NO_GOAL, ClusterMap, key_of, mst_edges
 from uav_agent.core.params import FlockParams

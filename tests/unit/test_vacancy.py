@@ -10,7 +10,8 @@ import pytest
 from uav_agent.core.clusters import ClusterMap, key_of
 from uav_agent.core.params import FlockParams
 from uav_agent.core.allocations.demand import keys, layout
-from uav_agent.core.allocations.demand.allocation import TAUT_STEPS, _chain, demand_switch, tally, taut
+from uav_agent.core.allocations.demand.allocation import demand_switch
+from uav_agent.core.allocations.demand.chain import TAUT_STEPS, chain_of, tally, taut
 from uav_agent.core.allocations.demand.memory import Mine
 from uav_agent.core.state import M1, M2, NOBODY, Near, Told
 from uav_agent.core.allocations.demand.vacancy import VACANT_STEPS, code, gossip, vacate, view
@@ -115,7 +116,7 @@ def test_a_chain_is_taut_when_its_links_outgrow_what_holds_or_it_no_longer_reach
 
     def is_taut(mem: Mine, near: Near) -> bool:
         assert mem.bridge is not None
-        return taut(mem, _chain(here, mem.bridge, near.q, near.told, ROW, P), P)
+        return taut(mem, chain_of(here, mem.bridge, near.q, near.told, ROW, P), P)
 
     assert is_taut(relay, chain_heard((124.0, 1), (176.0, 2))), 'links of 26 m: past (d + r) / 2'
     assert not is_taut(relay, chain_heard((130.0, 1), (170.0, 2))), 'links of 20 m hold'

@@ -9,29 +9,19 @@ its /map_<id>/state for step k. Then, by sync mode:
 """
 from __future__ import annotations
 
-import argparse
-import signal
-import sys
 import time
 from dataclasses import fields
 from pathlib import Path
-from types import FrameType
-from typing import Callable, Optional
+from typing import Optional
 
 import numpy as np
-import rclpy
 from rclpy.context import Context
-from rclpy.duration import Duration
-from rclpy.executors import Executor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.signals import SignalHandlerOptions
 from rclpy.subscription import Subscription
 from std_msgs.msg import Header, Int64
 from uav_flock_msgs.msg import AgentState, Clusters, Command, FailureEvent, Sensing
 from uav_flock_ros import convert
-from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, checked_ros_args, make_executor, take_waiting
-from uav_flock_ros.processes import leave_after
 from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STEP_QOS, is_realtime
 
 from .core import links
@@ -42,38 +32,13 @@ from .core.checks import check_fields
 from .core.params import AgentNodeParams, FlockParams
 from .core.policies import check as check_params
 from .core.policies import hearsay
+from .recovery import SWEEP_PERIOD_S, WATCH_PERIOD_S, Recovery
 
-WATCH_PERIOD_S = 1.0
-WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long (after it was seen): it is gone
 # realtime: a neighbour's state may run ahead of our sensing by a few steps (it was sensed first), no more
 REALTIME_AHEAD_STEPS = 10
-# lockstep: a reader that has heard nothing of a listed neighbour this long after the step's sensing (the
-# world re-sends a stalled step's sensing every 2 s, and each repeat makes the neighbour publish its state
-# again) is made anew: with a discovery server and ~90 processes, the writer of a new reader can go on
-# never learning of it. Then again after twice as long, and so on. Step 0, when the whole graph is being
-# discovered at once, gets longer.
-RESUBSCRIBE_AFTER_S = 5.0
-RESUBSCRIBE_AFTER_FIRST_S = 20.0
-# lockstep: how often a step that waits looks into its silent neighbours' readers itself. The events
-# executor is not told of some samples that reach readers made in a burst (hundreds at once as MAPs
-# spread); they would otherwise sit there until the 1 s watch found them.
-SWEEP_PERIOD_S = 0.25
-# lockstep, step 0: a process whose MAP has heard nothing this long of a neighbour whose writer is matched, after
-# its readers were made anew, makes its DDS participant anew (AgentProcess.renew), at most this many times. Fast
-# DDS 2.14's TCP transport (`--secure`) can leave a connection between two participants open with a logical
-# port that failed its negotiation and is never asked for again: both ends matched, no sample ever crosses
-# (seen in 1 of 8 starts of 30 MAPs at 2 a process). Nothing of a run is held before step 0, so a new
-# participant loses nothing, and it opens new connections.
-# Before any sensing, a process that has not seen world_sim on the graph renew_unseen s after its nodes were made
-# (AgentNodeParams) does so too: a refused handshake with the discovery server left two MAPs' process unknown to
-# the run, 28 of 30 MAPs ready for 150 s (1 of 15 starts of 30 MAPs at 2 a process).
-RENEW_AFTER_S = 30.0
-RENEW_TIMES = 3
-RENEW_WAIT_S = 30.0  # how long the new nodes may take to have their sensing before the old ones go anyway
-FLUSH_S = 1.0  # at the end, how long the last states and commands may take to be acknowledged by every reader
 
 
-class AgentNode(Node):
+class AgentNode(Recovery, Node):
     """MAP <id> in namespace /map_<id>."""
 
     def __init__(self, map_id: int, context: Optional[Context] = None) -> None:
@@ -372,89 +337,6 @@ class AgentNode(Node):
         """The live neighbours listed for step s whose state of that step has not come in."""
         return [j for j in s.neighbour_ids.tolist() if j not in self.dead and (j not in self.latest or self.latest[j].step != s.step)]
 
-    def sweep(self) -> None:
-        """Take what already sits in the readers of the neighbours a waiting step still misses."""
-        s = self.pending
-        if s is None or time.monotonic() - self.sensed_at < SWEEP_PERIOD_S:
-            return
-        for j in [j for j in self.unheard(s) if j in self.neighbour_subs]:
-            if self.pending is not s or j not in self.neighbour_subs:
-                break  # a taken sample completed the step
-            self.take_waiting_of(j)
-
-    def watch_world(self) -> None:
-        """Say what a stuck step waits for; end on our own when the world is gone."""
-        if self.failed:
-            return  # silent: nothing to wait for, and a crashed node has no handles to ask the graph with
-        silent = time.monotonic() - self.sensed_at
-        if self.pending is not None and silent > 2.0:
-            missing = {j: (self.latest[j].step if j in self.latest else None) for j in self.unheard(self.pending)}
-            matched = {j: (self.neighbour_subs[j].get_publisher_count(), self.count_publishers(f'/map_{j}/state'))
-                       for j in missing if j in self.neighbour_subs}
-            if silent >= self.next_report:  # 2 s, 4 s, 8 s, ... into the step: a log, not a flood
-                self.next_report = 2 * silent
-                self.get_logger().info(f'step {self.pending.step}: waiting {silent:.0f} s for neighbours '
-                                          f'(id: last step heard) {missing}, (id: writers matched, listed) '
-                                          f'{matched}, clusters known: {self.clusters is not None}')
-            self.silent_writers = any(m > 0 for m, _ in matched.values())
-            if not self.realtime:
-                self.recover(silent, {j: m for j, (m, listed) in matched.items() if m > 0 or listed > 0})
-        else:
-            self.silent_writers = False
-        world_listed = self.count_publishers(f'/map_{self.map_id}/sensing') > 0
-        self.world_seen = self.world_seen or world_listed
-        if not self.world_seen and silent > self.world_start_timeout:
-            self.get_logger().error(f'no world_sim appeared within {silent:.0f} s: stopping MAP {self.map_id}')
-            self.stopped = True
-        elif self.world_seen and silent > WORLD_TIMEOUT_S and not world_listed:
-            self.get_logger().error(f'no world_sim for {silent:.0f} s: stopping MAP {self.map_id}')
-            self.stopped = True
-
-    def recover(self, silent: float, silent_writers: dict[int, int]) -> None:
-        """Get a stalled step going again, when the neighbours it waits for exist but are not heard.
-
-        First, samples that sit in a reader without the executor having been told of them are taken by
-        hand. Should that find nothing, the readers are made anew, RESUBSCRIBE_AFTER_S after the step's
-        sensing, then after twice as long, and so on.
-        """
-        taken = 0
-        for j, matched in silent_writers.items():
-            if matched and self.pending is not None:
-                taken += self.take_waiting_of(j)
-        if taken:
-            self.get_logger().info(f'took {taken} state samples of {list(silent_writers)} by hand '
-                                      'that the executor had not delivered')
-            return
-        tries = self.resubscribed[1] if self.resubscribed[0] == self.step else 0
-        wait = RESUBSCRIBE_AFTER_FIRST_S if self.step == 0 else RESUBSCRIBE_AFTER_S
-        if silent_writers and silent > wait * 2 ** tries and self.pending is not None:
-            self.resubscribed = (self.step, tries + 1)
-            for j in silent_writers:
-                self.subscribe(j)
-            self.get_logger().info(f'step {self.pending.step}: subscribed anew to the states of '
-                                      f'{list(silent_writers)}')
-
-    def stuck_at_start(self) -> bool:
-        """Step 0 waits, RENEW_AFTER_S after its sensing, on a neighbour whose writer is matched but unheard,
-        its readers made anew already: the connection between the two participants carries nothing."""
-        return (not self.realtime and self.step == 0 and self.pending is not None and self.silent_writers
-                and self.resubscribed[0] == 0 and time.monotonic() - self.sensed_at > RENEW_AFTER_S)
-
-    def unseen_at_start(self) -> bool:
-        """No sensing yet, and no world_sim on the graph renew_unseen s after this node was made: this
-        participant is cut off from discovery."""
-        return (self.renew_unseen > 0 and self.step < 0 and not self.world_seen
-                and time.monotonic() - self.sensed_at > self.renew_unseen)
-
-    def take_waiting_of(self, j: int) -> int:
-        """Take what sits in neighbour j's reader, as the executor itself would (rclpy's own take call)."""
-        def handle(msg: AgentState) -> bool:
-            self.on_state(j, msg)
-            return j in self.neighbour_subs  # the sample may have made us step and drop j
-
-        return take_waiting(self.neighbour_subs[j], handle)
-
-
 def said(m: convert.AgentStateData | convert.PassedData) -> Said:
     """What a neighbour's state message says, as the step reads it (core.agent.Neighbourhood.hearing)."""
     return Said(mask_of(m.achieved), Told(m.mode, m.goal, m.bridge, m.roles))
@@ -463,146 +345,3 @@ def said(m: convert.AgentStateData | convert.PassedData) -> Said:
 def passed(m: convert.AgentStateData) -> list[Passed]:
     """The neighbour states a message passes on (AgentState.passed_on), as the MAP's Hearing takes them."""
     return [Passed(r.id, r.step, Heard(r.q, r.p, float(r.n_users), said(r))) for r in m.passed_on]
-
-
-def parse_ids(argv: list[str]) -> list[int]:
-    parser = argparse.ArgumentParser(prog='uav_agent_node', description='Run one or more MAP agent nodes.')
-    parser.add_argument('--ids', required=True, help='MAP ids hosted by this process, e.g. 3 or 0,1,2')
-    args = parser.parse_args(argv)
-    try:
-        ids = [int(v) for v in args.ids.split(',') if v.strip()]
-    except ValueError:
-        parser.error(f'--ids: expected integers separated by commas, got {args.ids!r}')
-    if not ids or min(ids) < 0:
-        parser.error(f'--ids: expected non-negative integers, got {args.ids!r}')
-    return ids
-
-
-class CrashRequests:
-    """SIGUSR1 says `uav-flock kill` has named MAPs of this process in crash_dir: their nodes are to end.
-
-    A SIGKILL takes every MAP of a process; this takes one, between callbacks, as abruptly: no last state or
-    command, nothing flushed. Its writers and readers leave the graph with it, which is how world_sim tells
-    that it is gone (as of a MAP on another host).
-    """
-
-    def __init__(self) -> None:
-        self.pending = False
-        signal.signal(signal.SIGUSR1, self._on_signal)
-
-    def _on_signal(self, signum: int, frame: Optional[FrameType]) -> None:
-        self.pending = True
-
-    def take(self, nodes: list['AgentNode']) -> list['AgentNode']:
-        """The nodes named in crash_dir, once per signal."""
-        if not self.pending:
-            return []
-        self.pending = False
-        return [n for n in nodes if n.crash_dir and (Path(n.crash_dir) / str(n.map_id)).exists()]
-
-
-class AgentProcess:
-    """The MAPs of one process on one DDS participant (an rclpy context of their own): made at start, and
-    made anew when a start stalls on a connection that carries nothing (RENEW_AFTER_S)."""
-
-    def __init__(self, ids: list[int], argv: list[str]) -> None:
-        self.argv = argv
-        self.renewed = 0
-        self.context, self.executor, self.nodes = self.make(ids)
-
-    def make(self, ids: list[int]) -> tuple[Context, Executor, list[AgentNode]]:
-        context = Context()
-        # No rclpy signal handlers: theirs shut the context down under a running callback, whose publish then
-        # fails and is logged as a fatal callback error. The loop ends on the flag instead, between callbacks.
-        rclpy.init(args=self.argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
-        try:
-            nodes = [AgentNode(i, context) for i in ids]
-        except BaseException:
-            context.try_shutdown()
-            raise
-        executor = make_executor(context)
-        for n in nodes:
-            executor.add_node(n)
-        return context, executor, nodes
-
-    def stuck(self) -> Optional[str]:
-        """Why the process's start stalls (step 0 of a MAP on a silent connection, or no MAP that has seen the
-        world), while no MAP of the process is past step 0; None if it does not, or after RENEW_TIMES."""
-        if self.renewed >= RENEW_TIMES or any(n.step > 0 for n in self.nodes):
-            return None
-        if any(n.stuck_at_start() for n in self.nodes):
-            return f'step 0: neighbours matched but unheard {RENEW_AFTER_S:.0f} s'
-        if any(n.unseen_at_start() for n in self.nodes):
-            return f'start: no world_sim seen in {self.nodes[0].renew_unseen:g} s'
-        return None
-
-    def renew(self, why: str, stopping: Callable[[], bool]) -> None:
-        """The same MAPs on a new participant; the old one goes once every new node hears world_sim's sensing
-        writer (so world_sim, which drops a MAP of another host whose sensing no reader matches, never sees
-        none), or RENEW_WAIT_S on (renew_unseen, if shorter, before any sensing)."""
-        self.renewed += 1
-        context, executor, nodes = self.context, self.executor, self.nodes
-        nodes[0].get_logger().warning(f'{why}: the DDS participant of MAPs {[n.map_id for n in nodes]} made anew '
-                                      f'({self.renewed} of {RENEW_TIMES})')
-        self.context, self.executor, self.nodes = self.make([n.map_id for n in nodes])
-        sensed = any(n.step >= 0 for n in nodes)  # else the world may not be there yet: wait no longer than it was
-        deadline = time.monotonic() + (RENEW_WAIT_S if sensed else min(RENEW_WAIT_S, nodes[0].renew_unseen))
-        while not stopping() and time.monotonic() < deadline and any(
-                n.step < 0 and n.sensing_sub.get_publisher_count() == 0 for n in self.nodes):
-            self.executor.spin_once(timeout_sec=0.1)
-        executor.shutdown()
-        for n in nodes:
-            n.destroy_node()
-        context.try_shutdown()
-
-    def close(self) -> None:
-        # What the MAPs said last reaches every reader that has not acknowledged it yet (the recorder may be
-        # repairing a lost datagram) before the writers go; a reader that died with its MAP is waited for no
-        # longer than the budget.
-        deadline = time.monotonic() + FLUSH_S
-        for n in self.nodes:
-            for pub in (n.state_pub, n.cmd_pub):
-                pub.wait_for_all_acked(Duration(seconds=max(deadline - time.monotonic(), 0.0)))
-        # The executor first: the events executor holds the nodes' entities, and only once they are all
-        # released is the DDS participant deleted (with its shared memory), even if this process then ends
-        # by os._exit, past the interpreter's teardown.
-        self.executor.shutdown()
-        for n in self.nodes:
-            n.summary()
-            n.destroy_node()
-        self.context.try_shutdown()
-
-
-def main(argv: Optional[list[str]] = None) -> int:
-    argv = sys.argv if argv is None else argv
-    rest = checked_ros_args('uav_agent_node', argv)
-    if rest is None:
-        return 2
-    ids = parse_ids(rest[1:])
-    crashes = CrashRequests()  # before the nodes exist: a request that comes early waits for the loop
-    stop = StopSignals()
-    try:
-        process = AgentProcess(ids, argv)
-    except PARAMETER_ERRORS as exc:  # a bad parameter value: the user's mistake
-        print(f'uav_agent_node: error: {exc}', file=sys.stderr)
-        return 2
-    try:
-        while process.nodes and not stop.received and not all(n.stopped for n in process.nodes):
-            process.executor.spin_once(timeout_sec=0.5)
-            for n in crashes.take(process.nodes):
-                n.crash()
-                process.executor.remove_node(n)
-                n.destroy_node()
-                process.nodes.remove(n)
-            why = process.stuck()
-            if why:
-                process.renew(why, lambda: stop.received)
-    finally:
-        code = 1 if any(n.stopped and not n.run_finished for n in process.nodes) else 0
-        leave_after(code, 'uav_agent_node')  # processes.TEARDOWN_S
-        process.close()
-    return code
-
-
-if __name__ == '__main__':
-    sys.exit(main())

@@ -4,7 +4,7 @@ Imported once, by the forkserver process that `up` forks its agent processes fro
 """
 import inspect
 
-import uav_agent.agent_node  # noqa: F401  (rclpy, numpy, scipy and the message types come with it)
+import uav_agent.agent_process  # noqa: F401  (the node, rclpy, numpy, scipy and the message types come with it)
 
 # rclpy's logger finds each log call's caller with inspect, whose first use maps every loaded module to its
 # file: 70 ms of realpath calls, paid again by every process. Done here once, every fork inherits the map.

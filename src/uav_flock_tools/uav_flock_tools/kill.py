@@ -19,7 +19,7 @@ def kill(run: Path, ids: Optional[list[int]], fraction: Optional[float], whole_p
 
     Returns (MAP ids killed, pids whose named MAPs' nodes ended inside them, pids SIGKILLed whole). A MAP alone in its process dies by
     SIGKILL with it. A MAP packed with others has its node ended inside the process, as abruptly (no last
-    message, nothing flushed; see agent_node.CrashRequests), and the other MAPs fly on; whole_processes
+    message, nothing flushed; see agent_process.CrashRequests), and the other MAPs fly on; whole_processes
     instead SIGKILLs every process concerned with all of its MAPs.
     """
     if run_has_ended(run):

@@ -208,12 +208,10 @@ class Run:
                       '-p', f'seed:={s.seed}', '-p', f'duration:={float(s.duration)}', '-p', f'out:={p.run}',
                       '-p', f'pid_table:={p.run / "pids.json"}', '-p', f'start_timeout:={p.start_timeout}',
                       '-p', f'sync:={p.sync}', '-p', f'rate:={float(p.rate)}', '-p', f'vehicle:={s.vehicle.model}']
-        if p.record:
-            world_args += ['-p', 'record:=true']
-        if s.fail_at is not None:
-            world_args += ['-p', f'fail_at:={float(s.fail_at)}', '-p', f'fail_fraction:={float(s.fail_fraction)}']
-        if p.remote:
-            world_args += ['-p', f'run_info:={p.run / "join.json"}']
+        world_args += ['-p', 'record:=true'] if p.record else []
+        world_args += ['-p', f'fail_at:={float(s.fail_at)}', '-p', f'fail_fraction:={float(s.fail_fraction)}'] \
+            if s.fail_at is not None else []
+        world_args += ['-p', f'run_info:={p.run / "join.json"}'] if p.remote else []
         self.world = subprocess.Popen(world_args, env=p.env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                       text=True, start_new_session=True, preexec_fn=dies_with_parent(signal.SIGINT))
         self.world_log = relay_log(self.world.stderr, p.logs / 'world.log')  # type: ignore[arg-type]
@@ -233,8 +231,7 @@ class Run:
             print(line.rstrip(), flush=True)
         code = self.world.wait()
         if code == -TEARDOWN_SIGNAL:  # a run that ended well, its records written (processes.leave_after)
-            print('uav-flock up: world_sim\'s DDS teardown hung after the run; it was ended, its records are whole',
-                  flush=True)
+            print("uav-flock up: world_sim's DDS teardown hung after the run; ended, its records whole", flush=True)
             return 0
         return code
 
@@ -249,8 +246,7 @@ class Run:
         stop([child for child in (self.recorder, self.viewer) if child is not None], signal.SIGINT)
         if self.server is not None:
             stop([self.server])
-        # A SIGKILLed agent cannot remove its files, nor can one stopped while its participant was still
-        # being made (Ctrl-C during start-up left some behind).
+        # A SIGKILLed agent cannot remove its files, nor one stopped while its participant was made (at start-up).
         if not self.p.server_address and (self.interrupted or any(a.poll() == -signal.SIGKILL for a in self.agents)):
             clean_shared_memory(self.p.env, since=self.began_at)
         self.p.claim.release()

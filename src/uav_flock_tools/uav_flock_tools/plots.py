@@ -239,8 +239,7 @@ class FormationMovie:
     """The artists of formation.gif over axes drawn once; each frame redraws only what moves (blitting).
 
     Every frame takes the first frame's palette, which the legend fills with every colour drawn: a colour
-    never shifts between frames, and Pillow quantizes once.
-    """
+    never shifts between frames, and Pillow quantizes once."""
 
     def __init__(self, traj: dict[str, np.ndarray], shown: list[float],
                  users: dict[float, tuple[np.ndarray, np.ndarray]], r: float, title: str,

@@ -100,7 +100,7 @@ def agent_process(argv: list[str], env: dict[str, str], log: str, up_pid: int) -
     os.close(fd)
     os.environ.clear()
     os.environ.update(env)  # before rclpy.init: the domain, discovery and transports of this run
-    from uav_agent.agent_node import main
+    from uav_agent.agent_process import main
     sys.exit(main(argv))
 
 

@@ -110,7 +110,7 @@ class AgentNodeParams:
     # Many processes starting on few cores take a while to bring the world up: wait this long for it (s).
     world_start_timeout: float = field(default=120.0, metadata=bound(low=0.0, low_open=True))
     # A process that has not seen the world this long after its nodes were made makes its DDS participant anew,
-    # at most 3 times (agent_node.AgentProcess): one cut off from discovery at start (s; 0: never).
+    # at most 3 times (agent_process.AgentProcess): one cut off from discovery at start (s; 0: never).
     renew_unseen: float = field(default=60.0, metadata=bound(low=0.0))
     # Where `uav-flock kill` leaves a file named by a MAP id before it sends SIGUSR1: that MAP's node then ends
     # at once inside its process, as a crash would, while the process's other MAPs fly on ('' : none).
