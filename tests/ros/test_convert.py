@@ -57,9 +57,10 @@ VALUES = {
                                       st.lists(st.builds(convert.PassedData, *STATE), max_size=8).map(tuple)),
     convert.CommandData: st.builds(convert.CommandData, U32, st.integers(0, 2**63), VEC, st.integers(0, 2),
                                    st.integers(-1, 99)),
-    convert.SensingData: ids().flatmap(lambda n: st.builds(
-        convert.SensingData, U32, st.integers(0, 2**63), VEC, VEC, U32, st.floats(0, 1), st.just(n),
-        arrays(np.float64, len(n), elements=st.floats(0, 1e4)), U32)),
+    convert.SensingData: st.tuples(ids(), ids(8)).flatmap(lambda nt: st.builds(
+        convert.SensingData, U32, st.integers(0, 2**63), VEC, VEC, U32, st.floats(0, 1), st.just(nt[0]),
+        arrays(np.float64, len(nt[0]), elements=st.floats(0, 1e4)), U32, st.just(nt[1]),
+        rows(st.just(len(nt[1])), 3), rows(st.just(len(nt[1])), 3))),
     convert.UsersData: st.integers(0, 30).flatmap(lambda m: st.builds(
         convert.UsersData, st.integers(0, 2**63), rows(st.just(m), 3),
         arrays(np.intp, m, elements=st.integers(-1, 20)))),

@@ -171,11 +171,20 @@ class SensingData(NamedTuple):
 
     @classmethod
     def from_msg(cls, msg: Any) -> 'SensingData':
-        t = msg.traffic
+        t = getattr(msg, 'traffic', None)  # none in a bag recorded before the traffic receiver
         return cls(int(msg.id), int(msg.step), xyz(msg.position), xyz(msg.velocity), int(msg.user_count),
                    float(msg.goal_coverage), np.asarray(msg.neighbors.ids, dtype=np.intp),
                    np.asarray(msg.neighbors.distances, dtype=float), int(getattr(msg, 'clusters_version', 0)),
-                   np.asarray(t.ids, dtype=np.intp), xyz_rows(t.positions), xyz_rows(t.velocities))
+                   *((np.asarray(t.ids, dtype=np.intp), xyz_rows(t.positions), xyz_rows(t.velocities))
+                     if t is not None else ()))
+
+
+def serialized(values: Any, header: Any) -> bytes:
+    """The wire bytes of a message's values (any `to_msg`) under a header read from anywhere (rclpy or a bag)."""
+    from builtin_interfaces.msg import Time
+    from rclpy.serialization import serialize_message
+    stamp = Time(sec=int(header.stamp.sec), nanosec=int(header.stamp.nanosec))
+    return serialize_message(values.to_msg(Header(stamp=stamp, frame_id=str(header.frame_id))))
 
 
 class UsersData(NamedTuple):

@@ -362,9 +362,9 @@ def replay_inputs(path: Path, agent: int) -> ReplayInputs:
                 states[i][convert.stamped_id_step(raw)[1]] = raw
                 continue
             msg = deserialize(reader, raw, conn.msgtype)
-            if kind == 'sensing':
+            if kind == 'sensing':  # said again as the messages are now (a bag from before a field came)
                 sensed = convert.SensingData.from_msg(msg)
-                sensing[sensed.step] = (raw, sensed)
+                sensing[sensed.step] = (convert.serialized(sensed, msg.header), sensed)
             elif kind == 'cmd':
                 command = convert.CommandData.from_msg(msg)
                 commands[command.step] = command
