@@ -1,12 +1,14 @@
 """Eq. 9 flown within a multirotor's envelope: what a MAP commands when its speed, acceleration and the
 distance it keeps from others are bounded (scenario `vehicle:`, docs/vehicle.md).
 
-Five rules, each switched off by name (ablation.VEHICLE_RULES); none acts on the paper's vehicle, whose
+Six rules, each switched off by name (ablation.VEHICLE_RULES); none acts on the paper's vehicle, whose
 FlockParams have a_max = 0:
 - 'lead' and 'soften': the flocking terms taken ahead of the lag, and softened (flocking_within);
 - 'brake': the goal terms of eq. 12-13 aim at a speed the MAP can still stop from before its goal, within its
   cruise speed;
 - 'keep': a MAP brakes along each link on which it closes faster than it could stop before `keep` m;
+- 'traffic': those links are to the MAPs whose broadcasts its traffic receiver passes on (control.control_input),
+  heard far enough out to stop from v_max, not to the neighbours its radio hears within r;
 - 'swerve': and on a link whose closest approach falls within `keep` m, it turns away from it (to its right when
   head-on, as pilots do), which the pair can still do where braking alone no longer stops them;
 - 'priority': that braking is served first from the acceleration budget, eq. 9's terms from what is left.
@@ -76,8 +78,8 @@ def keep_apart(own_q: F64, own_p: F64, owner: NDArray[np.intp], nbr_q: F64, nbr_
 
     On a link closing at c (m/s) with gap g = distance - keep - c tau, the MAP may close at sqrt(2 a_max g); it
     brakes the excess away within tau (and at once, at a_max, when already inside keep). A pair whose ends both
-    do so stops short whatever eq. 9 asks for, provided they first hear each other (r apart) closing no faster
-    than twice sight_speed: faster, no braking within r can stop them (docs/vehicle.md).
+    do so stops short whatever eq. 9 asks for, provided they first see each other far enough apart: from r,
+    closing no faster than twice sight_speed; the traffic receiver's 100 m suffice from v_max (docs/vehicle.md).
     """
     m = own_q.shape[0]
     out = np.zeros((m, 3))
