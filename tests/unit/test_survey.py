@@ -88,7 +88,7 @@ def test_two_crowds_that_meet_stay_two_clusters(seed: int, sa: float, sb: float,
                                                offset: float) -> None:
     """Two crowds that walk into and through each other are two tracked clusters at every 2 s survey, and
     each crowd is one of them once they are apart again. DBSCAN alone finds them as one while their tails
-    touch, and the tracker ended one id (docs/dynamics.md, "Crowds that meet stay two")."""
+    touch, and the tracker ended one id (docs/notes/dynamics.md, "Crowds that meet stay two")."""
     rng = np.random.default_rng(seed)
     a, b = rng.normal(0.0, sa, size=(na, 2)), rng.normal(0.0, sb, size=(nb, 2))
     ca, cb = np.array([0.0, 0.0]), np.array([200.0, offset * sa])  # offset: how far off head-on, up to one sigma

@@ -50,7 +50,7 @@ def flocking_terms(own_q: F64, own_p: F64, own_nu: F64, owner: NDArray[np.intp],
     the repulsion of Phi, so no two collide, but neither attract nor match velocities, so groups bound for
     different places part instead of dragging one another. A MAP on its way to a new role keeps only d/2
     from the MAPs it passes: kept at d by the servers on the rim of a cluster, it slid round the disc and
-    left it off the relay chain, out of everyone's range (docs/dynamics.md, "Passing at d/2").
+    left it off the relay chain, out of everyone's range (docs/notes/dynamics.md, "Passing at d/2").
     """
     m = own_q.shape[0]
     if owner.size == 0:

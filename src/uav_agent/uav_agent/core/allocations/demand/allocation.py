@@ -131,7 +131,7 @@ def leg_aim(q: np.ndarray, hop: int, clusters: ClusterMap, fp: FlockParams, achi
     cluster it is at, while it is short of it and more than d/2 off the chain's line; then hop's centre.
 
     Flown straight from its place in the disc, a MAP left the disc at its side and crossed 25-40 m off the
-    chain, out of everyone's range (docs/dynamics.md, "Leaving by the chain"). Towards a cluster not yet
+    chain, out of everyone's range (docs/notes/dynamics.md, "Leaving by the chain"). Towards a cluster not yet
     served (an arrival) there is no chain to join yet, and the detour only delayed the bridge: it flies
     straight."""
     aim_at = clusters.targets[hop]
@@ -194,7 +194,7 @@ class Demand:
     def link(self, a: Told, b: Told, fp: FlockParams) -> int:
         """Only related MAPs attract (control.flocking_terms), and on a lagged vehicle not a relay and a server
         (rule 'loose'); unrelated ones of which one is on its way to a new role pass each other at d/2
-        (docs/dynamics.md, "Passing at d/2")."""
+        (docs/notes/dynamics.md, "Passing at d/2")."""
         if related(a, b):
             return APART if loose(a, b, fp) else RELATED
         return PASSING if (gossip_of(a).transit or gossip_of(b).transit) and on('passing') else APART

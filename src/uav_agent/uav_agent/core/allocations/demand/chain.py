@@ -166,7 +166,7 @@ def _reach_past(at: float, aside: float, away: int, fp: FlockParams) -> float:
     """Where a relay reaching past the last member it hears on one side aims: that member `at` m along the
     edge and `aside` m off its line, the relay `away` (+1: farther along, -1: back) from it. r - 1 m in the
     plane (rule 'offset'): measured along the line alone, the reach from a server at the side of its disc put
-    the relay out of its range (docs/dynamics.md, "Reaching in the plane"). Under the paper's channel only:
+    the relay out of its range (docs/notes/dynamics.md, "Reaching in the plane"). Under the paper's channel only:
     under bursts of loss it cost drifting runs 1.25 points."""
     if on('offset') and fp.hush <= 0:
         reach = reach_of(fp) - 1.0

@@ -164,7 +164,7 @@ def _merged(pieces: list[list]) -> list[list]:
     return out
 
 
-Span = tuple[float, float]  # keys [lo, hi) of MAPs known lost (docs/dynamics.md, "Vacated roles")
+Span = tuple[float, float]  # keys [lo, hi) of MAPs known lost (docs/notes/dynamics.md, "Vacated roles")
 
 
 def united(*spans: Iterable[Span]) -> tuple[Span, ...]:

@@ -105,7 +105,7 @@ def kept(share: tuple[float, ...], ids: list[keys.RoleId], held: dict[keys.RoleI
 
     Proportional shares follow every change of surveyed demand: a drifting cluster whose 95 % disc shrank
     and grew back sent its servers across the field to the other clusters and called them back, each a MAP
-    in transit alone (docs/dynamics.md, "Kept shares"). Here a role keeps what it holds down to a floor, its
+    in transit alone (docs/notes/dynamics.md, "Kept shares"). Here a role keeps what it holds down to a floor, its
     proportional share / (1 + slack) for a cluster it served before, the whole share for an edge (a chain
     short of relays breaks) and for a new cluster (an arrival must be covered); a role below its floor takes
     what it lacks from the roles most above their proportional share. A standing chain (layout.standing)

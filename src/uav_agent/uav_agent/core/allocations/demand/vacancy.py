@@ -1,4 +1,4 @@
-"""Roles emptied by failures, noticed and re-staffed with no count of MAPs (docs/dynamics.md, "Vacated roles").
+"""Roles emptied by failures, noticed and re-staffed with no count of MAPs (docs/notes/dynamics.md, "Vacated roles").
 
 Under the demand allocation a role is the set of keys in its pieces of [0, 1). MAPs that fail keep their
 keys, so a role whose MAPs all failed keeps its share and nobody takes it: a cluster stays uncovered, or
