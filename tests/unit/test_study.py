@@ -239,3 +239,27 @@ def test_a_run_that_raised_is_named_in_one_line_and_computed_again_by_the_next_c
     row, = engine.finished(out)
     assert row['error'] is None and row['duration'] == 3.0 and engine.raised([row]) is None
     assert engine.study([good], out, workers=1) == (0, 1), 'a finished run is not'
+
+
+def test_keep_leaves_each_runs_series_that_pandas_reads_and_a_row_flies_again(tmp_path: Path) -> None:
+    """`study --keep`: series/<key>.parquet beside results.parquet, a column per metric of metrics.csv and a row a
+    step, whose last row is the row's end; engine.execute flies that row again to the same series
+    (docs/studies.md)."""
+    import pandas as pd
+
+    from uav_flock_tools.study import engine
+    from uav_flock_tools.study import spec as specs
+    from world_sim.core.records import metrics_columns
+    (tmp_path / 's.yaml').write_text('layouts: {count: 1, clusters: [3, 3]}\nkinds: [static]\nduration: 3\n'
+                                     'variants:\n  multirotor: {vehicle.model: multirotor}\n')
+    run, = specs.runs(specs.load(tmp_path / 's.yaml'))
+    out = tmp_path / 'out'
+    proc = study(str(tmp_path / 's.yaml'), '--out', str(out), '--workers', '1', '--keep')
+    assert proc.returncode == 0, proc.stderr
+    series = pd.read_parquet(out / 'series' / f'{run.key}.parquet')
+    row, = engine.finished(out)
+    assert tuple(series.columns) == metrics_columns(run.scenario()) and len(series) == run.scenario().steps + 1
+    assert series['coverage_ratio'].iloc[-1] == row['end_rc']
+    assert series['min_distance'].min() == row['least_distance']
+    again = engine.execute(run, keep=True)['_series']
+    assert again == {c: series[c].tolist() for c in series.columns}

@@ -18,6 +18,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help='run on the workers of this Dask scheduler (default: a local cluster, one worker a core)')
     p.add_argument('--workers', type=positive_int, help='local cluster: worker processes (default: one a core)')
     p.add_argument('--summary', action='store_true', help='only summarise the study folder SPEC: summary.md, .csv, connected.png')
+    p.add_argument('--keep', action='store_true',
+                   help='also keep each run it computes as a time series: OUT/series/<key>.parquet (docs/studies.md)')
 
 
 def _progress(done: int, total: int, elapsed: float) -> None:
@@ -53,7 +55,7 @@ def handle(args: argparse.Namespace) -> int:
           f' on {args.scheduler or "a local cluster"}', file=sys.stderr, flush=True)
     try:
         done, total = engine.study(grid, args.out, args.scheduler, args.workers, _progress,
-                                   lambda text: print(f'study: {text}', file=sys.stderr, flush=True))
+                                   lambda text: print(f'study: {text}', file=sys.stderr, flush=True), args.keep)
     except KeyboardInterrupt:
         keys = {r.key for r in grid}
         saved = sum(r['key'] in keys and r['error'] is None for r in engine.finished(args.out))

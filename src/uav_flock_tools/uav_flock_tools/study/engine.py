@@ -25,12 +25,14 @@ from .spec import Run
 
 RESULTS = 'results.parquet'
 PARTS = 'parts'
+SERIES = 'series'  # with --keep: series/<key>.parquet, a run's metrics (a column each, a row a step)
 GRID = ('key', 'layout', 'seed', 'kind', 'variant', 'maps', 'duration')
 COLUMNS = (*GRID, *FIGURES, 'error', 'wall_s', 'host')  # wall_s and host: where and how long, not what
 
 
-def execute(run: Run) -> dict[str, Any]:
-    """One run, on a worker: its row. A run that raises is a row with its error, never a lost study."""
+def execute(run: Run, keep: bool = False) -> dict[str, Any]:
+    """One run, on a worker: its row. A run that raises is a row with its error, never a lost study. keep: the
+    row also carries the run's metrics series (SERIES, records.metrics_columns) under '_series'."""
     from uav_agent.core import ablation
 
     from ..batch import BatchSimulator
@@ -49,6 +51,9 @@ def execute(run: Run) -> dict[str, Any]:
                 sim.step()
             sim.step(integrate=False)
         result = sim.result()
+        if keep:
+            from world_sim.core.records import metrics_columns
+            row['_series'] = dict(zip(metrics_columns(s), result.metrics.T.tolist()))
         row.update(figures(result.metrics, s.dt, EVENT_S.get(kind)))
         row.update(flight_figures(s, result.metrics, result.trajectory, result.users.centroids, row['converged']))
     except Exception as exc:  # noqa: BLE001 -- the row carries it
@@ -144,9 +149,10 @@ def _interruptible() -> Iterator[Callable[[], bool]]:
 
 def study(runs: list[Run], out: Path, scheduler: Optional[str] = None, workers: Optional[int] = None,
           progress: Callable[[int, int, float], None] = lambda done, total, elapsed: None,
-          say: Callable[[str], None] = lambda text: None) -> tuple[int, int]:
+          say: Callable[[str], None] = lambda text: None, keep: bool = False) -> tuple[int, int]:
     """Compute the runs the folder does not hold yet; (runs computed now, runs in all). say: a line for the user
-    while nothing else moves (a scheduler with no worker)."""
+    while nothing else moves (a scheduler with no worker); keep: each run computed leaves its metrics series in
+    SERIES/<key>.parquet, written before its row, so a row's series is there if the row is."""
     import pyarrow.parquet as pq
     from dask.distributed import as_completed
     out.mkdir(parents=True, exist_ok=True)
@@ -157,7 +163,7 @@ def study(runs: list[Run], out: Path, scheduler: Optional[str] = None, workers: 
     if todo:
         client, cluster = client_for(scheduler, workers)
         try:
-            futures = {client.submit(execute, r, key=f'uav-flock-run-{r.key}', pure=False): r for r in todo}
+            futures = {client.submit(execute, r, keep, key=f'uav-flock-run-{r.key}', pure=False): r for r in todo}
             progress(0, len(todo), 0.0)
             with _interruptible() as stopped:
                 if scheduler and not client.scheduler_info().get('workers'):
@@ -173,6 +179,11 @@ def study(runs: list[Run], out: Path, scheduler: Optional[str] = None, workers: 
                     except Exception as exc:  # noqa: BLE001 -- its workers died under it, or it was cancelled
                         lost.append(f'{futures[fut].key} ({type(exc).__name__})')
                         continue  # not a finished run: the next call computes it again
+                    series = row.pop('_series', None)
+                    if series is not None:
+                        import pyarrow as pa
+                        (out / SERIES).mkdir(exist_ok=True)
+                        pq.write_table(pa.table(series), out / SERIES / f'{row["key"]}.parquet')
                     pq.write_table(_table([row]), out / PARTS / f'{row["key"]}.parquet')
                     done += 1
                     progress(done, len(todo), time.monotonic() - t0)
