@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from uav_agent.agent_node import said
+from uav_agent.core import policies
 from uav_agent.core.agent import Neighbourhood, agent_step
 from uav_agent.core.clusters import ids_of
 from uav_agent.core.params import FlockParams
@@ -18,12 +19,12 @@ from world_sim.core import layouts, physics
 from world_sim.core.scenario import load
 
 
-@pytest.mark.parametrize('allocation', ['algorithm2', 'demand'])
+@pytest.mark.parametrize('allocation', list(policies.ALLOCATIONS))  # every registered one
 def test_agent_step_reproduces_the_batch_step_bit_for_bit(paper_scenario_path: str, allocation: str) -> None:
     s = load(paper_scenario_path).with_overrides(maps=30, seed=3, duration=12.0)
-    if allocation == 'demand':  # the default policies on a random layout
+    if allocation != s.flock.allocation:  # any other than the paper's: on a random layout, default open choices
         s = replace(layouts.draw(s, layouts.LayoutSpec(), np.random.default_rng(7)), flock=replace(
-            s.flock, **{k: getattr(FlockParams(), k) for k in ('allocation', 'edge_choice')}))
+            s.flock, allocation=allocation, edge_choice=FlockParams().edge_choice))
     assert s.flock.allocation == allocation
     sim = BatchSimulator(s)
     checked = 0
