@@ -314,7 +314,7 @@ class AgentNode(Recovery, Node):
         if self.memory.goal != NO_GOAL:
             coverage[self.memory.goal] = s.goal_coverage  # r_g of the goal the world knows we hold
         u, mem = agent_step(self.memory, self.map_id, s.q, s.p, s.n_users, coverage, hood, self.clusters,
-                            self.params, s.step, (s.traffic_q, s.traffic_p) if self.params.traffic > 0 else None)
+                            self.params, s.step, (s.traffic_q, s.traffic_p))
         if not np.all(np.isfinite(u)):
             self.reject('core', f'non-finite control input at step {s.step}; holding u = 0')
             u = np.zeros(3)

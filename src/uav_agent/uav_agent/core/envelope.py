@@ -43,6 +43,13 @@ def stopping_speed(distance: F64, fp: FlockParams) -> F64:
     return np.minimum(v, fp.v_max)  # the speed the MAP plans to fly at most: the vehicle's cruise, or its v_max
 
 
+def braking_room(closing: F64 | float, a_max: float, tau: float) -> F64 | float:
+    """The room (m) a MAP closing at `closing` m/s covers before it has stopped: its lag at that speed, then braking
+    at a_max. Rule 'keep' acts on a link whose distance less this room is below keep (keep_apart; vehicle.traffic
+    passes a MAP exactly those links)."""
+    return closing * tau + closing ** 2 / (2.0 * a_max)
+
+
 def sight_speed(r: float, keep: float, a_max: float, tau: float) -> float:
     """The cruise speed at which two MAPs meeting head-on where they first hear each other (r apart) stop keep m
     short, each braking at a_max after its lag: 2 v tau + v^2 / a_max = r - keep (docs/vehicle.md)."""

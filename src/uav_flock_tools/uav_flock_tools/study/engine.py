@@ -153,6 +153,7 @@ def study(runs: list[Run], out: Path, scheduler: Optional[str] = None, workers: 
     """Compute the runs the folder does not hold yet; (runs computed now, runs in all). say: a line for the user
     while nothing else moves (a scheduler with no worker); keep: each run computed leaves its metrics series in
     SERIES/<key>.parquet, written before its row, so a row's series is there if the row is."""
+    import pyarrow as pa
     import pyarrow.parquet as pq
     from dask.distributed import as_completed
     out.mkdir(parents=True, exist_ok=True)
@@ -181,7 +182,6 @@ def study(runs: list[Run], out: Path, scheduler: Optional[str] = None, workers: 
                         continue  # not a finished run: the next call computes it again
                     series = row.pop('_series', None)
                     if series is not None:
-                        import pyarrow as pa
                         (out / SERIES).mkdir(exist_ok=True)
                         pq.write_table(pa.table(series), out / SERIES / f'{row["key"]}.parquet')
                     pq.write_table(_table([row]), out / PARTS / f'{row["key"]}.parquet')

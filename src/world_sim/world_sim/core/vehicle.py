@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from uav_agent.core.checks import number
-from uav_agent.core.envelope import saturate
+from uav_agent.core.envelope import braking_room, saturate
 
 F64 = NDArray[np.float64]
 MODELS = ('ideal', 'multirotor')
@@ -159,7 +159,7 @@ def traffic(truth: F64, told: F64, p: F64, v: Vehicle) -> NDArray[np.intp] | Non
         return np.zeros((0, 2), dtype=np.intp)
     keep = v.envelope()['keep']
     fastest = 2.0 * float(np.linalg.norm(p, axis=1).max())  # no two MAPs close faster
-    reach = keep + fastest * v.tau + fastest ** 2 / (2.0 * v.a_max)  # no pair farther apart (told) is acted on
+    reach = keep + braking_room(fastest, v.a_max, v.tau)  # no pair farther apart (told) is acted on
     if reach < v.traffic:  # the same pairs, found among fewer
         pairs = cKDTree(told).query_pairs(reach, output_type='ndarray')
         pairs = pairs[np.linalg.norm(truth[pairs[:, 1]] - truth[pairs[:, 0]], axis=1) <= v.traffic]
@@ -168,7 +168,7 @@ def traffic(truth: F64, told: F64, p: F64, v: Vehicle) -> NDArray[np.intp] | Non
     dq = told[pairs[:, 1]] - told[pairs[:, 0]]
     dist = np.maximum(np.linalg.norm(dq, axis=1), 1e-9)
     closing = np.maximum(np.einsum('ij,ij->i', p[pairs[:, 0]] - p[pairs[:, 1]], dq) / dist, 0.0)  # the same both ways
-    room = dist - closing * v.tau - closing ** 2 / (2.0 * v.a_max)
+    room = dist - braking_room(closing, v.a_max, v.tau)
     acting = room < keep
     pairs, room = pairs[acting], room[acting]
     both, room = np.concatenate([pairs, pairs[:, ::-1]]).astype(np.intp), np.concatenate([room, room])
