@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 from helpers.runs import cli, dropped_ids, kill_during, up, wait_for_line
-from uav_agent.core.links import Links, heard
+from uav_agent.core.links import LOST, Links, deliver
 from world_sim.core.records import read_csv
 from world_sim.core.scenario import to_doc
 from world_sim.shipped import load_scenario
@@ -170,8 +170,9 @@ def test_a_pace_the_machine_cannot_keep_is_reported_once(tmp_path: Path, ros_env
 
 
 def test_a_realtime_channel_discards_exactly_the_states_its_decision_names(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    """Over DDS in realtime, each neighbour state that arrives goes through links.heard: the lost ones are
-    dropped, the others held for their latency. Every arrival each MAP logged is decided again here."""
+    """Over DDS in realtime, each neighbour state that arrives goes through the channel's one decision
+    (links.deliver, by ear.hear): the lost ones are dropped, the others held until they may be used. Every
+    arrival each MAP logged is decided again here."""
     doc = to_doc(dataclasses.replace(load_scenario('paper'), seed=5))
     doc['links'] = {'loss': 0.4, 'burst': 3, 'latency': 1, 'ttl': 5}
     (tmp_path / 'lossy.yaml').write_text(yaml.safe_dump(doc))
@@ -186,8 +187,8 @@ def test_a_realtime_channel_discards_exactly_the_states_its_decision_names(tmp_p
         rows = np.atleast_2d(np.loadtxt(log, delimiter=',', skiprows=1))
         rx = int(log.stem.split('_')[1])
         for row in rows:
-            again = heard(links, 5, int(row[0]), np.array([rx]), np.array([int(row[1])]), row[None, 2:5], row[None, 5:8], 24.0)[0]
-            assert bool(row[8]) == again, f'MAP {rx}: the state of step {int(row[0])} from {int(row[1])}'
+            again = deliver(links, 5, int(row[0]), np.array([rx]), np.array([int(row[1])]), row[None, 2:5], row[None, 5:8], 24.0)[0]
+            assert bool(row[8]) == (again != LOST), f'MAP {rx}: the state of step {int(row[0])} from {int(row[1])}'
         decided += len(rows)
         lost += int((rows[:, 8] == 0).sum())
     assert decided > 100 and 0 < lost < decided, (decided, lost)

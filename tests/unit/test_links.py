@@ -14,8 +14,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from uav_agent.core import ablation
-from uav_agent.core.agent import PASSED_ON, Heard, Hearing, Passed, Said, heard_from
-from uav_agent.core.links import USABLE, Inbox, Links, delivery, heard, lost, reach
+from uav_agent.core.agent import Said
+from uav_agent.core.ear import PASSED_ON, Ear, Heard, Passed, Sent, hear, heard_from
+from uav_agent.core.links import LOST, USABLE, Inbox, Links, deliver, delivery, heard, lost, reach
 from uav_agent.core.potentials import bump
 from uav_agent.core.state import M2, Told
 from uav_flock_tools.batch import BatchSimulator
@@ -76,10 +77,10 @@ def test_alpha_delivers_with_the_papers_probability_at_each_distance() -> None:
 
 def test_a_state_is_used_from_latency_until_ttl_steps_after_its_step() -> None:
     box: Inbox[str] = Inbox(Links(loss=0.5, latency=2, ttl=5))
-    box.receive(10, [4, 7], ['4@10', '7@10'])
+    box.receive(10, [4, 7], ['4@10', '7@10'], [12, 12])
     assert box.usable(11) == [], 'not before its latency'
     assert box.usable(12) == [(4, 2, '4@10'), (7, 2, '7@10')]
-    box.receive(13, [7], ['7@13'])
+    box.receive(13, [7], ['7@13'], [15])
     assert box.usable(14) == [(4, 4, '4@10'), (7, 4, '7@10')], 'the newer state is not usable yet'
     assert box.usable(15) == [(4, 5, '4@10'), (7, 2, '7@13')]
     assert box.usable(16) == [(7, 3, '7@13')], 'past its ttl a state is forgotten'
@@ -129,32 +130,56 @@ def test_a_stale_state_stands_where_its_sender_flew_on_and_one_gone_out_of_range
 
 
 def test_a_neighbour_whose_own_states_are_lost_is_heard_through_another_as_old_as_its_step() -> None:
-    """Rule 'hearsay' (agent.Hearing.hear_passed): a MAP passes on its nearest neighbours' states; a receiver uses one it
-    holds nothing newer of, aged from the state's own step, usable `latency` steps after the message that
-    carried it; of itself it takes nothing."""
+    """Rule 'hearsay' (ear.Ear.hear_passed): a MAP passes on its nearest neighbours' states; a receiver uses one it
+    holds nothing newer of, aged from the state's own step, usable when the message that carried it is; of
+    itself it takes nothing."""
     said, here = Said(0, Told(M2, 0, None)), np.array([0.0, 0, 20])
-    a = Hearing(Links(loss=0.3, burst=20.0, latency=1, ttl=5), 1)
-    a.receive(0, [2, 3], [Heard(np.array([10.0, 0, 20]), np.zeros(3), 0.0, said),
-                          Heard(np.array([30.0, 0, 20]), np.zeros(3), 0.0, said)])
+    channel = Links(loss=0.3, burst=20.0, latency=1, ttl=5)
+    a = Ear(channel, 0, 1)
+    a.take(0, [Sent(2, Heard(np.array([10.0, 0, 20]), np.zeros(3), 0.0, said)),
+               Sent(3, Heard(np.array([30.0, 0, 20]), np.zeros(3), 0.0, said))], np.array([1, 1]))
     assert a.neighbourhood(0, 0.1, here, R).q.shape == (0, 3), 'latency 1: nothing usable yet'
     a.neighbourhood(1, 0.1, here, R)
     assert [(p.id, p.step) for p in a.passed] == [(2, 0)], 'MAP 3 lies beyond r: not passed on'
-    b = Hearing(Links(loss=0.3, burst=20.0, latency=1, ttl=5), 2)
-    b.hear_passed(2, a.passed + [Passed(1, 2, Heard(np.array([5.0, 0, 20]), np.zeros(3), 0.0, said))])
-    assert b.held == {1: [(2, 2, b.held[1][0][2])]}, 'its own state passed back is not taken'
+    b = Ear(channel, 0, 2)
+    b.take(2, [Sent(1, Heard(np.array([5.0, 0, 20]), np.zeros(3), 0.0, said), a.passed)], np.array([LOST]))
+    assert b.inbox.held == {}, 'what a lost message passed on is lost with it'
+    b.take(2, [Sent(1, Heard(np.array([5.0, 0, 20]), np.zeros(3), 0.0, said), a.passed)], np.array([3]))
+    assert sorted(b.inbox.held) == [1], 'its own state passed back is not taken'
     assert b.neighbourhood(2, 0.1, here, R).q.shape == (0, 3), 'usable a step after the message'
-    assert [(j, age) for j, age, _ in b.usable(3)] == [(1, 1)]
-    c = Hearing(Links(loss=0.3, burst=20.0, latency=1, ttl=5), 3)
-    c.receive(4, [2], [Heard(np.array([12.0, 0, 20]), np.zeros(3), 0.0, said)])
-    c.hear_passed(4, a.passed)
-    assert [at for _, at, _ in c.held[2]] == [4], 'an older state passed on is ignored'
-    c.hear_passed(5, [Passed(7, 3, Heard(np.array([1.0, 0, 20]), np.zeros(3), 0.0, said))])
-    assert [(j, age) for j, age, _ in c.usable(6)] == [(2, 2), (7, 3)], 'aged from its own step (3), not 5'
-    assert [j for j, _, _ in c.usable(9)] == [2], 'the state of step 3 forgotten once older than ttl (5)'
+    assert [(j, age) for j, age, _ in b.inbox.usable(3)] == [(1, 1)]
+    c = Ear(channel, 0, 3)
+    c.take(4, [Sent(2, Heard(np.array([12.0, 0, 20]), np.zeros(3), 0.0, said))], np.array([5]))
+    c.hear_passed(5, a.passed)
+    assert [at for _, at, _ in c.inbox.held[2]] == [4], 'an older state passed on is ignored'
+    c.hear_passed(6, [Passed(7, 3, Heard(np.array([1.0, 0, 20]), np.zeros(3), 0.0, said))])
+    assert [(j, age) for j, age, _ in c.inbox.usable(6)] == [(2, 2), (7, 3)], 'aged from its own step (3), not 5'
+    assert [j for j, _, _ in c.inbox.usable(9)] == [2], 'the state of step 3 forgotten once older than ttl (5)'
     with ablation.switched_off(['hearsay']):
-        d = Hearing(Links(loss=0.3), 4)
-        d.hear_passed(0, a.passed)
-        assert d.held == {}
+        d = Ear(Links(loss=0.3), 0, 4)
+        d.take(0, [Sent(1, Heard(np.array([5.0, 0, 20]), np.zeros(3), 0.0, said), a.passed)], np.array([0]))
+        assert sorted(d.inbox.held) == [1]
+
+
+def test_every_reader_hears_through_the_channel_s_one_decision() -> None:
+    """ear.hear asks links.deliver once for all its readers: what it takes in is what deliver decides for each
+    (reader, sender, step, positions), latency included, whoever asks and however the readers are grouped."""
+    said = Said(0, Told(M2, 0, None))
+    channel = Links(delivery='alpha', z1=0.5, loss=0.3, burst=4.0, latency=2, ttl=6)
+    rng = np.random.default_rng(3)
+    here = np.c_[rng.uniform(0, 40, (6, 2)), np.full(6, 20.0)]
+    sent = [[Sent(j, Heard(here[j], np.zeros(3), 0.0, said)) for j in range(6) if j != i] for i in range(6)]
+    for k in (0, 7, 31):
+        together = [Ear(channel, 11, i) for i in range(6)]
+        heard_together = hear(together, k, here, sent, R)
+        for i in range(6):
+            alone = Ear(channel, 11, i)
+            assert np.array_equal(hear([alone], k, here[i:i + 1], [sent[i]], R)[0], heard_together[i])
+            want = deliver(channel, 11, k, np.full(5, i), np.array([m.id for m in sent[i]]), np.tile(here[i], (5, 1)),
+                           here[[m.id for m in sent[i]]], R)
+            assert np.array_equal(heard_together[i], want != LOST)
+            assert set(want[want != LOST].tolist()) <= {k + 2}, 'usable latency steps after the step'
+            assert sorted(together[i].inbox.held) == [m.id for m, w in zip(sent[i], want) if w != LOST]
 
 
 def test_what_neighbours_pass_on_changes_a_run_only_under_a_lossy_channel_and_the_demand_allocation() -> None:
@@ -166,24 +191,25 @@ def test_what_neighbours_pass_on_changes_a_run_only_under_a_lossy_channel_and_th
     s = dataclasses.replace(paper, flock=dataclasses.replace(paper.flock, allocation='demand'))
     sim = BatchSimulator(s)
     on = sim.run().trajectory
-    assert any(inbox.passed for inbox in sim.inboxes or [])
+    assert any(ear.passed for ear in sim.ears)
     with ablation.switched_off(['hearsay']):
         off = BatchSimulator(s).run().trajectory
     assert not np.array_equal(on, off)
-    assert BatchSimulator(load_scenario('paper').with_overrides(maps=30, duration=1.0)).inboxes is None
+    assert all(ear.inbox is None for ear in BatchSimulator(load_scenario('paper').with_overrides(maps=30, duration=1.0)).ears)
     assert paper.flock.allocation == 'algorithm2'
     alg2 = BatchSimulator(dataclasses.replace(paper, duration=2.0))
     alg2.run()
-    assert not any(inbox.passed for inbox in alg2.inboxes or [])
+    assert not any(ear.passed for ear in alg2.ears)
 
 
 def test_a_map_passes_on_its_nearest_neighbours_only() -> None:
     said, here = Said(0, Told(M2, 0, None)), np.array([0.0, 0, 20])
-    hearing = Hearing(Links(loss=0.3), 0)
+    ear = Ear(Links(loss=0.3), 0, 0)
     ids = list(range(1, PASSED_ON + 3))
-    hearing.receive(0, ids, [Heard(np.array([2.0 * j, 0, 20]), np.zeros(3), 0.0, said) for j in reversed(ids)])
-    hearing.neighbourhood(0, 0.1, here, R)
-    assert [p.id for p in hearing.passed] == ids[2:], 'the PASSED_ON nearest (ids listed farthest first), ascending id'
+    ear.take(0, [Sent(i, Heard(np.array([2.0 * j, 0, 20]), np.zeros(3), 0.0, said)) for i, j in zip(ids, reversed(ids))],
+             np.zeros(len(ids), dtype=int))
+    ear.neighbourhood(0, 0.1, here, R)
+    assert [p.id for p in ear.passed] == ids[2:], 'the PASSED_ON nearest (ids listed farthest first), ascending id'
 
 
 def test_chains_are_laid_inside_what_the_channel_delivers() -> None:

@@ -25,7 +25,8 @@ from uav_flock_ros import convert
 from uav_flock_ros.qos import LATCHED_QOS, LATEST_QOS, LATEST_STATE_READ_QOS, STATE_QOS, STEP_QOS, is_realtime
 
 from .core import links
-from .core.agent import Heard, Hearing, Neighbourhood, Passed, Said, agent_step
+from .core.agent import Said, agent_step
+from .core.ear import Ear, Heard, Passed, Sent, hear
 from .core.clusters import NO_GOAL, ClusterMap, ids_of, mask_of
 from .core.state import Memory, Told
 from .core.checks import check_fields
@@ -111,12 +112,11 @@ class AgentNode(Recovery, Node):
                                                 for f in fields(links.Links)}), lambda name: f'parameter links.{name}')
         self.seed = int(self.get_parameter('seed').value)  # the run's: every channel decision draws from it
         self.dt = float(self.get_parameter('dt').value)  # the run's step (s): how far a stale state is flown on
-        self.inbox: Optional[Hearing] = \
-            None if self.links.perfect else Hearing(self.links, self.map_id, hearsay(self.params))
+        self.ear = Ear(self.links, self.seed, self.map_id, hearsay(self.params))  # what it holds of its neighbours
         self.own_at: dict[int, np.ndarray] = {}  # realtime: this MAP's position at its recent steps
         self.discarded = 0  # realtime: neighbour states the channel lost
         self.links_log = None
-        if log and self.realtime and self.inbox is not None:
+        if log and self.realtime and not self.links.perfect:
             Path(log).mkdir(parents=True, exist_ok=True)
             self.links_log = open(Path(log) / f'map_{self.map_id}.csv', 'w', buffering=1 << 16)
             self.links_log.write('step,sender,x_rx,y_rx,z_rx,x_tx,y_tx,z_tx,heard\n')
@@ -201,7 +201,7 @@ class AgentNode(Recovery, Node):
         self.pending, self.pending_header = s, msg.header
         self.step = s.step
         self.own_q = s.q
-        if self.realtime and self.inbox is not None:
+        if self.realtime and not self.links.perfect:
             self.own_at[s.step] = s.q
             self.own_at.pop(s.step - REALTIME_AHEAD_STEPS - self.links.ttl, None)
         self.publish_state(s)
@@ -225,28 +225,24 @@ class AgentNode(Recovery, Node):
         if msg.step > self.step + ahead:  # no neighbour gets that far ahead: something is wrong
             self.reject(source, f'step {msg.step} ahead of this MAP (now at {self.step})')
             return
-        if self.realtime and self.inbox is not None and not self.delivered(msg):
+        if self.realtime and not self.links.perfect and not self.delivered(msg):
             return
         self.latest[sender] = msg
         if not self.realtime:
             self.try_step()
 
     def delivered(self, msg: convert.AgentStateData) -> bool:
-        """Realtime under a channel: whether the state that just arrived is heard (links.heard, from this MAP's
+        """Realtime under a channel: whether the state that just arrived is heard (ear.hear, from this MAP's
         position at the state's step if it has it, else its latest); a lost one is gone, a heard one is held
-        until its latency has passed (Inbox)."""
+        until it may be used (ear.Ear)."""
         here = self.own_at.get(msg.step, self.own_q)
-        ok = bool(links.heard(self.links, self.seed, msg.step, np.array([self.map_id]), np.array([msg.id]),
-                              here[None, :], msg.q[None, :], self.params.r)[0])
+        ok = bool(hear([self.ear], msg.step, here[None, :], [[sent(msg)]], self.params.r)[0][0])
         if self.links_log is not None:
             self.links_log.write(f'{msg.step},{msg.id},{here[0]:.17g},{here[1]:.17g},{here[2]:.17g},'
                                  f'{msg.q[0]:.17g},{msg.q[1]:.17g},{msg.q[2]:.17g},{int(ok)}\n')
         if not ok:
             self.discarded += 1
-            return False
-        self.inbox.hear(msg.step, [msg.id], [Heard(msg.q, msg.p, float(msg.n_users), said(msg))],  # type: ignore[union-attr]
-                        [passed(msg)])
-        return True
+        return ok
 
     # ------------------------------------------------------------------ neighbours
     def follow(self, listed: list[int]) -> None:
@@ -283,7 +279,7 @@ class AgentNode(Recovery, Node):
         told = Told.of(mem)
         passed_on = tuple(convert.PassedData(j, at, h.q, h.p, int(h.n_users), h.said.told.mode, h.said.told.goal,
                                              h.said.told.bridge, tuple(ids_of(h.said.achieved)), h.said.told.block)
-                          for j, at, h in (self.inbox.passed if self.inbox is not None else ()))
+                          for j, at, h in self.ear.passed)
         msg = convert.AgentStateData(self.map_id, s.step, s.q, s.p, s.n_users, mem.mode, mem.goal, mem.bridge,
                                      tuple(ids_of(mem.achieved)), told.block, passed_on).to_msg(self.pending_header)
         self.state_pub.publish(msg)
@@ -295,21 +291,15 @@ class AgentNode(Recovery, Node):
         if s is None or self.clusters is None or self.clusters_version < s.clusters_version:
             return
         needed = [j for j in s.neighbour_ids.tolist() if j not in self.dead]
-        if self.realtime and self.inbox is not None:
-            heard = []  # what the channel delivered is in the inbox (delivered)
-        elif self.realtime:
-            heard = [self.latest[j] for j in needed if j in self.latest]  # whatever came in, of any step
+        if self.realtime and not self.links.perfect:
+            pass  # what the channel delivered is in the ear already (delivered)
+        elif self.realtime:  # whatever came in, of any step, taken for this step's
+            hear([self.ear], s.step, s.q[None, :], [[sent(self.latest[j]) for j in needed if j in self.latest]], self.params.r)
         elif self.unheard(s):
             return
-        else:
-            heard = [self.latest[j] for j in needed]  # ascending id, as the world lists them
-        if self.inbox is not None:
-            if not self.realtime:
-                self.through_channel(s, heard)
-            hood = self.inbox.neighbourhood(s.step, self.dt, s.q, self.params.r)
-        else:
-            hood = Neighbourhood.hearing(np.array([m.q for m in heard]), np.array([m.p for m in heard]),
-                                         np.array([float(m.n_users) for m in heard]), [said(m) for m in heard])
+        else:  # the states of step s of the listed neighbours, in ascending id as the world lists them
+            hear([self.ear], s.step, s.q[None, :], [[sent(self.latest[j]) for j in needed]], self.params.r)
+        hood = self.ear.neighbourhood(s.step, self.dt, s.q, self.params.r)
         coverage = np.zeros(self.clusters.count)
         if self.memory.goal != NO_GOAL:
             coverage[self.memory.goal] = s.goal_coverage  # r_g of the goal the world knows we hold
@@ -323,16 +313,6 @@ class AgentNode(Recovery, Node):
         self.last_cmd = (s.step, convert.CommandData(self.map_id, s.step, u, mem.mode, mem.goal).to_msg(self.pending_header))
         self.cmd_pub.publish(self.last_cmd[1])
 
-    def through_channel(self, s: convert.SensingData, states: list[convert.AgentStateData]) -> None:
-        """Lockstep under the scenario's channel: of the neighbour states of step s that came in, those the
-        channel delivers (links.heard, as the batch simulator decides them) go into the inbox."""
-        ok = links.heard(self.links, self.seed, s.step, np.full(len(states), self.map_id),
-                         np.array([m.id for m in states], dtype=np.int64), np.tile(s.q, (len(states), 1)),
-                         np.array([m.q for m in states]).reshape(-1, 3), self.params.r)
-        delivered = [m for m, o in zip(states, ok) if o]
-        self.inbox.hear(s.step, [m.id for m in delivered],  # type: ignore[union-attr]
-                        [Heard(m.q, m.p, float(m.n_users), said(m)) for m in delivered], [passed(m) for m in delivered])
-
     def unheard(self, s: convert.SensingData) -> list[int]:
         """The live neighbours listed for step s whose state of that step has not come in."""
         return [j for j in s.neighbour_ids.tolist() if j not in self.dead and (j not in self.latest or self.latest[j].step != s.step)]
@@ -342,6 +322,7 @@ def said(m: convert.AgentStateData | convert.PassedData) -> Said:
     return Said(mask_of(m.achieved), Told(m.mode, m.goal, m.bridge, m.roles))
 
 
-def passed(m: convert.AgentStateData) -> list[Passed]:
-    """The neighbour states a message passes on (AgentState.passed_on), as the MAP's Hearing takes them."""
-    return [Passed(r.id, r.step, Heard(r.q, r.p, float(r.n_users), said(r))) for r in m.passed_on]
+def sent(m: convert.AgentStateData) -> Sent:
+    """A neighbour's state message as the MAP's ear takes it, with the states it passes on (AgentState.passed_on)."""
+    return Sent(m.id, Heard(m.q, m.p, float(m.n_users), said(m)),
+                [Passed(r.id, r.step, Heard(r.q, r.p, float(r.n_users), said(r))) for r in m.passed_on])

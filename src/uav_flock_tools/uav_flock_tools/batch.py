@@ -10,8 +10,8 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from uav_agent.core import links
-from uav_agent.core.agent import Heard, Hearing, Neighbourhood, Said, plan
+from uav_agent.core.agent import Neighbourhood, Said, plan
+from uav_agent.core.ear import Ear, Heard, Sent, hear
 from uav_agent.core.control import control_input
 from uav_agent.core.policies import hearsay
 from uav_agent.core.state import Memory
@@ -27,9 +27,8 @@ class BatchSimulator:
         self.scenario = scenario
         self.world = World(scenario)
         self.memory = [Memory() for _ in range(scenario.maps)]
-        # What each MAP holds of its neighbours' states, under a channel that is not the paper's (links.py).
-        self.inboxes: Optional[list[Hearing]] = \
-            None if scenario.links.perfect else [Hearing(scenario.links, i, hearsay(scenario.flock)) for i in range(scenario.maps)]
+        # What each MAP holds of its neighbours' states (ear.py).
+        self.ears = [Ear(scenario.links, scenario.seed, i, hearsay(scenario.flock)) for i in range(scenario.maps)]
 
     # Views kept for callers that inspect the run as it goes.
     users = property(lambda self: self.world.users)
@@ -48,7 +47,7 @@ class BatchSimulator:
         sensed = w.sense()
         rows = sensed.ids
         said = [Said.of(self.memory[i]) for i in rows]  # what each MAP's state message of step k carries
-        hoods, owner, nbr = self.hear(sensed, said) if self.inboxes is not None else self.hear_all(sensed, said)
+        hoods, owner, nbr = self.hear(sensed, said)
         refs, apart = [], []
         for n, i in enumerate(rows.tolist()):
             self.memory[i], ref, kinds = plan(self.memory[i], i, sensed.q[n], int(sensed.n_users[n]),
@@ -67,34 +66,20 @@ class BatchSimulator:
         w.advance(sensed, u, modes, goals, integrate)
         return sensed
 
-    def hear_all(self, sensed: Sensed, said: list[Said]) -> tuple[list[Neighbourhood], np.ndarray, Neighbourhood]:
-        """The paper's channel: each MAP hears every neighbour within r at once. Per MAP its neighbourhood;
-        for eq. 9 over all MAPs at once, the owner row of each link and the neighbours' rows."""
-        pairs, bounds = sensed.pairs, sensed.bounds
-        near = pairs[:, 1].tolist()
-        hoods = [Neighbourhood.hearing(sensed.q[js], sensed.p[js], sensed.n_users[js], [said[j] for j in js])
-                 for js in (near[bounds[n]:bounds[n + 1]] for n in range(len(sensed.ids)))]
-        return hoods, pairs[:, 0], Neighbourhood(sensed.q[pairs[:, 1]], sensed.p[pairs[:, 1]],
-                                                 sensed.n_users[pairs[:, 1]].astype(float), [], [])
-
     def hear(self, sensed: Sensed, said: list[Said]) -> tuple[list[Neighbourhood], np.ndarray, Neighbourhood]:
-        """hear_all through the scenario's channel: each MAP decides which neighbour states of step k it hears
-        (links.heard, as its agent node does), with the states each heard one passes on (Hearing.hear), and
-        uses the latest one of each neighbour it may use now (links.Inbox)."""
-        assert self.inboxes is not None
-        s, pairs, rows = self.scenario, sensed.pairs, sensed.ids
-        ok = links.heard(s.links, s.seed, sensed.k, rows[pairs[:, 0]], rows[pairs[:, 1]], sensed.q[pairs[:, 0]],
-                         sensed.q[pairs[:, 1]], s.flock.r)
-        hoods, owner = [], []
-        passed = [self.inboxes[i].passed for i in rows.tolist()]  # what each message of step k passes on
-        for n, i in enumerate(rows.tolist()):
-            js = pairs[sensed.bounds[n]:sensed.bounds[n + 1], 1][ok[sensed.bounds[n]:sensed.bounds[n + 1]]]
-            self.inboxes[i].hear(sensed.k, rows[js].tolist(), [Heard(sensed.q[j].copy(), sensed.p[j].copy(),
-                                                                     float(sensed.n_users[j]), said[j]) for j in js],
-                                 [passed[j] for j in js])
-            hoods.append(self.inboxes[i].neighbourhood(sensed.k, s.dt, sensed.q[n], s.flock.r))
-            owner += [n] * len(hoods[-1].q)
-        return hoods, np.array(owner, dtype=np.intp), Neighbourhood(
+        """Each MAP's neighbourhood at step k, as its agent node hears it (ear.hear: the states of step k of the
+        neighbours within r, through the scenario's channel, with what each passed on); for eq. 9 over all MAPs
+        at once, the owner row of each link and the neighbours' rows."""
+        s, pairs, rows, bounds = self.scenario, sensed.pairs, sensed.ids, sensed.bounds
+        passed = [self.ears[i].passed for i in rows.tolist()]  # what each message of step k passes on
+        states = [Sent(int(rows[j]), Heard(sensed.q[j].copy(), sensed.p[j].copy(), float(sensed.n_users[j]), said[j]),
+                       passed[j]) for j in range(len(rows))]
+        near = pairs[:, 1].tolist()
+        ears = [self.ears[i] for i in rows.tolist()]
+        hear(ears, sensed.k, sensed.q, [[states[j] for j in near[bounds[n]:bounds[n + 1]]] for n in range(len(rows))], s.flock.r)
+        hoods = [ear.neighbourhood(sensed.k, s.dt, sensed.q[n], s.flock.r) for n, ear in enumerate(ears)]
+        owner = np.repeat(np.arange(len(rows), dtype=np.intp), [len(h.q) for h in hoods])
+        return hoods, owner, Neighbourhood(
             np.concatenate([np.zeros((0, 3)), *(h.q for h in hoods)]), np.concatenate([np.zeros((0, 3)), *(h.p for h in hoods)]),
             np.concatenate([np.zeros(0), *(h.n_users for h in hoods)]), [], [])
 

@@ -24,14 +24,14 @@ RULES = {
     'offset': 'a relay reaching past the last member it hears on one side reaches r - 1 m in the plane, not along '
               'the edge, under the paper\'s channel (demand._reach_past)',
 }
-# The channel's (core/agent.heard_from): what a MAP makes of a neighbour state that is not of this step. None of
+# The channel's (core/ear.heard_from): what a MAP makes of a neighbour state that is not of this step. None of
 # them acts under the paper's channel.
 CHANNEL_RULES = {
     'predict': 'a stale neighbour state stands for where its sender is now, flown on at its velocity then',
     'gone': 'a neighbour whose state so predicted lies beyond r is taken for gone',
     'inside': 'relay chains laid on links no longer than the channel still delivers half over (demand.reach_of)',
     'hearsay': 'a MAP passes on the states it holds of its nearest neighbours; one heard through them stands for a '
-             'neighbour whose own states are lost (agent.Hearing.hear_passed)',
+             'neighbour whose own states are lost (ear.Ear.hear_passed)',
     'stay': 'a settled relay that hears no member of its chain under a lossy channel stays where it is along its '
             'edge (demand.relay_place)',
     'hold': 'a relay that hears one side of its chain, or a server no relay of its cluster, for no longer than '

@@ -82,10 +82,24 @@ def check(links: Links, where: Callable[[str], str] = lambda name: f'links.{name
     return links
 
 
+LOST = -1  # deliver's step for a state that is not heard
+
+
+def deliver(links: Links, seed: int, k: int, rx: np.ndarray, tx: np.ndarray, q_rx: np.ndarray, q_tx: np.ndarray,
+            r: float) -> np.ndarray:
+    """The channel's one decision (ear.hear calls it for every reader): for each state of step k that tx sent
+    and that reached rx, the two at q_rx and q_tx at step k (rows alike; tx within r of rx, as the world lists
+    neighbours), the first step rx may use it at, or LOST. A channel key that changes whether or when a state
+    is heard changes this function (and `Links`) alone."""
+    rx = np.asarray(rx, dtype=np.int64)
+    if links.perfect:
+        return np.full(len(rx), k, dtype=np.int64)
+    return np.where(heard(links, seed, k, rx, tx, q_rx, q_tx, r), k + links.latency, LOST).astype(np.int64)
+
+
 def heard(links: Links, seed: int, k: int, rx: np.ndarray, tx: np.ndarray, q_rx: np.ndarray, q_tx: np.ndarray,
           r: float) -> np.ndarray:
-    """Whether each receiver rx hears the state of step k that tx sent, the two at q_rx and q_tx at step k
-    (rows alike; tx within r of rx, as the world lists neighbours)."""
+    """Whether each receiver rx hears the state of step k that tx sent (deliver, before its latency)."""
     ok = np.ones(len(rx), dtype=bool)
     if links.delivery == 'alpha':
         dist = np.linalg.norm(np.asarray(q_tx, dtype=float) - np.asarray(q_rx, dtype=float), axis=-1)
@@ -171,24 +185,22 @@ P = TypeVar('P')
 
 
 class Inbox(Generic[P]):
-    """What one MAP holds of its neighbours' states: each heard state, from the step it may be used at
-    (latency after the step of the message that brought it) until ttl steps after its own step. The agent node
-    holds one for its MAP, the batch simulator one per MAP; both keep the state messages (payloads) as they
-    read them."""
+    """What one MAP holds of its neighbours' states: each heard state, from the step it may be used at (deliver)
+    until ttl steps after its own step (ear.Ear holds one under a channel that is not the paper's)."""
 
     def __init__(self, links: Links) -> None:
         self.links = links
-        # neighbour id -> (step of the message that brought it, step of the state, state), in arrival order
+        # neighbour id -> (first step it may be used at, step of the state, state), in arrival order
         self.held: dict[int, list[tuple[int, int, P]]] = {}
 
-    def receive(self, k: int, ids: list[int], payloads: list[P]) -> None:
-        """States of step k heard from ids."""
-        for j, payload in zip(ids, payloads):
-            self.held.setdefault(j, []).append((k, k, payload))
+    def receive(self, k: int, ids: list[int], payloads: list[P], ready: list[int]) -> None:
+        """States of step k heard from ids, each usable from its step in ready (deliver)."""
+        for j, payload, at in zip(ids, payloads, ready):
+            self.held.setdefault(j, []).append((at, k, payload))
 
-    def passed_on(self, k: int, j: int, at: int, payload: P) -> None:
-        """j's state of step `at`, heard at step k in another MAP's message (agent.Hearing.hear_passed)."""
-        self.held.setdefault(j, []).append((k, at, payload))
+    def passed_on(self, ready: int, j: int, at: int, payload: P) -> None:
+        """j's state of step `at`, heard in another MAP's message usable from step `ready` (ear.Ear.hear_passed)."""
+        self.held.setdefault(j, []).append((ready, at, payload))
 
     def newest(self, j: int) -> int:
         """The step of the newest state held from j (-1: none)."""
@@ -197,7 +209,7 @@ class Inbox(Generic[P]):
     def usable(self, k: int) -> list[tuple[int, int, P]]:
         """(neighbour id, age in steps, its latest state usable at step k), in ascending id; states too old to
         be used are forgotten."""
-        ready_by, oldest = k - self.links.latency, k - self.links.ttl
+        ready_by, oldest = k, k - self.links.ttl
         out: list[tuple[int, int, P]] = []
         for j in sorted(self.held):
             states = self.held[j]

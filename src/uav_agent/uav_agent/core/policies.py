@@ -23,7 +23,7 @@ class Allocation(Protocol):
     """One MAP's discrete update and goal under an allocation, from its own sensing and its neighbours' words."""
 
     # Whether its MAPs pass on the neighbour states they hold under a lossy channel (rule 'hearsay',
-    # agent.Hearing): measured per allocation, since what holds one formation together can split another.
+    # ear.Ear): measured per allocation, since what holds one formation together can split another.
     hearsay: bool
 
     def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
