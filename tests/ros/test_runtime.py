@@ -32,19 +32,6 @@ def test_lockstep_run_equals_the_batch_simulator(tmp_path: Path, ros_env: dict[s
     assert len(set(pids)) == 20 and all(dead(p) for p in pids), 'every agent process is gone after the run'
 
 
-def test_lockstep_equals_the_batch_simulator_on_a_random_layout(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    """The demand allocation (relays placed by what their neighbours state) is as deterministic as the rest."""
-    drawn = cli('layouts', '--count', '1', '--clusters', '3', '--seed', '4', '--out', str(tmp_path / 'layouts'))
-    assert drawn.returncode == 0, drawn.stderr
-    args = ('--scenario', str(tmp_path / 'layouts' / 'layout-000.yaml'), '--maps', '24', '--duration', '8')
-    distributed = cli('up', *args, '--agents-per-process', '6', '--out', str(tmp_path / 'up'), env=ros_env)
-    assert distributed.returncode == 0, distributed.stdout + distributed.stderr
-    assert cli('sim', *args, '--out', str(tmp_path / 'sim')).returncode == 0
-    assert (tmp_path / 'up' / 'trajectory.csv').read_bytes() == (tmp_path / 'sim' / 'trajectory.csv').read_bytes()
-    modes = set(read_csv(tmp_path / 'sim' / 'trajectory.csv')['mode'].astype(int))
-    assert 1 in modes, 'relays (M1) take part, so their placement is compared too'
-
-
 def test_lockstep_equals_the_batch_simulator_over_a_lossy_late_channel(tmp_path: Path, ros_env: dict[str, str]) -> None:
     """Each MAP decides which neighbour states it hears, and when it may use them, as the batch simulator does
     for it: losses by distance and in bursts, two steps of latency, a failure, MAPs packed in processes."""

@@ -15,14 +15,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any, Callable, Generic, TypeVar
+from functools import cache
+from importlib.metadata import entry_points
+from typing import Any, Callable, Generic, Protocol, TypeVar
 
 import numpy as np
 
 from .checks import number
 from .potentials import bump
 
-DELIVERIES = ('disc', 'alpha')
 COUPLED = 1e-6  # the burst process is run from far enough back that two starts disagree at k this rarely
 # Streams of draws, so that the delivery draw and the loss draw of one message are independent.
 _DELIVERY, _LOSS = 1, 2
@@ -49,10 +50,66 @@ class Links:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
+class Delivery(Protocol):
+    """A delivery model (`links.delivery`): how likely a state sent over a distance is delivered, before `loss`.
+
+    Registered by name in DELIVERIES, or from another package by an entry point in the group ENTRY_POINTS
+    (`name = module:Class`): a new model is one module, which `sim`, the agent nodes and the world's records
+    all find by its name (docs/links.md, "Adding a delivery model")."""
+
+    def probability(self, links: Links, dist: np.ndarray, r: float) -> np.ndarray:
+        """The probability that a state sent over each distance (m) is delivered, for neighbours within r."""
+
+    def reach(self, links: Links, r: float) -> float:
+        """The longest link (m) that delivers USABLE of its states (FlockParams.reach)."""
+
+    def describe(self, links: Links) -> str:
+        """The model in words, as a run's header says it."""
+
+
+class Disc:
+    """The paper's channel: every state within r."""
+
+    def probability(self, links: Links, dist: np.ndarray, r: float) -> np.ndarray:
+        return np.where(np.asarray(dist, dtype=float) <= r, 1.0, 0.0)
+
+    def reach(self, links: Links, r: float) -> float:
+        return r
+
+    def describe(self, links: Links) -> str:
+        return 'every state within r'
+
+
+class Alpha:
+    """The paper's alpha_{z1 r, r} of eq. 3 as the delivery probability: 1 up to z1 r, a half cosine to 0 at r."""
+
+    def probability(self, links: Links, dist: np.ndarray, r: float) -> np.ndarray:
+        return bump(np.asarray(dist, dtype=float), links.z1 * r, r)
+
+    def reach(self, links: Links, r: float) -> float:
+        return links.z1 * r + (1.0 - links.z1) * r * math.acos(2.0 * USABLE - 1.0) / math.pi
+
+    def describe(self, links: Links) -> str:
+        return f"delivered with the paper's alpha (falling from {links.z1:g} r to r)"
+
+
+DELIVERIES: dict[str, Delivery] = {'disc': Disc(), 'alpha': Alpha()}
+ENTRY_POINTS = 'uav_flock.deliveries'  # the entry point group other packages register delivery models in
+
+
+@cache
+def deliveries() -> dict[str, Delivery]:
+    """Every delivery model by name: DELIVERIES, then those other packages register (ENTRY_POINTS)."""
+    found = dict(DELIVERIES)
+    for point in entry_points(group=ENTRY_POINTS):
+        if point.name not in found:
+            found[point.name] = point.load()()
+    return found
+
+
 def describe(links: Links) -> str:
     """The channel in a line, as a run's header says it."""
-    said = ['every state within r' if links.delivery == 'disc'
-            else f"delivered with the paper's alpha (falling from {links.z1:g} r to r)"]
+    said = [deliveries()[links.delivery].describe(links)]
     if links.loss:
         said.append(f'{100 * links.loss:g} % lost on top' + (f' in bursts of {links.burst:g} steps' if links.burst > 1 else ''))
     if links.latency:
@@ -64,8 +121,8 @@ def describe(links: Links) -> str:
 def check(links: Links, where: Callable[[str], str] = lambda name: f'links.{name}') -> Links:
     """The channel with its numbers as floats and whole steps as ints; ValueError, naming the key as
     `where(name)` does, for a channel no run can use."""
-    if links.delivery not in DELIVERIES:
-        raise ValueError(f'{where("delivery")}: must be one of {", ".join(DELIVERIES)}, got {links.delivery!r}')
+    if links.delivery not in deliveries():
+        raise ValueError(f'{where("delivery")}: must be one of {", ".join(deliveries())}, got {links.delivery!r}')
     for name in ('z1', 'loss'):  # fractions below 1: at 1, alpha has no fall, or nothing is ever heard
         value = number(getattr(links, name), where(name), low=0.0, high=1.0)
         if value >= 1.0:
@@ -101,7 +158,7 @@ def heard(links: Links, seed: int, k: int, rx: np.ndarray, tx: np.ndarray, q_rx:
           r: float) -> np.ndarray:
     """Whether each receiver rx hears the state of step k that tx sent (deliver, before its latency)."""
     ok = np.ones(len(rx), dtype=bool)
-    if links.delivery == 'alpha':
+    if links.delivery != 'disc':  # disc delivers every state within r, which is all the world lists
         dist = np.linalg.norm(np.asarray(q_tx, dtype=float) - np.asarray(q_rx, dtype=float), axis=-1)
         ok &= draws(seed, _DELIVERY, np.full(len(rx), k), rx, tx) < delivery(links, dist, r)
     if links.loss > 0.0:
@@ -110,10 +167,9 @@ def heard(links: Links, seed: int, k: int, rx: np.ndarray, tx: np.ndarray, q_rx:
 
 
 def delivery(links: Links, dist: np.ndarray, r: float) -> np.ndarray:
-    """The probability that a state sent over each distance (m) is delivered, before `loss`: 1 within r
-    under disc, the paper's alpha_{z1 r, r} (eq. 3) under alpha."""
-    dist = np.asarray(dist, dtype=float)
-    return np.where(dist <= r, 1.0, 0.0) if links.delivery == 'disc' else bump(dist, links.z1 * r, r)
+    """The probability that a state sent over each distance (m) is delivered, before `loss`, by the channel's
+    delivery model: 1 within r under disc, the paper's alpha_{z1 r, r} (eq. 3) under alpha."""
+    return deliveries()[links.delivery].probability(links, np.asarray(dist, dtype=float), r)
 
 
 USABLE = 0.5  # a link that delivers at least this share of the states sent over it is in the usable graph
@@ -124,7 +180,7 @@ def reach(links: Links, r: float) -> float:
     where its half cosine falls to USABLE. 0 stands for r (FlockParams.reach)."""
     if links.delivery == 'disc':
         return 0.0
-    return links.z1 * r + (1.0 - links.z1) * r * math.acos(2.0 * USABLE - 1.0) / math.pi
+    return deliveries()[links.delivery].reach(links, r)
 
 
 def hush(links: Links) -> int:
