@@ -23,7 +23,8 @@ class Allocation(Protocol):
     """One MAP's discrete update and goal under an allocation, from its own sensing and its neighbours' words."""
 
     # Whether its MAPs pass on the neighbour states they hold under a lossy channel (rule 'hearsay',
-    # ear.Ear): measured per allocation, since what holds one formation together can split another.
+    # ear.Ear): measured per allocation, since what holds one formation together can split another. One that
+    # does not say passes nothing on (policies.hearsay).
     hearsay: bool
 
     def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
@@ -79,5 +80,5 @@ def links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[int]:
 
 
 def hearsay(fp: FlockParams) -> bool:
-    """Whether the scenario's allocation passes on what its MAPs hear (Allocation.hearsay)."""
-    return ALLOCATIONS[fp.allocation].hearsay
+    """Whether the scenario's allocation passes on what its MAPs hear (Allocation.hearsay; False if it does not say)."""
+    return bool(getattr(ALLOCATIONS[fp.allocation], 'hearsay', False))
