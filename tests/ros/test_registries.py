@@ -16,15 +16,20 @@ LOSSY = {'loss': 0.3, 'burst': 3, 'latency': 2, 'ttl': 6}
 RUN = ('--maps', '16', '--duration', '5', '--agents-per-process', '8')
 
 
-def layout(tmp_path: Path, allocation: str, links: dict) -> Path:
-    """A random layout of three clusters, flown with the allocation under the channel."""
-    drawn = cli('layouts', '--count', '1', '--clusters', '3', '--seed', '4', '--out', str(tmp_path / 'layouts'))
-    assert drawn.returncode == 0, drawn.stderr
-    doc = yaml.safe_load((tmp_path / 'layouts' / 'layout-000.yaml').read_text())
-    doc['policies'] = {'allocation': allocation}
-    doc['links'] = links
+@pytest.fixture(scope='module')
+def drawn(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """A random layout of three clusters, drawn once for every case."""
+    out = tmp_path_factory.mktemp('layouts')
+    done = cli('layouts', '--count', '1', '--clusters', '3', '--seed', '4', '--out', str(out))
+    assert done.returncode == 0, done.stderr
+    return yaml.safe_load((out / 'layout-000.yaml').read_text())
+
+
+def layout(tmp_path: Path, drawn: dict, allocation: str, links: dict) -> Path:
+    """The drawn layout, flown with the allocation under the channel."""
     path = tmp_path / 'scenario.yaml'
-    path.write_text(yaml.safe_dump(doc))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump({**drawn, 'policies': {'allocation': allocation}, 'links': links}))
     return path
 
 
@@ -42,9 +47,9 @@ def same_in_up_and_sim(tmp_path: Path, scenario: Path, env: dict[str, str]) -> b
 @pytest.mark.parametrize('delivery', sorted(DELIVERIES))
 @pytest.mark.parametrize('allocation', sorted(ALLOCATIONS))
 def test_lockstep_equals_sim_for_every_registered_allocation_and_delivery_model(
-        tmp_path: Path, ros_env: dict[str, str], allocation: str, delivery: str, lossy: bool) -> None:
+        tmp_path: Path, ros_env: dict[str, str], drawn: dict, allocation: str, delivery: str, lossy: bool) -> None:
     links = {'delivery': delivery, **(LOSSY if lossy else {})}
-    same_in_up_and_sim(tmp_path, layout(tmp_path, allocation, links), ros_env)
+    same_in_up_and_sim(tmp_path, layout(tmp_path, drawn, allocation, links), ros_env)
 
 
 PLUGIN = '''
@@ -65,7 +70,7 @@ class Halves:
 
 
 def test_a_delivery_model_another_package_registers_flies_the_same_in_up_and_sim(
-        tmp_path: Path, ros_env: dict[str, str]) -> None:
+        tmp_path: Path, ros_env: dict[str, str], drawn: dict) -> None:
     """One module and an entry point (docs/links.md, "Adding a delivery model"): `sim`, the agent nodes and the
     world's records all find it by its name, and the run is its own."""
     site = tmp_path / 'site'
@@ -74,8 +79,8 @@ def test_a_delivery_model_another_package_registers_flies_the_same_in_up_and_sim
     (site / 'halves_delivery-0.dist-info' / 'METADATA').write_text('Metadata-Version: 2.1\nName: halves-delivery\nVersion: 0\n')
     (site / 'halves_delivery-0.dist-info' / 'entry_points.txt').write_text(f'[{ENTRY_POINTS}]\nhalves = halves_delivery:Halves\n')
     env = {**ros_env, 'PYTHONPATH': os.pathsep.join([str(site), ros_env.get('PYTHONPATH', '')])}
-    flown = same_in_up_and_sim(tmp_path / 'halves', layout(tmp_path, 'demand', {'delivery': 'halves', **LOSSY}), env)
-    disc = layout(tmp_path / 'disc', 'demand', {'delivery': 'disc', **LOSSY})
+    flown = same_in_up_and_sim(tmp_path / 'halves', layout(tmp_path, drawn, 'demand', {'delivery': 'halves', **LOSSY}), env)
+    disc = layout(tmp_path / 'disc', drawn, 'demand', {'delivery': 'disc', **LOSSY})
     assert cli('sim', '--scenario', str(disc), *RUN[:4], '--out', str(tmp_path / 'disc' / 'sim')).returncode == 0
     assert (tmp_path / 'disc' / 'sim' / 'trajectory.csv').read_bytes() != flown, 'the model changes the run'
     unknown = cli('sim', '--scenario', str(tmp_path / 'scenario.yaml'), '--out', str(tmp_path / 'none'), env=ros_env)
