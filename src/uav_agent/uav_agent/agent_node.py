@@ -291,14 +291,13 @@ class AgentNode(Recovery, Node):
         if s is None or self.clusters is None or self.clusters_version < s.clusters_version:
             return
         needed = [j for j in s.neighbour_ids.tolist() if j not in self.dead]
-        if self.realtime and not self.links.perfect:
-            pass  # what the channel delivered is in the ear already (delivered)
-        elif self.realtime:  # whatever came in, of any step, taken for this step's
-            hear([self.ear], s.step, s.q[None, :], [[sent(self.latest[j]) for j in needed if j in self.latest]], self.params.r)
-        elif self.unheard(s):
-            return
-        else:  # the states of step s of the listed neighbours, in ascending id as the world lists them
+        if not self.realtime:  # the states of step s of the listed neighbours, in ascending id as the world lists them
+            if self.unheard(s):
+                return
             hear([self.ear], s.step, s.q[None, :], [[sent(self.latest[j]) for j in needed]], self.params.r)
+        elif self.links.perfect:  # whatever came in, of any step, taken for this step's
+            hear([self.ear], s.step, s.q[None, :], [[sent(self.latest[j]) for j in needed if j in self.latest]], self.params.r)
+        # realtime under a channel: what it delivered is in the ear already (delivered)
         hood = self.ear.neighbourhood(s.step, self.dt, s.q, self.params.r)
         coverage = np.zeros(self.clusters.count)
         if self.memory.goal != NO_GOAL:
