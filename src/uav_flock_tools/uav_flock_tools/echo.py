@@ -19,6 +19,7 @@ if TYPE_CHECKING:
 DISCOVERY_S = 1.5  # least time given to discovery before listing
 SETTLED_S = 1.0  # ... and the list must not have grown for this long
 DISCOVERY_MAX_S = 20.0
+QUIET_S = 5.0  # with no run named, a domain where no other participant has shown a topic by then holds no run
 OWN_TOPICS = {'/rosout', '/parameter_events'}  # every node has them, ours included
 
 
@@ -123,7 +124,8 @@ def topics(run: Optional[str], domain_id: Optional[int]) -> int:
             others = any(name not in OWN_TOPICS for name, _ in now_seen)
             complete = expected <= {name for name, _ in now_seen}
             settled = others and complete and now - start >= DISCOVERY_S and now - changed >= SETTLED_S
-            if settled or now - start >= DISCOVERY_MAX_S:
+            quiet = not expected and not others and now - start >= QUIET_S
+            if settled or quiet or now - start >= DISCOVERY_MAX_S:
                 break
         node.destroy_node()
     finally:
