@@ -50,6 +50,8 @@ VEHICLE_RULES = {
     'lead': "eq. 9's flocking terms taken where the MAPs will be four lags ahead: the damping a lagged link needs "
             '(envelope.flocking_within)',
     'soften': "eq. 9's flocking terms halved on a lagged vehicle (envelope.flocking_within)",
+    'shape': "the goal term's spring softened with the flocking terms, so a lattice keeps eq. 9's shape "
+             '(envelope.spring)',
     'loose': 'a relay and the servers of its edge only repel, under the demand allocation: the chain rule alone places '
              'the relay (demand.loose)',
     'priority': "that braking is served first from a_max, eq. 9's terms from what is left (envelope.command)",

@@ -80,7 +80,7 @@ def goal_term(q: F64, p_vel: F64, q_ref: F64, fp: FlockParams, v_ref: F64 | floa
     if not envelope.limited(fp):
         return fp.c1 * (q_ref - q) + fp.c2 * (v_ref - p_vel)
     error = q_ref - q
-    return fp.c2 * (v_ref + envelope.capped(fp.c1 / fp.c2 * error, np.linalg.norm(error, axis=-1), fp) - p_vel)
+    return fp.c2 * (v_ref + envelope.capped(envelope.spring(fp) * error, np.linalg.norm(error, axis=-1), fp) - p_vel)
 
 
 def bridge_term(q: F64, p_vel: F64, q1: F64, q2: F64, fp: FlockParams,

@@ -66,6 +66,14 @@ def capped(velocity: F64, distance: F64, fp: FlockParams) -> F64:
     return np.where(speed > cap, velocity * (cap / np.maximum(speed, 1e-12)), velocity)
 
 
+def spring(fp: FlockParams) -> float:
+    """The goal term's spring c1 / c2 (a speed per metre of error, eq. 12 as a velocity loop). Rule 'shape': softened
+    with the flocking terms (rule 'soften'), so that a server comes to rest where eq. 9 puts it. Halving the lattice's
+    springs and not the goal's squeezed each cluster's lattice about its goal (nearest neighbours 14 m apart where the
+    ideal vehicle's are 16 m), and the cluster's outer users went unserved."""
+    return fp.c1 / fp.c2 * (SOFTEN if on('soften') and on('shape') else 1.0)
+
+
 def flocking_within(terms: Callable[..., F64], own_q: F64, own_p: F64, own_nu: F64, owner: NDArray[np.intp],
                     nbr_q: F64, nbr_p: F64, nbr_nu: F64, fp: FlockParams, apart: NDArray[np.integer] | None) -> F64:
     """Eq. 9's flocking terms (control.flocking_terms) as a lagged MAP flies them.
