@@ -116,7 +116,7 @@ def sweep(args: argparse.Namespace, kinds_of: dict[str, tuple[str, ...]],
     kinds = sorted({k for ks in kinds_of.values() for k in ks})
     flock = policy_sets(load_scenario('paper'))['default']
     jobs = []
-    for n, lay in enumerate(draw('paper', args.layouts, (3, 6), 0)):
+    for n, lay in enumerate(draw('paper', args.layouts, (3, 6), 0, 'ideal')):
         lay = dataclasses.replace(lay, flock=flock)
         for kind in kinds:
             s, draw_seed = scenario_of(kind, n, lay)

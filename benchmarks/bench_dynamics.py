@@ -1,7 +1,8 @@
 """Users that move: each shipped dynamic scenario over several seeds, and the drift speed that loses a cluster.
 
 Run: ./uav-flock exec python benchmarks/bench_dynamics.py [--seeds 5 --speeds 1,2,3,4,5,6,7,8 --out docs/figures]
-Prints the tables of docs/results.md ("Users that move") and writes coverage and Fiedler plots per scenario,
+[--vehicle multirotor|ideal]. Prints the tables of docs/results.md ("Users that move": the shipped multirotor, as the
+scenario files say, and with --vehicle ideal the paper's vehicle) and writes coverage and Fiedler plots per scenario,
 every seed drawn, with arrivals and departures marked. All runs are batch runs (the oracle the distributed
 system equals byte for byte, tests/ros/test_moving_users_dds.py).
 """
@@ -78,6 +79,8 @@ def main() -> int:
     ap.add_argument('--seeds', type=int, default=5, help='seeds per scenario and speed (default: 5)')
     ap.add_argument('--speeds', default='1,2,3,4,5,6,7,8', help='drift speeds to sweep, m/s (default: 1..8)')
     ap.add_argument('--out', type=Path, default=Path('docs/figures'), help='folder for the plots')
+    ap.add_argument('--vehicle', choices=('ideal', 'multirotor'), default='multirotor',
+                    help="what the MAPs fly (default: multirotor, as the shipped scenarios say; ideal: the paper's)")
     args = ap.parse_args()
     if args.seeds < 1:
         ap.error('--seeds: must be at least 1')
@@ -85,7 +88,8 @@ def main() -> int:
         speeds = [float(v) for v in args.speeds.split(',')]
     except ValueError:
         ap.error(f'--speeds: expected numbers separated by commas, got {args.speeds!r}')
-    shipped = {name: load_scenario(name) for name in SCENARIOS}
+    shipped = {name: load_scenario(name).with_overrides(vehicle=args.vehicle) for name in SCENARIOS}
+    tag, craft = ('', '') if args.vehicle == 'ideal' else (f'_{args.vehicle}', f', {args.vehicle}')
     jobs: list[tuple[str, float, int, Scenario]] = []
     for name, s in shipped.items():
         jobs += [(name, 0.0, seed, s.with_overrides(seed=seed)) for seed in range(args.seeds)]
@@ -96,7 +100,7 @@ def main() -> int:
                          for k, c in enumerate(drift.clusters))
         jobs += [('sweep', v, seed, dataclasses.replace(drift, clusters=clusters, seed=seed))
                  for seed in range(args.seeds)]
-    print(f'{len(jobs)} runs on 2 processes', flush=True)
+    print(f'{len(jobs)} runs on 2 processes, vehicle {args.vehicle}', flush=True)
     t0 = time.perf_counter()
     results = []
     with ProcessPoolExecutor(max_workers=2) as pool:
@@ -130,11 +134,13 @@ def main() -> int:
         marks = events(s)
         plots.time_series([(f'seed {j[2]}', r['metrics'][:, 1], 100 * r['metrics'][:, 2])
                            for j, r in zip(jobs, results) if j[0] == name],
-                          'coverage ratio R_c (%)', f'Coverage, {name} (90 MAPs)', args.out / f'dynamics_{name}_coverage.png',
+                          'coverage ratio R_c (%)', f'Coverage, {name} (90 MAPs{craft})',
+                          args.out / f'dynamics_{name}{tag}_coverage.png',
                           marks)
         plots.fiedler_series([(f'seed {j[2]}', r['metrics'][:, 1], r['metrics'][:, 3])
                               for j, r in zip(jobs, results) if j[0] == name],
-                             f'Connectivity, {name} (90 MAPs)', args.out / f'dynamics_{name}_fiedler.png', marks)
+                             f'Connectivity, {name} (90 MAPs{craft})',
+                             args.out / f'dynamics_{name}{tag}_fiedler.png', marks)
 
     print(f'\n| drift speed | seeds that keep the drifting cluster (last 30 s) | time-averaged R_c | time connected |')
     print('|---|---|---|---|')

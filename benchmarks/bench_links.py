@@ -190,7 +190,7 @@ def sweep(args: argparse.Namespace, kinds: list[str], names: list[str], variants
     have = {(r['variant'], r['kind'], r['channel'], int(r['layout']), int(r['seed'])) for r in done}
     flock = policy_sets(load_scenario('paper'))['default']
     jobs = []
-    for n, lay in enumerate(draw('paper', args.layouts, (3, 6), 0)):
+    for n, lay in enumerate(draw('paper', args.layouts, (3, 6), 0, 'ideal')):
         lay = dataclasses.replace(lay, flock=flock)
         for seed in range(args.seeds):
             for kind in kinds:

@@ -169,7 +169,7 @@ def main() -> int:
         ap.error('--layouts, --seeds and --workers must be at least 1')
     flock = policy_sets(load_scenario('paper'))['default']
     jobs, where = [], []
-    for n, lay in enumerate(draw('paper', args.layouts, (3, 6), 0)):
+    for n, lay in enumerate(draw('paper', args.layouts, (3, 6), 0, 'ideal')):
         lay = dataclasses.replace(lay, flock=flock)
         for seed in range(args.seeds):
             for kind in kinds:

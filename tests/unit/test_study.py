@@ -143,6 +143,7 @@ def test_an_interrupted_study_keeps_its_rows_and_the_next_call_computes_only_the
     ({'layouts': {'count': 1, 'seed': 'x'}}, "layouts.seed: expected a non-negative integer, got 'x'"),
     ({'layouts': {'count': 1, 'clusters': '4-3'}}, "layouts.clusters: expected [LO, HI]"),
     ({'layouts': {'count': 1, 'cluster': 3}}, 'layouts.cluster: unknown key; did you mean clusters?'),
+    ({'layouts': {'count': 1, 'vehicle': 'jet'}}, "layouts.vehicle: must be one of ideal, multirotor, got 'jet'"),
     ({'seeds': 1}, 'layouts: missing: give layouts'),
     ({'layouts': {'count': 1}, 'variants': {'a': {'flock': {'cl': 0.4}}}}, 'flock.cl: unknown key; did you mean c1?'),
     ({'layouts': {'count': 1}, 'kinds': ['drift:fast']}, 'must be a number'),
@@ -203,7 +204,7 @@ def test_a_variant_flies_with_the_rules_it_switches_off_and_only_that_run(tmp_pa
     from uav_agent.core import ablation
     from uav_flock_tools.batch import BatchSimulator
     from uav_flock_tools.study import spec as specs
-    from uav_flock_tools.study.cases import FIGURES, figures
+    from uav_flock_tools.study.cases import FIGURES, figures, flight_figures
     from uav_flock_tools.study.engine import execute
     (tmp_path / 's.yaml').write_text(  # as a user types it
         'layouts: {count: 1, clusters: [3, 3]}\nkinds: [static]\nduration: 8\nvariants:\n'
@@ -215,8 +216,11 @@ def test_a_variant_flies_with_the_rules_it_switches_off_and_only_that_run(tmp_pa
     assert row['error'] is None and ablation.on('hearsay')
     s = off.scenario()
     with ablation.switched_off(['hearsay']):
-        alone = BatchSimulator(s).run().metrics
-    assert {k: row[k] for k in FIGURES} == figures(alone, s.dt, None)
+        flown = BatchSimulator(s).run()
+    alone = flown.metrics
+    expected = figures(alone, s.dt, None)  # a random layout flies the multirotor: its flight figures too
+    expected.update(flight_figures(s, alone, flown.trajectory, flown.users.centroids, expected['converged']))
+    assert not s.vehicle.ideal and {k: row[k] for k in FIGURES} == expected
     assert not np.array_equal(alone, BatchSimulator(on.scenario()).run().metrics), 'hearsay acts on this run'
 
 

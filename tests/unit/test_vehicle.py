@@ -148,6 +148,18 @@ def test_t_star_of_the_paper_layout(paper_scenario_path: str) -> None:
     assert vehicle.least_time(10.0, 15.0, 4.0) == pytest.approx(2 * math.sqrt(10 / 4))
 
 
+def test_t_star_leaves_out_clusters_whose_users_come_later(paper_scenario_path: str) -> None:
+    """A first success is counted among the clusters there at the release: one arriving later, beyond them all,
+    does not lengthen T*."""
+    s = replace(load(paper_scenario_path), vehicle=vehicle.MULTIROTOR)
+    centroids = BatchSimulator(s.with_overrides(duration=0.1)).run().users.centroids
+    far = replace(s.clusters[0], center=(400.0, -300.0), start=40.0)
+    later = replace(s, clusters=(*s.clusters, far))
+    assert outcome.t_star(later, np.vstack([centroids, [far.center]])) == outcome.t_star(s, centroids)
+    there = replace(s, clusters=(*s.clusters, replace(far, start=0.0)))
+    assert outcome.t_star(there, np.vstack([centroids, [far.center]])) > outcome.t_star(s, centroids) + 5
+
+
 @pytest.mark.parametrize('section, message', [
     ({'model': 'plane'}, 'vehicle.model: must be one of ideal, multirotor'),
     ({'model': 'multirotor', 'v_max': -1}, 'vehicle.v_max'),

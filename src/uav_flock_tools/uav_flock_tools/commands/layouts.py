@@ -19,6 +19,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--duration', type=positive_float, default=90.0, help='simulated time in s (default: 90)')
     p.add_argument('--scenario', default='paper', help='scenario the layouts take everything else from '
                                                        '(default: paper; its policies are left out)')
+    p.add_argument('--vehicle', choices=('ideal', 'multirotor'), default='multirotor',
+                   help='what the layouts fly (docs/vehicle.md; default: multirotor, the shipped profile; ideal: '
+                        "the paper's double integrator)")
     p.add_argument('--out', help='a new folder for the scenario files (default: runs/layouts-<time>)')
 
 
@@ -27,6 +30,6 @@ def handle(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else default_out('layouts')
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise UsageError(f'layouts: --out {out} exists and is not an empty folder; name a new one')
-    drawn = layouts.draw(args.scenario, args.count, args.clusters, args.seed)  # before any file: all or none
+    drawn = layouts.draw(args.scenario, args.count, args.clusters, args.seed, args.vehicle)  # before any file: all or none
     return layouts.write(drawn, args.seed, args.factor, args.duration, make_folder(out, 'layouts: --out'))
 

@@ -59,12 +59,14 @@ def judge(s: Scenario, metrics: np.ndarray, trajectory: np.ndarray) -> Outcome:
 def t_star(s: Scenario, centroids: np.ndarray) -> float:
     """T*, the physical bound on a time to success (s): the largest, over clusters, of the least time a MAP at rest
     at the nearest point of the release square needs, within the vehicle's v_max and a_max, to come to rest where
-    its coverage disc (ground radius rho) reaches the cluster's centroid. Infinite on the paper's vehicle."""
+    its coverage disc (ground radius rho) reaches the cluster's centroid. Clusters whose users appear later are left
+    out: a first success is counted among those there at the release. Infinite on the paper's vehicle."""
     if s.vehicle.ideal:
         return float('inf')
     centre, half = np.asarray(s.release_center), s.release_half_width
     rho = layouts.ground_radius(s)
-    far = max(float(np.linalg.norm(c - np.clip(c, centre - half, centre + half))) - rho for c in np.asarray(centroids))
+    there = [c for c, cluster in zip(np.asarray(centroids), s.clusters) if cluster.start <= 0.0]
+    far = max(float(np.linalg.norm(c - np.clip(c, centre - half, centre + half))) - rho for c in there)
     return vehicle.least_time(far, s.vehicle.v_max, s.vehicle.a_max)
 
 
