@@ -63,7 +63,7 @@ def test_the_smoke_study_is_twelve_rows_with_the_figures_of_each_run(local: Path
     assert len(got) == 12 and len({r['key'] for r in got}) == 12
     assert [(r['layout'], r['seed'], r['variant']) for r in got[:4]] == \
         [(0, 0, 'demand'), (0, 0, 'algorithm2'), (0, 1, 'demand'), (0, 1, 'algorithm2')], 'the spec\'s grid order'
-    assert all(r['error'] is None and r['duration'] == 30.0 for r in got)
+    assert all(r['error'] is None and r['duration'] == 60.0 for r in got)
     demand = [r for r in got if r['variant'] == 'demand']
     assert all(r['converged'] is not None and 0 < r['connected'] <= 1 for r in demand), demand
     again = study(str(SMOKE), '--out', str(local))
