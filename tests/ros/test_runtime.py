@@ -16,22 +16,6 @@ from uav_flock_tools.domains import claim_domain
 from world_sim.core.records import read_csv
 
 
-def test_lockstep_run_equals_the_batch_simulator(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    args = ('--maps', '20', '--seed', '3', '--duration', '10')
-    distributed = cli('up', *args, '--agents-per-process', '1', '--out', str(tmp_path / 'up'), env=ros_env)
-    assert distributed.returncode == 0, distributed.stdout + distributed.stderr
-    batch = cli('sim', *args, '--out', str(tmp_path / 'sim'))
-    assert batch.returncode == 0, batch.stderr
-    a, b = read_csv(tmp_path / 'up' / 'trajectory.csv'), read_csv(tmp_path / 'sim' / 'trajectory.csv')
-    assert len(a['step']) == len(b['step']) == 20 * 101
-    for col in ('x', 'y', 'z', 'vx', 'vy', 'vz'):
-        assert np.max(np.abs(a[col] - b[col])) <= 1e-9, col
-    for col in ('step', 'id', 'mode', 'goal', 'user_count'):
-        assert np.array_equal(a[col], b[col]), col
-    pids = json.loads((tmp_path / 'up' / 'pids.json').read_text()).values()
-    assert len(set(pids)) == 20 and all(dead(p) for p in pids), 'every agent process is gone after the run'
-
-
 def test_lockstep_equals_the_batch_simulator_over_a_lossy_late_channel(tmp_path: Path, ros_env: dict[str, str]) -> None:
     """Each MAP decides which neighbour states it hears, and when it may use them, as the batch simulator does
     for it: losses by distance and in bursts, two steps of latency, a failure, MAPs packed in processes."""
@@ -88,10 +72,14 @@ def test_lockstep_equals_the_batch_simulator_on_a_multirotor(tmp_path: Path, ros
 
 
 def test_packed_agents_give_the_same_run(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    """Also with a scheduled failure: a failed MAP sharing its process with live ones falls silent."""
+    """Also with a scheduled failure: a failed MAP sharing its process with live ones falls silent. Over the
+    Fast DDS discovery server that `up` uses beyond 30 processes, forced here on a small run."""
     args = ('--maps', '9', '--seed', '1', '--duration', '4', '--fail-at', '2', '--fail-fraction', '0.3')
-    packed = cli('up', *args, '--agents-per-process', '4', '--out', str(tmp_path / 'up'), env=ros_env)
+    packed = cli('up', *args, '--agents-per-process', '4', '--discovery', 'server', '--out', str(tmp_path / 'up'),
+                 env=ros_env)
     assert packed.returncode == 0, packed.stdout + packed.stderr
+    assert 'discovery server 127.0.0.1:' in packed.stdout
+    assert json.loads((tmp_path / 'up' / 'run.json').read_text())['discovery_server'].startswith('127.0.0.1:')
     assert len(set(json.loads((tmp_path / 'up' / 'pids.json').read_text()).values())) == 3
     assert cli('sim', *args, '--out', str(tmp_path / 'sim')).returncode == 0
     assert (tmp_path / 'up' / 'trajectory.csv').read_bytes() == (tmp_path / 'sim' / 'trajectory.csv').read_bytes()
@@ -192,29 +180,86 @@ def test_kill_of_one_packed_map_ends_its_node_alone(tmp_path: Path, ros_env: dic
     assert after.returncode == 2 and 'has ended' in after.stderr, after.stdout + after.stderr
 
 
-def test_ctrl_c_ends_every_process_and_keeps_the_records(tmp_path: Path, ros_env: dict[str, str]) -> None:
+def test_a_live_run_seen_by_echo_and_topics_then_a_kill_and_ctrl_c(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """One live run read three ways, as a user would in one sitting: echo and topics show it; echo on a MAP just
+    killed ends at once and says so; Ctrl-C then ends every process and keeps the records.
+
+    The killed MAP's stale endpoint still counts as a publisher and no message comes: echo says at once that the
+    MAP was killed, and when world_sim dropped it (from the failure events world_sim keeps). echo starts once
+    world_sim has said that it dropped the MAP: started at once after the kill, echo may find no drop yet to tell
+    of (a fresh-clone run on two busy cores once printed the line without the drop time)."""
+    import yaml
     run = tmp_path / 'up'
     shm_before = shm_entries()
-    proc = up('--maps', '8', '--seed', '0', '--duration', '600', '--out', str(run), env=ros_env)
-    wait_for_line(proc, 't =   1.0 s', 120)
-    pids = list(json.loads((run / 'pids.json').read_text()).values())
-    proc.send_signal(signal.SIGINT)
-    t0 = time.monotonic()
-    while not all(dead(p) for p in pids) and time.monotonic() - t0 < 10:
-        time.sleep(0.05)
-    gone_after = time.monotonic() - t0
-    out, _ = proc.communicate(timeout=60)
+    # 1800 s: eight MAPs in lockstep fly about 15 s a second here, and the run must outlast what is asked of it.
+    proc = up('--maps', '8', '--seed', '0', '--duration', '1800', '--out', str(run), env=ros_env)
+    try:
+        wait_for_line(proc, 't =   1.0 s', 120)
+        echoed = cli('echo', '/metrics', '--once', '--run', str(run), timeout=60)
+        listed = cli('topics', '--run', str(run), timeout=60)
+        # A topic the run does not have is one line and exit 2 at once, not a wait for its timeout.
+        for topic in ('/no_such_topic', '/map_99/state'):
+            t0 = time.monotonic()
+            absent = cli('echo', topic, '--run', str(run), '--timeout', '60', timeout=60)
+            assert absent.returncode == 2 and 'is not a topic of the run' in absent.stderr, absent.stderr
+            assert len(absent.stderr.strip().splitlines()) == 1 and time.monotonic() - t0 < 30
+        # `kill PID` ends an echo as Ctrl-C does: quietly once it prints, "interrupted" (130) while it waits.
+        for topic, code in (('/metrics', 0), ('/events/finished', 130)):  # the latter comes only at the end
+            streaming = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'echo', topic, '--run',
+                                          str(run), '--timeout', '100'], stdout=subprocess.PIPE,
+                                         stderr=subprocess.PIPE, text=True)
+            if code == 0:
+                wait_for_line(streaming, '---', 60)
+            else:
+                time.sleep(3.0)
+            streaming.terminate()
+            _, said = streaming.communicate(timeout=30)
+            assert streaming.returncode == code and 'Traceback' not in said, said
+        # A reader that leaves (`| head -3`) ends the echo quietly, as `ros2 topic echo | head` does.
+        piped = subprocess.run(['bash', '-c', f'set -o pipefail; {shlex.quote(sys.executable)} -m uav_flock_tools.cli '
+                                f'echo /metrics --run {shlex.quote(str(run))} | head -3'],
+                               capture_output=True, text=True, timeout=60)
+        assert piped.returncode == 0 and piped.stderr == '', piped.stderr
+        assert len(piped.stdout.splitlines()) == 3, piped.stdout
+        killed = cli('kill', '--run', str(run), '--ids', '3')
+        assert killed.returncode == 0, killed.stdout + killed.stderr
+        wait_for_line(proc, 'dropped MAPs [3] (killed)', 60)
+        gone = cli('echo', '/map_3/state', '--once', '--timeout', '5', '--run', str(run), timeout=120)  # hung before
+        pids = list(json.loads((run / 'pids.json').read_text()).values())
+        proc.send_signal(signal.SIGINT)
+        t0 = time.monotonic()
+        while not all(dead(p) for p in pids) and time.monotonic() - t0 < 10:
+            time.sleep(0.05)
+        gone_after = time.monotonic() - t0
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert echoed.returncode == 0, echoed.stderr
+    msg = yaml.safe_load(echoed.stdout.split('---')[0])
+    assert list(msg) == ['header', 'step', 't', 'coverage_ratio', 'fiedler', 'alive', 'components', 'mode0',
+                         'mode1', 'mode2', 'links', 'vehicle'] and msg['alive'] == 8 and msg['links'] == [], msg
+    assert '/map_3/state [uav_flock_msgs/msg/AgentState]' in listed.stdout
+    assert '/metrics [uav_flock_msgs/msg/Metrics]' in listed.stdout
+    assert gone.returncode == 2 and len(gone.stderr.strip().splitlines()) == 1, gone.stdout + gone.stderr
+    assert 'MAP 3 of this run was killed' in gone.stderr and 'dropped it at t =' in gone.stderr, gone.stderr
+    # Ctrl-C: no orphan, and the records end where the run was stopped, with the MAPs the world stopped alive.
     assert all(dead(p) for p in pids), 'no orphan agent processes'
     assert gone_after <= 5.0, f'children ended {gone_after:.1f} s after Ctrl-C (limit 5 s)'
     assert 'interrupted' in out
     m = read_csv(run / 'metrics.csv')
-    # The agents stopped with the world are not failures: the records end where the run was stopped,
-    # every MAP alive, not at t = 600 s after a run on without them.
-    assert 1.0 <= m['t'][-1] < 600 and m['alive'][-1] == 8, (m['t'][-1], m['alive'][-1])
+    # The agents stopped with the world are not failures: the records end where the run was stopped, every MAP
+    # but the killed one alive, not at t = 1800 s after a run on without them.
+    assert 1.0 <= m['t'][-1] < 1800 and m['alive'][-1] == 7, (m['t'][-1], m['alive'][-1])
     logs = {p.name: p.read_text() for p in (run / 'logs').glob('*.log')}
     noisy = [name for name, text in logs.items() if 'FATAL' in text or 'Traceback' in text]
     assert not noisy, f'an error logged while stopping: {noisy}\n' + '\n'.join(logs[n] for n in noisy)
     assert shm_entries() - shm_before == set(), 'shared-memory debris left in /dev/shm'
+    # Once the run has ended, its topics are gone: both say so at once rather than wait and list nothing.
+    for args in (('echo', '/metrics'), ('topics',)):
+        after = cli(*args, '--run', str(run), timeout=60)
+        assert after.returncode == 2 and 'has ended' in after.stderr, after.stderr
 
 
 def run_processes(run: Path) -> dict[str, list[int]]:
@@ -304,7 +349,8 @@ def test_rogue_state_messages_change_nothing(tmp_path: Path, ros_env: dict[str, 
 
 
 def test_agents_listen_only_to_maps_in_radio_range(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    """Sampled from the live ROS graph: no MAP subscribes to a MAP beyond r + hysteresis."""
+    """Sampled from the live ROS graph: no MAP subscribes to a MAP beyond r + hysteresis. One process a MAP,
+    and the run equals the batch simulator's."""
     r, hysteresis, dt = 24.0, 2.0, 0.1
     sampler = helper('graph_sampler', '16', env=ros_env)
     try:
@@ -317,6 +363,13 @@ def test_agents_listen_only_to_maps_in_radio_range(tmp_path: Path, ros_env: dict
         sampler.terminate()
         said, _ = sampler.communicate(timeout=30)
     assert run.returncode == 0, run.stdout + run.stderr
+    # The run is the batch simulator's, to the bit, with a stranger listening; every agent process is gone after it.
+    batch = cli('sim', '--maps', '16', '--seed', '5', '--duration', '24', '--out', str(tmp_path / 'sim'))
+    assert batch.returncode == 0, batch.stderr
+    for name in ('trajectory.csv', 'metrics.csv'):
+        assert (tmp_path / name).read_bytes() == (tmp_path / 'sim' / name).read_bytes(), name
+    pids = json.loads((tmp_path / 'pids.json').read_text()).values()
+    assert len(set(pids)) == 16 and all(dead(p) for p in pids), 'every agent process is gone after the run'
     seen = json.loads(said)
     samples = seen['samples']
     assert samples, f'the sampler must hear the run: {seen["metrics"]} /metrics heard, {seen["nodes"]} MAP nodes discovered'
@@ -338,75 +391,6 @@ def test_agents_listen_only_to_maps_in_radio_range(tmp_path: Path, ros_env: dict
     assert far_pairs > 50, 'the run must have MAPs far apart, or the check proves nothing'
 
 
-def test_echo_once_on_a_killed_map_ends_within_its_timeout(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    """The killed MAP's stale endpoint still counts as a publisher and no message comes: echo says at once that the
-    MAP was killed, and when world_sim dropped it (from the failure events world_sim keeps).
-
-    echo starts once world_sim has said that it dropped the MAP. Started at once after the kill, echo may find no
-    drop yet to tell of: a fresh-clone run on two busy cores once printed the line without the drop time."""
-    run = tmp_path / 'up'
-    proc = up('--maps', '4', '--seed', '0', '--duration', '600', '--out', str(run), env=ros_env)
-    try:
-        wait_for_line(proc, 't =   1.0 s', 120)
-        killed = cli('kill', '--run', str(run), '--ids', '3')
-        assert killed.returncode == 0, killed.stdout + killed.stderr
-        wait_for_line(proc, 'dropped MAPs [3] (killed)', 60)
-        echoed = cli('echo', '/map_3/state', '--once', '--timeout', '5', '--run', str(run), timeout=120)  # hung before
-    finally:
-        proc.send_signal(signal.SIGINT)
-        proc.communicate(timeout=30)
-    assert echoed.returncode == 2 and len(echoed.stderr.strip().splitlines()) == 1, echoed.stdout + echoed.stderr
-    assert 'MAP 3 of this run was killed' in echoed.stderr and 'dropped it at t =' in echoed.stderr, echoed.stderr
-
-
-def test_echo_and_topics_show_a_live_run(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    import yaml
-    run = tmp_path / 'up'
-    proc = up('--maps', '4', '--seed', '0', '--duration', '600', '--out', str(run), env=ros_env)
-    try:
-        wait_for_line(proc, 't =   1.0 s', 120)
-        echoed = cli('echo', '/metrics', '--once', '--run', str(run), timeout=60)
-        listed = cli('topics', '--run', str(run), timeout=60)
-        # A topic the run does not have is one line and exit 2 at once, not a wait for its timeout.
-        for topic in ('/no_such_topic', '/map_99/state'):
-            t0 = time.monotonic()
-            absent = cli('echo', topic, '--run', str(run), '--timeout', '60', timeout=60)
-            assert absent.returncode == 2 and 'is not a topic of the run' in absent.stderr, absent.stderr
-            assert len(absent.stderr.strip().splitlines()) == 1 and time.monotonic() - t0 < 30
-        # `kill PID` ends an echo as Ctrl-C does: quietly once it prints, "interrupted" (130) while it waits.
-        for topic, code in (('/metrics', 0), ('/events/finished', 130)):  # the latter comes only at the end
-            streaming = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'echo', topic, '--run',
-                                          str(run), '--timeout', '100'], stdout=subprocess.PIPE,
-                                         stderr=subprocess.PIPE, text=True)
-            if code == 0:
-                wait_for_line(streaming, '---', 60)
-            else:
-                time.sleep(3.0)
-            streaming.terminate()
-            _, said = streaming.communicate(timeout=30)
-            assert streaming.returncode == code and 'Traceback' not in said, said
-        # A reader that leaves (`| head -3`) ends the echo quietly, as `ros2 topic echo | head` does.
-        piped = subprocess.run(['bash', '-c', f'set -o pipefail; {shlex.quote(sys.executable)} -m uav_flock_tools.cli '
-                                f'echo /metrics --run {shlex.quote(str(run))} | head -3'],
-                               capture_output=True, text=True, timeout=60)
-        assert piped.returncode == 0 and piped.stderr == '', piped.stderr
-        assert len(piped.stdout.splitlines()) == 3, piped.stdout
-    finally:
-        proc.send_signal(signal.SIGINT)
-        proc.communicate(timeout=30)
-    assert echoed.returncode == 0, echoed.stderr
-    body = echoed.stdout.split('---')[0]
-    msg = yaml.safe_load(body)
-    assert list(msg) == ['header', 'step', 't', 'coverage_ratio', 'fiedler', 'alive', 'components', 'mode0',
-                         'mode1', 'mode2', 'links', 'vehicle'] and msg['alive'] == 4 and msg['links'] == [], msg
-    assert '/map_3/state [uav_flock_msgs/msg/AgentState]' in listed.stdout
-    assert '/metrics [uav_flock_msgs/msg/Metrics]' in listed.stdout
-    # Once the run has ended, its topics are gone: both say so at once rather than wait and list nothing.
-    for args in (('echo', '/metrics'), ('topics',)):
-        after = cli(*args, '--run', str(run), timeout=60)
-        assert after.returncode == 2 and 'has ended' in after.stderr, after.stderr
-
-
 def test_topics_where_no_run_is_says_where_to_look(ros_env: dict[str, str]) -> None:
     """A domain with no run lists only the two topics every node has, and says how to name a run."""
     with claim_domain(None) as domain:
@@ -415,16 +399,3 @@ def test_topics_where_no_run_is_says_where_to_look(ros_env: dict[str, str]) -> N
     assert set(listed.stdout.split()) <= {'/parameter_events', '/rosout', '[rcl_interfaces/msg/ParameterEvent]',
                                           '[rcl_interfaces/msg/Log]'}, listed.stdout
     assert f'ROS_DOMAIN_ID={domain}: no run there' in listed.stderr and '--run RUN' in listed.stderr, listed.stderr
-
-
-def test_discovery_server_run_equals_the_batch_simulator(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    """The Fast DDS discovery server `up` uses beyond 30 processes, forced here on a small run."""
-    args = ('--maps', '6', '--seed', '4', '--duration', '2')
-    run = tmp_path / 'up'
-    proc = up(*args, '--discovery', 'server', '--out', str(run), env=ros_env)
-    out, _ = proc.communicate(timeout=300)
-    assert proc.returncode == 0, out
-    assert 'discovery server 127.0.0.1:' in out
-    assert json.loads((run / 'run.json').read_text())['discovery_server'].startswith('127.0.0.1:')
-    assert cli('sim', *args, '--out', str(tmp_path / 'sim')).returncode == 0
-    assert (run / 'trajectory.csv').read_bytes() == (tmp_path / 'sim' / 'trajectory.csv').read_bytes()

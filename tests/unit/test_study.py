@@ -58,6 +58,19 @@ def local(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+@pytest.fixture(scope='module')
+def brief(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """The smoke study's grid at 10 s a run, and its rows on the local cluster: where a study goes and what it
+    survives (a scheduler, a killed worker, a Ctrl-C) does not need the 60 s that let its runs converge."""
+    folder = tmp_path_factory.mktemp('brief')
+    spec = folder / 'brief.yaml'
+    spec.write_text(yaml.safe_dump({**yaml.safe_load(SMOKE.read_text()), 'duration': 10}))
+    proc = study(str(spec), '--out', str(folder / 'local'), '--workers', '2')
+    assert proc.returncode == 0, proc.stderr
+    assert '12 runs (12 computed now)' in proc.stdout
+    return spec, folder / 'local'
+
+
 def test_the_smoke_study_is_twelve_rows_with_the_figures_of_each_run(local: Path) -> None:
     got = rows(local)
     assert len(got) == 12 and len({r['key'] for r in got}) == 12
@@ -86,7 +99,9 @@ def test_every_column_of_the_table_is_documented_and_pandas_reads_it(local: Path
     assert len(table) == 12 and not missing, f'columns not in docs/studies.md: {missing}'
 
 
-def test_on_a_scheduler_and_two_worker_processes_a_killed_worker_loses_no_row(local: Path, tmp_path: Path) -> None:
+def test_on_a_scheduler_and_two_worker_processes_a_killed_worker_loses_no_row(brief: tuple[Path, Path],
+                                                                             tmp_path: Path) -> None:
+    spec, local = brief
     port = free_port()
     address = f'tcp://127.0.0.1:{port}'
     procs = [subprocess.Popen([sys.executable, '-m', 'dask', 'scheduler', '--host', '127.0.0.1', '--port', str(port),
@@ -98,7 +113,7 @@ def test_on_a_scheduler_and_two_worker_processes_a_killed_worker_loses_no_row(lo
                    for _ in range(2)]
         procs += workers
         out = tmp_path / 'on-scheduler'
-        run = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'study', str(SMOKE), '--out', str(out),
+        run = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'study', str(spec), '--out', str(out),
                                 '--scheduler', address], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         procs.append(run)
         wait_for(lambda: parts(out) >= 2 or run.poll() is not None, 300, 'the first rows')
@@ -113,9 +128,11 @@ def test_on_a_scheduler_and_two_worker_processes_a_killed_worker_loses_no_row(lo
             p.wait()
 
 
-def test_an_interrupted_study_keeps_its_rows_and_the_next_call_computes_only_the_rest(local: Path, tmp_path: Path) -> None:
+def test_an_interrupted_study_keeps_its_rows_and_the_next_call_computes_only_the_rest(brief: tuple[Path, Path],
+                                                                                      tmp_path: Path) -> None:
+    spec, local = brief
     out = tmp_path / 'interrupted'
-    run = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'study', str(SMOKE), '--out', str(out),
+    run = subprocess.Popen([sys.executable, '-m', 'uav_flock_tools.cli', 'study', str(spec), '--out', str(out),
                             '--workers', '1'], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                            start_new_session=True)
     wait_for(lambda: parts(out) >= 3 or run.poll() is not None, 300, 'three rows')
@@ -128,7 +145,7 @@ def test_an_interrupted_study_keeps_its_rows_and_the_next_call_computes_only_the
     assert 'Traceback' not in stderr and 'CancelledError' not in stderr, f'the workers spoke:\n{stderr}'
     assert f'{len(kept)} of 12 runs kept' in stderr.splitlines()[-1], stderr
     assert all(r['error'] is None for r in kept), 'no run counted finished that the interrupt cut short'
-    rest = study(str(SMOKE), '--out', str(out), '--workers', '2')
+    rest = study(str(spec), '--out', str(out), '--workers', '2')
     assert rest.returncode == 0, rest.stderr
     assert f'12 runs ({12 - len(kept)} computed now)' in rest.stdout
     assert rows(out) == rows(local)
