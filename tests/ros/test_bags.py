@@ -145,8 +145,8 @@ def test_killed_agents_leave_a_complete_bag(tmp_path: Path, ros_env: dict[str, s
                                             said: str, unsaid: str) -> None:
     """Whole processes SIGKILLed (one MAP each), or packed MAPs' nodes ended inside living processes."""
     run = tmp_path / 'up'
-    # 10 MAPs step about 100 times a second here: long enough a run that the kill lands while it goes on.
-    proc = up('--scenario', SCENARIO, '--maps', '10', '--duration', '150', '--record', '--agents-per-process',
+    # 10 MAPs step 80-150 times a second here, the kill lands 1-2 s after t = 2 s: 80 s outlasts it three times over.
+    proc = up('--scenario', SCENARIO, '--maps', '10', '--duration', '80', '--record', '--agents-per-process',
               per_process, '--out', str(run), env=ros_env)
     try:
         wait_for_line(proc, 't =   2.0 s', 120)
