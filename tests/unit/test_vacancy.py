@@ -14,7 +14,8 @@ from uav_agent.core.allocations.demand.allocation import demand_switch
 from uav_agent.core.allocations.demand.chain import TAUT_STEPS, chain_of, tally, taut
 from uav_agent.core.allocations.demand.memory import Mine
 from uav_agent.core.state import M1, M2, NOBODY, Near, Told
-from uav_agent.core.allocations.demand.vacancy import VACANT_STEPS, code, gossip, vacate, view
+from uav_agent.core.ablation import switched_off
+from uav_agent.core.allocations.demand.vacancy import PATIENT_STEPS, VACANT_STEPS, code, gossip, vacate, view
 from uav_flock_tools.batch import BatchSimulator
 from world_sim.core import layouts
 from world_sim.core.scenario import load
@@ -64,6 +65,21 @@ def test_a_role_emptied_by_failures_is_restaffed_from_the_survivors() -> None:
     assert len(to_2) >= math.floor(ROLES.share[2] * len(survivors)), (len(to_2), ROLES.share[2] * len(survivors))
     moved = [i for i in survivors if after.of(keys.squeeze(key_of(i), mem.lost)) != ROLES.of(key_of(i))]
     assert sorted(moved) == sorted(to_2), 'only the MAPs that restaff cluster 2 change role'
+
+
+def test_on_a_multirotor_a_role_goes_unheard_for_patient_steps_before_it_is_declared() -> None:
+    """Rule 'patient': a multirotor's MAPs take 10-20 s to cross to a role, so a role silent for longer than
+    VACANT_STEPS but not PATIENT_STEPS is still on its way; the paper's vehicle declares it lost."""
+    multirotor = dataclasses.replace(P, v_max=15.0, a_max=4.0, tau=0.3)
+    assert PATIENT_STEPS > VACANT_STEPS
+    quiet = {r: NOW for r in ALL} | {2: NOW - VACANT_STEPS - 1}
+    assert vacate(relay_of_edge_12(seen=heard(quiet)), NOW, near_cluster_2(), ROW, P).lost != ()
+    assert vacate(relay_of_edge_12(seen=heard(quiet)), NOW, near_cluster_2(), ROW, multirotor).lost == ()
+    with switched_off(['patient']):
+        assert vacate(relay_of_edge_12(seen=heard(quiet)), NOW, near_cluster_2(), ROW, multirotor).lost != ()
+    silent = {r: NOW for r in ALL} | {2: NOW - PATIENT_STEPS - 1}
+    mem = vacate(relay_of_edge_12(seen=heard(silent)), NOW, near_cluster_2(), ROW, multirotor)
+    assert mem.lost != () and dict(mem.seen)[2] == NOW + PATIENT_STEPS
 
 
 def test_a_map_cut_off_alone_or_away_from_the_role_declares_nothing() -> None:

@@ -12,7 +12,7 @@ import pytest
 
 from uav_agent.core.links import Links
 from uav_flock_tools.batch import BatchSimulator
-from uav_flock_tools.layouts import policy_sets
+from uav_flock_tools.layouts import draw, policy_sets
 from world_sim.core import layouts, outcome, records, vehicle
 from world_sim.core.scenario import Scenario, ScenarioError, load, parse, to_doc
 
@@ -194,6 +194,10 @@ def test_every_envelope_rule_acts_on_a_multirotor_run() -> None:
     later = {'traffic': 12.0}
     for rule in VEHICLE_RULES:
         s = replace(paper, vehicle=vehicle.MULTIROTOR, duration=later.get(rule, 5.0), flock=policy_sets(paper)['default'])
+        if rule == 'patient':  # a role silent for 10-30 s, not on the paper's layout: random layout 21 of the studies',
+            s = draw('paper', 22, (3, 6), 0)[21]  # where a long edge's relays came one by one and were declared lost at 42 s
+            s = replace(s, maps=math.ceil(1.5 * layouts.floor(s).total), duration=45.0, seed=0, survey='online',
+                        flock=policy_sets(s)['default'])
         base = digest_of(s)
         with switched_off([rule]):
             assert digest(s) != base, rule

@@ -55,6 +55,8 @@ VEHICLE_RULES = {
     'loose': 'a relay and the servers of its edge only repel, under the demand allocation: the chain rule alone places '
              'the relay (demand.loose)',
     'priority': "that braking is served first from a_max, eq. 9's terms from what is left (envelope.command)",
+    'patient': 'a role is declared lost after PATIENT_STEPS unheard of, not VACANT_STEPS: a multirotor takes that long to '
+               'cross to it, under the demand allocation (vacancy.vacant_steps)',
 }
 RULES.update(CHANNEL_RULES)
 RULES.update(VEHICLE_RULES)

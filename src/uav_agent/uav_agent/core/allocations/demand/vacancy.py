@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Iterable, Optional, Sequence
 
 import numpy as np
 
+from ... import envelope
 from ...clusters import NO_GOAL, ClusterMap, key_of
 from ...state import M1, Told
 from . import keys
@@ -35,6 +36,17 @@ if TYPE_CHECKING:
     from ...params import FlockParams
 
 VACANT_STEPS = 100  # 10 s at Δt = 0.1 s: longer than the outages of a formation that merely moves
+PATIENT_STEPS = 300  # 30 s on a lagged vehicle (rule 'patient'): a multirotor's MAPs take 10-20 s to cross to a
+                     # role, and a chain's relays reach its ends one by one
+
+
+def vacant_steps(fp: FlockParams) -> int:
+    """Steps a role goes unheard of before it is declared lost: VACANT_STEPS, or PATIENT_STEPS on a lagged vehicle
+    (rule 'patient'). Behind a multirotor's envelope the relays of a long edge arrive one by one over 10-20 s, and
+    a server at the edge's end that had heard of them through gossip declared their keys lost while they flew in:
+    squeezed out of the key line, the lost keys moved every MAP's key and sent a dozen MAPs across the formation
+    in a still layout (docs/notes/vehicle.md)."""
+    return PATIENT_STEPS if envelope.limited(fp) and on('patient') else VACANT_STEPS
 EDGE_CODE = 64      # role codes: cluster k is k (< 63 ids a run may use), edge (a, b) is 64 + 64 a + b
 
 
@@ -120,7 +132,8 @@ def vacate(mem: Mine, step: int, q: np.ndarray, clusters: ClusterMap, fp: FlockP
     current, codes = _current(roles)
     seen = {c: k for c, k in mem.seen if c in codes}  # roles that left the layout are forgotten
     short = tuple((c, n) for c, n in mem.short if c in codes)
-    stale = [r for r, c in current if step - seen.get(c, -math.inf) > VACANT_STEPS]
+    vacant = vacant_steps(fp)
+    stale = [r for r, c in current if step - seen.get(c, -math.inf) > vacant]
     lost = mem.lost
     fresh = len(current) - len(stale)
     if on('vacate') and mem.since >= 0 and not mem.transit and stale and fresh >= 2 and len(stale) <= 2 * fresh:
@@ -128,7 +141,7 @@ def vacate(mem: Mine, step: int, q: np.ndarray, clusters: ClusterMap, fp: FlockP
             if seen.get(code(r), -1) > mem.since and _at(q, r, clusters, fp):
                 mine = [(keys.expand(lo, lost), keys.expand(hi, lost)) for lo, hi, role in roles.pieces if role == r]
                 lost = keys.united(lost, mine)
-                seen[code(r)] = step + VACANT_STEPS
+                seen[code(r)] = step + vacant
     new = tuple(sorted(seen.items()))
     if new == mem.seen and lost == mem.lost and short == mem.short:
         return mem
