@@ -221,7 +221,9 @@ def test_a_secure_run_over_three_hosts_equals_sim_and_strangers_neither_join_nor
 
 def test_losing_a_host_by_kill_and_by_link_leaves_the_exact_alive_count_and_the_rest_recovers(
         hosts: dict[str, str], tmp_path: Path, ros_env: dict[str, str], paper_scenario_path: str) -> None:
-    world, joined = start(hosts, tmp_path, ros_env, small_scenario(paper_scenario_path, tmp_path), '240', 8,
+    # 100 s: host a's MAPs are dropped near t = 19 s and host b's near 20 s (lockstep waits for them), and the 8 left
+    # cover the users again by about 22 s; the rest is margin for a slower machine.
+    world, joined = start(hosts, tmp_path, ros_env, small_scenario(paper_scenario_path, tmp_path), '100', 8,
                           '8,9', '10,11')
     out = tmp_path / 'world.out'
     try:
