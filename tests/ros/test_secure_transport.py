@@ -57,14 +57,19 @@ def test_a_member_of_the_run_hears_it_and_strangers_fail_the_handshake(tmp_path:
     talker = subprocess.Popen([sys.executable, '-c', TALKER, '60'], env=secure.environment(ros_env, run['client']),
                               stdout=subprocess.DEVNULL, stderr=open(tmp_path / 'talker.log', 'w'))
     try:
-        heard = {}
+        listening = {}
+        # The two strangers listen out their 10 s side by side: each hears nothing whatever the other does.
         for who, folder in (('member', None), ('member, checking nothing', 'lax'), ('other CA', 'foreign'),
                             ('no certificate', 'nocert')):
             env = secure.environment(ros_env, member['client']) if folder is None else {
                 **plain, 'FASTRTPS_DEFAULT_PROFILES_FILE': str(tmp_path / folder / 'client.xml'),
                 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'}
-            heard[who] = subprocess.run([sys.executable, '-c', LISTENER, '20' if who.startswith('member') else '10'],
-                                        env=env, capture_output=True, text=True, timeout=60)
+            listening[who] = subprocess.Popen([sys.executable, '-c', LISTENER, '20' if who.startswith('member') else '10'],
+                                              env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            if who.startswith('member'):  # one at a time: a member ends as soon as it has heard five
+                listening[who] = subprocess.CompletedProcess(who, 0, *listening[who].communicate(timeout=60))
+        heard = {who: p if isinstance(p, subprocess.CompletedProcess) else
+                 subprocess.CompletedProcess(who, 0, *p.communicate(timeout=60)) for who, p in listening.items()}
     finally:
         for p in (talker, discovery):
             p.terminate()
