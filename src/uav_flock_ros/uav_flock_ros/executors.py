@@ -17,6 +17,7 @@ from rclpy.context import Context
 from rclpy.exceptions import ParameterException
 from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from rclpy.subscription import Subscription
 
 N = TypeVar('N', bound=Node)
@@ -95,6 +96,21 @@ def spun_node(program: str, factory: Callable[[], N], user_errors: tuple[type[Ex
     executor = make_executor()
     executor.add_node(node)
     return node, executor
+
+
+def started(program: str, factory: Callable[[], N], user_errors: tuple[type[Exception], ...],
+            argv: Optional[list[str]] = None) -> Optional[tuple[N, Executor, 'StopSignals']]:
+    """A node program's start, the same for each: its ROS arguments checked, rclpy initialised with SIGINT and
+    SIGTERM left to StopSignals, the node on its executor; None after one line on stderr for a user's mistake."""
+    argv = sys.argv if argv is None else argv
+    if checked_ros_args(program, argv) is None:
+        return None
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    stop = StopSignals()
+    node, executor = spun_node(program, factory, user_errors)
+    if node is None or executor is None:
+        return None
+    return node, executor, stop
 
 
 def take_waiting(sub: Subscription, handle: Callable[[Any], bool], raw: Optional[bool] = None) -> int:

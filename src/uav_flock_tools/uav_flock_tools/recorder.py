@@ -23,7 +23,6 @@ import rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
-from rclpy.signals import SignalHandlerOptions
 from rclpy.subscription import Subscription
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
@@ -31,7 +30,7 @@ from std_msgs.msg import Int64
 from uav_flock_msgs.msg import FailureEvent, Metrics
 
 from uav_flock_ros.convert import FailureData, MetricsData, stamped_id_step
-from uav_flock_ros.executors import StopSignals, checked_ros_args, spun_node, take_waiting
+from uav_flock_ros.executors import started, take_waiting
 from uav_flock_ros.qos import LATCHED_QOS, is_realtime
 
 from . import bag
@@ -189,13 +188,10 @@ class Recorder(Node):
 
 
 def main(argv: Optional[list[str]] = None) -> int:
-    if checked_ros_args('uav_flock_recorder', sys.argv if argv is None else argv) is None:
+    begun = started('uav_flock_recorder', Recorder, (WriterError,), argv)
+    if begun is None:
         return 2
-    rclpy.init(args=sys.argv if argv is None else argv, signal_handler_options=SignalHandlerOptions.NO)
-    stop = StopSignals()
-    node, executor = spun_node('uav_flock_recorder', Recorder, (WriterError,))
-    if node is None or executor is None:
-        return 2
+    node, executor, stop = begun
     try:
         while not stop.received:
             executor.spin_once(timeout_sec=0.1)

@@ -16,11 +16,10 @@ from typing import Callable, Optional
 
 import rclpy
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 
 from uav_flock_msgs.msg import AgentState, FailureEvent, Metrics, Sensing
 from uav_flock_ros import convert
-from uav_flock_ros.executors import StopSignals, checked_ros_args, spun_node
+from uav_flock_ros.executors import started
 from uav_flock_ros.qos import STATE_QOS, STEP_QOS
 
 from . import scene
@@ -110,13 +109,10 @@ class Viewer(Node):
 
 
 def main(argv: Optional[list[str]] = None) -> int:
-    if checked_ros_args('uav_flock_viewer', sys.argv if argv is None else argv) is None:
+    begun = started('uav_flock_viewer', Viewer, (ViewerError,), argv)
+    if begun is None:
         return 2
-    rclpy.init(args=sys.argv if argv is None else argv, signal_handler_options=SignalHandlerOptions.NO)
-    stop = StopSignals()
-    node, executor = spun_node('uav_flock_viewer', Viewer, (ViewerError,))
-    if node is None or executor is None:
-        return 2
+    node, executor, stop = begun
     print(f'uav_flock_viewer: serving on ws://{node.get_parameter("host").value}:{node.server.port}', flush=True)
     try:
         while not stop.received:
