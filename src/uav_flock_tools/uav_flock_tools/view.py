@@ -7,6 +7,7 @@ the run, then holds the last frame for clients that come later (or plays the run
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 import time
 from pathlib import Path
@@ -53,8 +54,15 @@ class Clients:
             self.said(f'view: client {client.id} left')
 
 
+_SAYING = threading.Lock()
+
+
 def say(line: str) -> None:
-    print(line, flush=True)  # as it happens, also into a pipe
+    """One whole line as it happens, also into a pipe. The gate's thread and the server's callbacks both speak:
+    print writes a line and its newline apart, and two threads' lines came out run together."""
+    with _SAYING:
+        sys.stdout.write(line + '\n')
+        sys.stdout.flush()
 
 
 def play(path: Path, port: int, rate: float = 1.0, loop: bool = False, said: Callable[[str], None] = say) -> int:
