@@ -39,6 +39,8 @@ VACANT_STEPS = 100  # 10 s at Δt = 0.1 s: longer than the outages of a formatio
 PATIENT_STEPS = 300  # 30 s on a lagged vehicle (rule 'patient'): a multirotor's MAPs take 10-20 s to cross to a
                      # role, and a chain's relays reach its ends one by one
 
+EDGE_CODE = 64      # role codes: cluster k is k (< 63 ids a run may use), edge (a, b) is 64 + 64 a + b
+
 
 def vacant_steps(fp: FlockParams) -> int:
     """Steps a role goes unheard of before it is declared lost: VACANT_STEPS, or PATIENT_STEPS on a lagged vehicle
@@ -47,7 +49,6 @@ def vacant_steps(fp: FlockParams) -> int:
     squeezed out of the key line, the lost keys moved every MAP's key and sent a dozen MAPs across the formation
     in a still layout (docs/notes/vehicle.md)."""
     return PATIENT_STEPS if envelope.limited(fp) and on('patient') else VACANT_STEPS
-EDGE_CODE = 64      # role codes: cluster k is k (< 63 ids a run may use), edge (a, b) is 64 + 64 a + b
 
 
 def code(role: keys.RoleId) -> int:
