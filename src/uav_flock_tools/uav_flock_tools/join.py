@@ -22,6 +22,11 @@ from .keys import HostKeys
 from .spawn import ForkedAgent, start_agents, stop, write_pid_table
 
 POLL_S = 0.5
+# A joining host's agents make their DDS participant anew if they have not seen world_sim this long (s; the
+# agent's renew_unseen, 60 s where agents may start before the world): here the world is up, its run fetched
+# from it, so a participant still blind after 20 s was cut off from discovery (a refused TLS handshake under load
+# held a secured run's start 60 s in the whole suite, 11 of 12 MAPs ready).
+JOINED_RENEW_S = 20.0
 
 
 class JoinError(Exception):
@@ -94,7 +99,8 @@ def join(address: str, ids: list[int], out: Path, agents_per_process: int, timeo
     info = fetch_run_info(address, env, timeout, keys is not None)
     check_ids(ids, info)
     out.mkdir(parents=True, exist_ok=True)
-    here = {'crash_dir': str(out / CRASH_DIR)}  # this host's run folder, not the listening host's
+    here = {'crash_dir': str(out / CRASH_DIR),  # this host's run folder, not the listening host's
+            'renew_unseen': JOINED_RENEW_S}
     if info['agent_params'].get('links_log'):  # type: ignore[union-attr]
         here['links_log'] = str(out / LINKS_LOG_DIR)
     params = write_params(out / 'agent_params.yaml', {**info['agent_params'], **here})  # type: ignore[dict-item]
