@@ -6,16 +6,19 @@ Run: ./uav-flock exec python benchmarks/bench_vehicle.py [--seeds 5] [--cost-onl
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
+import functools
 import time
-from typing import Any
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
+from uav_agent.core import envelope
 from uav_agent.core.links import Links
 from uav_flock_tools.batch import BatchSimulator
 from uav_flock_tools.simrun import load_scenario
-from world_sim.core import outcome, records, vehicle
+from world_sim.core import outcome, physics, records, vehicle
 from world_sim.core.scenario import Scenario
 
 
@@ -29,9 +32,8 @@ def flown(s: Scenario) -> dict[str, Any]:
     speed, accel = outcome.flown(r.trajectory, s.dt)
     least = records.vehicle_column(m, 'min_distance')
     if least is None:  # the ideal vehicle records none: from its trajectory
-        from world_sim.core.physics import least_distance
         cols = records.columns(r.trajectory)
-        least = np.array([least_distance(np.column_stack([cols['x'], cols['y'], cols['z']])[cols['step'] == k])
+        least = np.array([physics.least_distance(np.column_stack([cols['x'], cols['y'], cols['z']])[cols['step'] == k])
                           for k in np.unique(cols['step'])])
     power = records.vehicle_column(m, 'power')
     return {'first': first, 't_star': outcome.t_star(dataclasses.replace(s, vehicle=vehicle.MULTIROTOR), r.users.centroids),
@@ -56,8 +58,61 @@ HEAD = ('| vehicle | success | time to success, median (s) | / T*: median | conn
         '| top speed (m/s) | top acceleration (m/s²) | mean power (W) | energy (kJ) |\n|---|---|---|---|---|---|---|---|---|---|')
 
 
+# What the vehicle adds to a step, wherever it is called from (world side: release, integration, GNSS, wind,
+# traffic receiver, records; agent side: the envelope's rules). Timed where the code calls it, outermost only.
+OWN = {vehicle: ('release', 'traffic', 'power'), vehicle.Flight: ('estimate', 'air', 'step'),
+       physics: ('least_distance',), envelope: ('capped', 'spring', 'keep_apart', 'governor', 'command')}
+
+
+@contextlib.contextmanager
+def timed_own() -> Iterator[dict[str, float]]:
+    """Each of OWN timed while inside; flocking_within counted less eq. 9's terms, which the ideal vehicle computes."""
+    spent: dict[str, float] = {}
+    inside = [0]
+    saved = [(owner, name, getattr(owner, name)) for owner, names in OWN.items() for name in names]
+    saved += [(envelope, 'flocking_within', envelope.flocking_within)]
+
+    def clocked(f: Callable[..., Any], label: str) -> Callable[..., Any]:
+        @functools.wraps(f)
+        def g(*a: Any, **k: Any) -> Any:
+            if inside[0]:
+                return f(*a, **k)
+            inside[0] += 1
+            t0 = time.perf_counter()
+            try:
+                return f(*a, **k)
+            finally:
+                spent[label] = spent.get(label, 0.0) + time.perf_counter() - t0
+                inside[0] -= 1
+        return g
+
+    def within(*a: Any, **k: Any) -> Any:  # its own work: the lead and the scaling, not the terms it calls
+        terms = a[0]
+        clock = [0.0]
+
+        def counted(*b: Any, **c: Any) -> Any:
+            t1 = time.perf_counter()
+            try:
+                return terms(*b, **c)
+            finally:
+                clock[0] += time.perf_counter() - t1
+        t0 = time.perf_counter()
+        out = saved[-1][2](counted, *a[1:], **k)
+        spent['flocking_within'] = spent.get('flocking_within', 0.0) + time.perf_counter() - t0 - clock[0]
+        return out
+    try:
+        for owner, name, f in saved[:-1]:
+            setattr(owner, name, clocked(f, name))
+        envelope.flocking_within = within
+        yield spent
+    finally:
+        for owner, name, f in saved:
+            setattr(owner, name, f)
+
+
 def cost(maps: int, steps: int) -> str:
-    """Wall time of `steps` steps at `maps` MAPs on each vehicle, A B A B, best of two each."""
+    """Wall time of `steps` steps at `maps` MAPs on each vehicle, A B A B, best of two each; then the multirotor's
+    run once more with the vehicle's own functions timed (OWN), against the rest of that run."""
     base = load_scenario('paper').with_overrides(maps=maps, duration=steps * 0.1)
     spread = dataclasses.replace(base, release_half_width=max(base.release_half_width, 4.0 * np.sqrt(maps)))
     times: dict[str, list[float]] = {'ideal': [], 'multirotor': []}
@@ -68,7 +123,14 @@ def cost(maps: int, steps: int) -> str:
             BatchSimulator(s).run()
             times[name].append(time.perf_counter() - t0)
     a, b = min(times['ideal']), min(times['multirotor'])
-    return f'{maps} MAPs, {steps} steps: ideal {a:.2f} s, multirotor {b:.2f} s, ratio {b / a:.3f}'
+    with timed_own() as spent:
+        t0 = time.perf_counter()
+        BatchSimulator(dataclasses.replace(spread, vehicle=vehicle.MULTIROTOR)).run()
+        whole = time.perf_counter() - t0
+    own = sum(spent.values())
+    top = ', '.join(f'{k} {v:.3f}' for k, v in sorted(spent.items(), key=lambda kv: -kv[1])[:3])
+    return (f'{maps} MAPs, {steps} steps: ideal {a:.2f} s, multirotor {b:.2f} s, ratio {b / a:.3f}; the vehicle\'s own '
+            f'functions {own:.3f} s of {whole:.2f} s, x {whole / (whole - own):.3f} over the rest ({top} s)')
 
 
 def main() -> int:

@@ -188,10 +188,13 @@ def _sparse_fiedler(pairs: NDArray[np.intp], n: int) -> float | None:
     return float(np.sort(values)[1])
 
 
-def least_distance(q: F64) -> float:
-    """The least distance between two of these positions (m); NaN for fewer than two."""
+def least_distance(q: F64, pairs: NDArray[np.intp] | None = None) -> float:
+    """The least distance between two of these positions (m); NaN for fewer than two. pairs: those within some
+    range, when known (neighbour_pairs): the nearest two are among them if any is, and measured there alone."""
     if len(q) < 2:
         return float('nan')
+    if pairs is not None and len(pairs):
+        return float(np.linalg.norm(q[pairs[:, 1]] - q[pairs[:, 0]], axis=1).min())
     return float(cKDTree(q).query(q, k=2)[0][:, 1].min())
 
 

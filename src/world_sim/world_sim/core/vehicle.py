@@ -144,6 +144,7 @@ def _part(doc: Any, kind: type, where: str, zero_ok: tuple[str, ...]) -> Any:
     return kind(**values)
 
 
+REACH_SLACK = 1e-6  # m
 TRAFFIC_MOST = 8  # the most broadcasts a MAP's traffic receiver passes on each step: the most urgent
 
 
@@ -158,8 +159,11 @@ def traffic(truth: F64, told: F64, p: F64, v: Vehicle) -> NDArray[np.intp] | Non
     if len(truth) < 2:
         return np.zeros((0, 2), dtype=np.intp)
     keep = v.envelope()['keep']
-    fastest = 2.0 * float(np.linalg.norm(p, axis=1).max())  # no two MAPs close faster
-    reach = keep + braking_room(fastest, v.a_max, v.tau)  # no pair farther apart (told) is acted on
+    # No two MAPs close faster than twice the most any flies off the formation's mean velocity: a formation in
+    # transit flies together at v_max, and its pairs are sought as near as its settled ones (REACH_SLACK: the
+    # bound computed in floating point).
+    fastest = 2.0 * float(np.linalg.norm(p - p.mean(axis=0), axis=1).max())
+    reach = keep + braking_room(fastest, v.a_max, v.tau) + REACH_SLACK  # no pair farther apart (told) acts
     if reach < v.traffic:  # the same pairs, found among fewer
         pairs = cKDTree(told).query_pairs(reach, output_type='ndarray')
         pairs = pairs[np.linalg.norm(truth[pairs[:, 1]] - truth[pairs[:, 0]], axis=1) <= v.traffic]
