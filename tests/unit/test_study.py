@@ -168,6 +168,7 @@ def test_an_interrupted_study_keeps_its_rows_and_the_next_call_computes_only_the
     ({'layouts': {'count': 1}, 'variants': {'odd': {'flock.nope': 1}}}, 'variants: odd: '),
     ({'scenario': 'paper', 'layouts': {'count': 1}}, 'either layouts'),
     ({'layouts': {'count': 1}, 'variants': {'ab': {'without': ['hold', 'nope']}}}, 'variants: ab: without: nope: no such rule'),
+    ({'layouts': {'count': 1}, 'variants': {True: {'vehicle.model': 'multirotor'}}}, 'variants: True is read as bool, not a name: quote it'),
 ])
 def test_a_bad_spec_is_one_line_and_exit_2(tmp_path: Path, spec: dict, says: str) -> None:
     (tmp_path / 'bad.yaml').write_text(yaml.safe_dump(spec))

@@ -169,7 +169,10 @@ def _checked(doc: Any) -> Spec:
         raise SpecError('kinds: expected a list')
     if not isinstance(variants, dict):
         raise SpecError('variants: expected a mapping of name: {dotted.key: value, ...}')
-    variants = {str(name): _variant(str(name), v) for name, v in variants.items()}
+    for name in variants:
+        if not isinstance(name, str):  # YAML reads on, off, yes, no, true, false and numbers as other types
+            raise SpecError(f'variants: {name!r} is read as {type(name).__name__}, not a name: quote it')
+    variants = {name: _variant(name, v) for name, v in variants.items()}
     for name, v in variants.items():
         off = v.get(OFF, [])
         if not isinstance(off, list) or not all(isinstance(x, str) for x in off):
