@@ -164,17 +164,17 @@ def traffic(truth: F64, told: F64, p: F64, v: Vehicle) -> NDArray[np.intp] | Non
     # bound computed in floating point).
     fastest = 2.0 * float(np.linalg.norm(p - p.mean(axis=0), axis=1).max())
     reach = keep + braking_room(fastest, v.a_max, v.tau) + REACH_SLACK  # no pair farther apart (told) acts
-    if reach < v.traffic:  # the same pairs, found among fewer
-        pairs = cKDTree(told).query_pairs(reach, output_type='ndarray')
-        pairs = pairs[np.linalg.norm(truth[pairs[:, 1]] - truth[pairs[:, 0]], axis=1) <= v.traffic]
-    else:
-        pairs = cKDTree(truth).query_pairs(v.traffic, output_type='ndarray')
+    near = reach < v.traffic  # the same pairs, found among fewer: those within range (truth) kept once they act
+    pairs = cKDTree(told if near else truth).query_pairs(reach if near else v.traffic, output_type='ndarray')
     dq = told[pairs[:, 1]] - told[pairs[:, 0]]
     dist = np.maximum(np.linalg.norm(dq, axis=1), 1e-9)
     closing = np.maximum(np.einsum('ij,ij->i', p[pairs[:, 0]] - p[pairs[:, 1]], dq) / dist, 0.0)  # the same both ways
     room = dist - braking_room(closing, v.a_max, v.tau)
     acting = room < keep
     pairs, room = pairs[acting], room[acting]
+    if near:
+        heard = np.linalg.norm(truth[pairs[:, 1]] - truth[pairs[:, 0]], axis=1) <= v.traffic
+        pairs, room = pairs[heard], room[heard]
     both, room = np.concatenate([pairs, pairs[:, ::-1]]).astype(np.intp), np.concatenate([room, room])
     both = both[np.lexsort((both[:, 1], room, both[:, 0]))]
     first = np.searchsorted(both[:, 0], both[:, 0], side='left')
