@@ -194,7 +194,8 @@ def least_distance(q: F64, pairs: NDArray[np.intp] | None = None) -> float:
     if len(q) < 2:
         return float('nan')
     if pairs is not None and len(pairs):
-        return float(np.linalg.norm(q[pairs[:, 1]] - q[pairs[:, 0]], axis=1).min())
+        once = pairs[pairs[:, 0] < pairs[:, 1]]  # each pair once, not both ways
+        return float(np.linalg.norm(q[once[:, 1]] - q[once[:, 0]], axis=1).min())
     return float(cKDTree(q).query(q, k=2)[0][:, 1].min())
 
 
