@@ -8,7 +8,8 @@ from uav_agent.core.clusters import ClusterMap, key_of
 from uav_agent.core.params import FlockParams
 
 
-def role_ids(clusters: ClusterMap, n: int, fp: FlockParams) -> list[Any]:
-    """Each of MAPs 0..n-1's role as a cluster id or an edge: what stays the same across surveys."""
-    roles = layout.roles(clusters, fp.d)
+def role_ids(clusters: ClusterMap, n: int, fp: FlockParams, near: bool = False) -> list[Any]:
+    """Each of MAPs 0..n-1's role as a cluster id or an edge: what stays the same across surveys (near: rule
+    'nearest', as a lagged vehicle lays them out)."""
+    roles = layout.roles(clusters, fp.d, near)
     return [[*range(clusters.count), *roles.edges][roles.of(key_of(i))] for i in range(n)]

@@ -113,6 +113,29 @@ def test_an_arriving_cluster_takes_its_whole_share_from_the_roles_above_theirs()
     assert all(before[i] == after[i] or after[i] in (3, (2, 3)) for i in range(n)), 'only towards the arrival'
 
 
+def test_rule_nearest_staffs_an_arrival_from_the_clusters_nearest_it_on_the_tree() -> None:
+    """Rule 'nearest': the MAPs an arriving cluster and its edge take come from the cluster the new edge joins,
+    down to its floor, then from the next along the tree; without it, from the roles most above their share,
+    wherever they are."""
+    fp, n = FlockParams(), 150
+    xy, radii = np.array([[0.0, 0.0], [150.0, 0.0], [300.0, 0.0]]), np.array([40.0, 30.0, 35.0])
+    moved = {}
+    for near in (True, False):
+        first = ClusterMap(xy, fp.height, radii)
+        before = role_ids(first, n, fp, near)
+        arrived = ClusterMap(np.r_[xy, [[300.0, 160.0]]], fp.height, np.r_[radii, 15.0], previous=first)
+        after = role_ids(arrived, n, fp, near)
+        assert all(b == a or a in (3, (2, 3)) for b, a in zip(before, after)), 'only towards the arrival'
+        moved[near] = [sum(b == c and a != c for b, a in zip(before, after)) for c in range(3)]
+        if near:
+            roles = layout.roles(arrived, fp.d, True)
+            proportional = np.array(roles.demand) / sum(roles.demand)
+            assert math.isclose(roles.share[2], proportional[2] / (1 + layout.SLACK), rel_tol=1e-9), 'lent to its floor'
+    # with the rule, the far end of the tree (cluster 0) lends what rounding leaves, and cluster 2 most
+    assert moved[True][0] <= 1 < moved[False][0] and moved[True][2] > moved[False][2], moved
+    assert moved[True][2] >= moved[True][1] > moved[True][0], moved
+
+
 def test_an_edge_that_leaves_the_tree_keeps_its_chain_while_the_new_one_is_staffed_from_the_surplus() -> None:
     """Cluster 1 drifts until the tree swaps edge (0, 1) for (2, 3), which shares no cluster with it: no
     relay can swing. The old chain stands for STANDING surveys while servers with keys to spare staff the new

@@ -198,6 +198,11 @@ def test_every_envelope_rule_acts_on_a_multirotor_run() -> None:
             s = draw('paper', 22, (3, 6), 0)[21]  # where a long edge's relays came one by one and were declared lost at 42 s
             s = replace(s, maps=math.ceil(1.5 * layouts.floor(s).total), duration=45.0, seed=0, survey='online',
                         flock=policy_sets(s)['default'])
+        if rule == 'nearest':  # a new role, which the paper's layout has not: 300 users arriving at t = 3 s
+            doc = to_doc(s)
+            doc['users'] = {**doc['users'], 'survey': 'online', 'clusters': [
+                *doc['users']['clusters'], {'center': [150.0, 250.0], 'size': 300, 'spread': 14.0, 'start': 3.0}]}
+            s = replace(parse(doc), duration=8.0)
         base = digest_of(s)
         with switched_off([rule]):
             assert digest(s) != base, rule

@@ -57,6 +57,9 @@ VEHICLE_RULES = {
     'priority': "that braking is served first from a_max, eq. 9's terms from what is left (envelope.command)",
     'patient': 'a role is declared lost after PATIENT_STEPS unheard of, not VACANT_STEPS: a multirotor takes that long to '
                'cross to it, under the demand allocation (vacancy.vacant_steps)',
+    'nearest': "a new edge or cluster takes its share first from the clusters nearest it on the tree, down to their "
+               'floor, not from the roles most above their share wherever they are, under the demand allocation '
+               '(layout.roles, vacancy.nearest)',
 }
 RULES.update(CHANNEL_RULES)
 RULES.update(VEHICLE_RULES)

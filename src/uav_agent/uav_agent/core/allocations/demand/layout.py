@@ -21,20 +21,21 @@ SLACK = 0.3  # a cluster keeps servers down to its proportional share / (1 + SLA
 STANDING = 10  # surveys an edge that left the tree keeps its relays while its replacement forms (standing)
 
 
-def roles(clusters: ClusterMap, d: float) -> 'Roles':
+def roles(clusters: ClusterMap, d: float, near: bool = False) -> 'Roles':
     """Every cluster and every edge of the MST over all clusters, with its demand in MAPs and its keys; laid
-    out once per survey (ClusterMap.derived), from the roles of the survey before (ClusterMap.previous)."""
-    key = ('demand.roles', float(d))
+    out once per survey (ClusterMap.derived), from the roles of the survey before (ClusterMap.previous).
+    near: a new role's MAPs come from the clusters nearest it on the tree (rule 'nearest', a lagged vehicle's)."""
+    key = ('demand.roles', float(d), near)
     if key not in clusters.derived:
-        clusters.derived[key] = _laid_out(clusters, float(d))
+        clusters.derived[key] = _laid_out(clusters, float(d), near)
     return clusters.derived[key]
 
 
-def _laid_out(now: ClusterMap, d: float) -> 'Roles':
+def _laid_out(now: ClusterMap, d: float, near: bool) -> 'Roles':
     """roles(), uncached."""
     tree = now.mst(now.live)
     previous, now.previous = now.previous, None
-    was = roles(previous, d) if previous is not None else None
+    was = roles(previous, d, near) if previous is not None else None
     stand = standing(was, tree, now) if was is not None and on('standing') else ()
     edges = tree + tuple(e for e, _ in stand)
     cell = math.sqrt(3.0) / 2.0 * d * d  # area per MAP of a hexagonal lattice of spacing d
@@ -60,10 +61,14 @@ def _laid_out(now: ClusterMap, d: float) -> 'Roles':
                 before = keys.halved(before, e, e[0], e[1])
         held = keys.totals(before)
         lenders: list[int] = []
+        joined = [k for e in tree if e not in was.edges for k in e]
         if stand:  # a standing chain keeps what it holds, lent by the clusters above their floor (kept)
             fixed = {e for e, _ in stand}
             share = tuple(held.get(r, 0.0) if r in fixed else s for r, s in zip(ids, share))
-            lenders = by_hops(tree, [k for e in tree if e not in was.edges for k in e])
+            lenders = by_hops(tree, joined)
+        elif near:  # rule 'nearest': a new edge or cluster takes its share from the clusters nearest it first
+            arrived = [k for k in range(now.count) if now.live >> k & 1 and held.get(k, 0.0) <= 0.0]
+            lenders = by_hops(tree, joined + arrived) if joined or arrived else []
         share = kept(share, ids, held, SLACK if on('kept') else 1e-9, lenders)
         pieces = keys.carry(before, dict(zip(ids, share))) if on('carry') else \
             keys.fresh(keys.end_to_end(dict(zip(ids, share))))

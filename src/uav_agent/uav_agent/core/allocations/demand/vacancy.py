@@ -42,6 +42,12 @@ PATIENT_STEPS = 300  # 30 s on a lagged vehicle (rule 'patient'): a multirotor's
 EDGE_CODE = 64      # role codes: cluster k is k (< 63 ids a run may use), edge (a, b) is 64 + 64 a + b
 
 
+def nearest(fp: FlockParams) -> bool:
+    """Rule 'nearest': whether a new role's share is lent first by the clusters nearest it on the tree (layout.roles),
+    not by those most above their share wherever they are: on a lagged vehicle, MAPs cross to it from nearby."""
+    return envelope.limited(fp) and on('nearest')
+
+
 def vacant_steps(fp: FlockParams) -> int:
     """Steps a role goes unheard of before it is declared lost: VACANT_STEPS, or PATIENT_STEPS on a lagged vehicle
     (rule 'patient'). Behind a multirotor's envelope the relays of a long edge arrive one by one over 10-20 s, and
@@ -103,7 +109,7 @@ def view(roles: Roles, lost: tuple[keys.Span, ...], short: tuple[tuple[int, int]
 def role_of(agent_id: int, lost: tuple[keys.Span, ...], clusters: ClusterMap, fp: FlockParams,
             short: tuple[tuple[int, int], ...] = ()) -> tuple[Roles, float]:
     """The roles as this MAP lays them out, and where its key lies among the survivors' keys."""
-    return view(layout.roles(clusters, fp.d), lost, short), keys.squeeze(key_of(agent_id), lost)
+    return view(layout.roles(clusters, fp.d, nearest(fp)), lost, short), keys.squeeze(key_of(agent_id), lost)
 
 
 @lru_cache(maxsize=256)
@@ -129,7 +135,7 @@ def vacate(mem: Mine, step: int, q: np.ndarray, clusters: ClusterMap, fp: FlockP
     declared role counts as heard VACANT_STEPS from now, so its new members, who may fly in from a part of the
     formation not yet joined to this one, have twice that to arrive before it can be declared again.
     """
-    roles = view(layout.roles(clusters, fp.d), mem.lost, mem.short)
+    roles = view(layout.roles(clusters, fp.d, nearest(fp)), mem.lost, mem.short)
     current, codes = _current(roles)
     seen = {c: k for c, k in mem.seen if c in codes}  # roles that left the layout are forgotten
     short = tuple((c, n) for c, n in mem.short if c in codes)
