@@ -40,6 +40,11 @@ class StopSignals:
     def _on_signal(self, signum: int, frame: Optional[FrameType]) -> None:
         self.received = True
 
+    def spin(self, executor: Executor) -> None:
+        """Spin until SIGINT or SIGTERM: a node program's life between its start (started) and its end."""
+        while not self.received:
+            executor.spin_once(timeout_sec=0.1)
+
 
 @contextmanager
 def signals_deferred() -> Iterator[None]:
@@ -99,17 +104,17 @@ def spun_node(program: str, factory: Callable[[], N], user_errors: tuple[type[Ex
 
 
 def started(program: str, factory: Callable[[], N], user_errors: tuple[type[Exception], ...],
-            argv: Optional[list[str]] = None) -> Optional[tuple[N, Executor, 'StopSignals']]:
+            argv: Optional[list[str]] = None) -> tuple[N, Executor, 'StopSignals']:
     """A node program's start, the same for each: its ROS arguments checked, rclpy initialised with SIGINT and
-    SIGTERM left to StopSignals, the node on its executor; None after one line on stderr for a user's mistake."""
+    SIGTERM left to StopSignals, the node on its executor. A user's mistake: one line on stderr, exit 2."""
     argv = sys.argv if argv is None else argv
     if checked_ros_args(program, argv) is None:
-        return None
+        raise SystemExit(2)
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     stop = StopSignals()
     node, executor = spun_node(program, factory, user_errors)
     if node is None or executor is None:
-        return None
+        raise SystemExit(2)
     return node, executor, stop
 
 

@@ -188,13 +188,9 @@ class Recorder(Node):
 
 
 def main(argv: Optional[list[str]] = None) -> int:
-    begun = started('uav_flock_recorder', Recorder, (WriterError,), argv)
-    if begun is None:
-        return 2
-    node, executor, stop = begun
+    node, executor, stop = started('uav_flock_recorder', Recorder, (WriterError,), argv)
     try:
-        while not stop.received:
-            executor.spin_once(timeout_sec=0.1)
+        stop.spin(executor)
         # Drain what is already on its way, then close: the bag is complete and readable.
         start = time.monotonic()
         while time.monotonic() - node.last_message < DRAIN_IDLE_S and time.monotonic() - start < DRAIN_MAX_S:

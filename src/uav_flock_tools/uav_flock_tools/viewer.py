@@ -109,14 +109,10 @@ class Viewer(Node):
 
 
 def main(argv: Optional[list[str]] = None) -> int:
-    begun = started('uav_flock_viewer', Viewer, (ViewerError,), argv)
-    if begun is None:
-        return 2
-    node, executor, stop = begun
+    node, executor, stop = started('uav_flock_viewer', Viewer, (ViewerError,), argv)
     print(f'uav_flock_viewer: serving on ws://{node.get_parameter("host").value}:{node.server.port}', flush=True)
     try:
-        while not stop.received:
-            executor.spin_once(timeout_sec=0.1)
+        stop.spin(executor)
     finally:
         node.close()
         node.destroy_node()
