@@ -70,7 +70,7 @@ def timed_own() -> Iterator[dict[str, float]]:
     spent: dict[str, float] = {}
     inside = [0]
     saved = [(owner, name, getattr(owner, name)) for owner, names in OWN.items() for name in names]
-    saved += [(envelope, 'flocking_within', envelope.flocking_within)]
+    flocking_within = envelope.flocking_within
 
     def clocked(f: Callable[..., Any], label: str) -> Callable[..., Any]:
         @functools.wraps(f)
@@ -97,17 +97,18 @@ def timed_own() -> Iterator[dict[str, float]]:
             finally:
                 clock[0] += time.perf_counter() - t1
         t0 = time.perf_counter()
-        out = saved[-1][2](counted, *a[1:], **k)
+        out = flocking_within(counted, *a[1:], **k)
         spent['flocking_within'] = spent.get('flocking_within', 0.0) + time.perf_counter() - t0 - clock[0]
         return out
     try:
-        for owner, name, f in saved[:-1]:
+        for owner, name, f in saved:
             setattr(owner, name, clocked(f, name))
         envelope.flocking_within = within
         yield spent
     finally:
         for owner, name, f in saved:
             setattr(owner, name, f)
+        envelope.flocking_within = flocking_within
 
 
 def cost(maps: int, steps: int) -> str:

@@ -68,7 +68,7 @@ def _laid_out(now: ClusterMap, d: float, near: bool) -> 'Roles':
             lenders = by_hops(tree, joined)
         elif near:  # rule 'nearest': a new edge or cluster takes its share from the clusters nearest it first
             arrived = [k for k in range(now.count) if now.live >> k & 1 and held.get(k, 0.0) <= 0.0]
-            lenders = by_hops(tree, joined + arrived) if joined or arrived else []
+            lenders = by_hops(tree, joined + arrived)
         share = kept(share, ids, held, SLACK if on('kept') else 1e-9, lenders)
         pieces = keys.carry(before, dict(zip(ids, share))) if on('carry') else \
             keys.fresh(keys.end_to_end(dict(zip(ids, share))))
