@@ -142,22 +142,20 @@ class CommandData(NamedTuple):
         return cls(int(msg.id), int(msg.step), xyz(msg.accel), int(msg.mode), int(msg.goal))
 
 
-class SensingData(NamedTuple):
-    """/map_<id>/sensing: one MAP's own q, p, N_u and r_g at step k, its neighbours within r, and the broadcasts
-    its traffic receiver took in (a multirotor's, vehicle.traffic)."""
+# /map_<id>/sensing's values: a MAP's own id, step k, q (m) and p (m/s) and N_u, as PassedData declares them
+# (the same quantities), then r_g, its neighbours within r and what its traffic receiver took in.
+_Sensed = NamedTuple('_Sensed', [*list(PassedData.__annotations__.items())[:5], ('goal_coverage', float),
+                                 ('neighbour_ids', np.ndarray), ('distances', np.ndarray), ('clusters_version', int),
+                                 ('traffic_ids', np.ndarray), ('traffic_q', np.ndarray), ('traffic_p', np.ndarray)])
+_Sensed.__new__.__defaults__ = (0, np.zeros(0, dtype=np.intp), np.zeros((0, 3)), np.zeros((0, 3)))
 
-    id: int
-    step: int
-    q: np.ndarray                   # (3,) m
-    p: np.ndarray                   # (3,) m/s
-    n_users: int
-    goal_coverage: float
-    neighbour_ids: np.ndarray       # ascending
-    distances: np.ndarray           # m, one per neighbour
-    clusters_version: int = 0
-    traffic_ids: np.ndarray = np.zeros(0, dtype=np.intp)  # ascending
-    traffic_q: np.ndarray = np.zeros((0, 3))               # (t, 3) m, as each broadcasts it
-    traffic_p: np.ndarray = np.zeros((0, 3))               # (t, 3) m/s
+
+class SensingData(_Sensed):
+    """/map_<id>/sensing: one MAP's own q, p, N_u and r_g at step k, its neighbours within r (neighbour_ids
+    ascending, distances in m), and the broadcasts its traffic receiver took in (a multirotor's, vehicle.traffic:
+    traffic_ids ascending, traffic_q (t, 3) m as each broadcasts it, traffic_p (t, 3) m/s)."""
+
+    __slots__ = ()
 
     def to_msg(self, header: Header) -> Sensing:
         return Sensing(header=header, id=int(self.id), step=int(self.step), position=point(self.q),
