@@ -167,9 +167,10 @@ def traffic(truth: F64, told: F64, p: F64, v: Vehicle) -> NDArray[np.intp] | Non
     reach = keep + braking_room(fastest, v.a_max, v.tau) + REACH_SLACK  # no pair farther apart (told) acts
     near = reach < v.traffic  # the same pairs, found among fewer: those within range (truth) kept once they act
     pairs = cKDTree(told if near else truth).query_pairs(reach if near else v.traffic, output_type='ndarray')
-    dq = told[pairs[:, 1]] - told[pairs[:, 0]]
-    dist = np.maximum(np.linalg.norm(dq, axis=1), 1e-9)
-    closing = np.maximum(np.einsum('ij,ij->i', p[pairs[:, 0]] - p[pairs[:, 1]], dq) / dist, 0.0)  # the same both ways
+    d = np.hstack([told, p])  # one gather a side: j's told position and velocity less i's
+    d = d[pairs[:, 1]] - d[pairs[:, 0]]
+    dist = np.maximum(np.sqrt(np.einsum('ij,ij->i', d[:, :3], d[:, :3])), 1e-9)
+    closing = np.maximum(-np.einsum('ij,ij->i', d[:, 3:], d[:, :3]) / dist, 0.0)  # the same both ways
     room = dist - braking_room(closing, v.a_max, v.tau)
     acting = room < keep
     pairs, room = pairs[acting], room[acting]
