@@ -85,6 +85,22 @@ def test_a_multirotor_run_records_truth_and_estimate_apart(multirotor_run: tuple
     assert records.metrics_columns(s)[-3:] == records.VEHICLE_COLUMNS
 
 
+@pytest.mark.parametrize('n, few', [(40, 3), (300, 3), (300, 60)])
+def test_the_release_measures_only_the_maps_drawn_again_and_finds_every_pair_too_near(n: int, few: int) -> None:
+    """After its first round a release measures only the MAPs just drawn again, against all (by hand when at most
+    FEW, else with a tree): the pairs query_pairs on every MAP would find that hold one of them, each way."""
+    from scipy.spatial import cKDTree
+    rng = np.random.default_rng(n + few)
+    xy = rng.uniform(-1, 1, (n, 2)) * 3.0 * math.sqrt(n)  # crowded: most MAPs have one too near
+    rows = np.sort(rng.choice(n, few, replace=False))
+    every = cKDTree(xy).query_pairs(6.1, output_type='ndarray')
+    want = {(int(i), int(j)) for a, b in every for i, j in ((a, b), (b, a)) if i in rows}
+    got = {(int(i), int(j)) for i, j in vehicle._too_near(xy, rows, 6.1)}
+    assert got == want and len(want) > 0, (sorted(got ^ want), len(want))
+    assert {tuple(sorted(pair)) for pair in vehicle._too_near(xy, np.arange(n), 6.1).tolist()} == \
+        {tuple(sorted(pair)) for pair in every.tolist()}, 'the first round: every pair'
+
+
 def test_the_release_keeps_maps_apart_and_within_v_max() -> None:
     v = vehicle.MULTIROTOR
     rng = np.random.default_rng(1)
