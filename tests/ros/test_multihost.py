@@ -221,8 +221,9 @@ def test_a_secure_run_over_three_hosts_equals_sim_and_strangers_neither_join_nor
 
 def test_losing_a_host_by_kill_and_by_link_leaves_the_exact_alive_count_and_the_rest_recovers(
         hosts: dict[str, str], tmp_path: Path, ros_env: dict[str, str], paper_scenario_path: str) -> None:
-    # 100 s: host a's MAPs are dropped near t = 19 s and host b's near 20 s (lockstep waits for them), and the 8 left
-    # cover the users again by about 22 s; the rest is margin for a slower machine.
+    # At t = 10 s host a's agents are killed and host b falls off the network at once: each is noticed when its
+    # participants' lease ends (20 s in Fast DDS; lockstep waits for them), one wait for both, and the 8 left cover
+    # the users again a few seconds later; the rest of the 100 s is margin for a slower machine.
     world, joined = start(hosts, tmp_path, ros_env, small_scenario(paper_scenario_path, tmp_path), '100', 8,
                           '8,9', '10,11')
     out = tmp_path / 'world.out'
@@ -232,11 +233,10 @@ def test_losing_a_host_by_kill_and_by_link_leaves_the_exact_alive_count_and_the_
                                 capture_output=True, text=True, env=ros_env)
         assert killed.returncode == 0, killed.stderr
         # No pid of host a is known here: DDS says when its participants are gone (their lease ends).
-        wait_for(out, r'alive = 10 ', world, 90)  # lockstep: the world waited for them, then went on
         netns.ip('-n', hosts['b'], 'link', 'set', 'eth0', 'down')  # host b falls off the network, its agents live on
         cut = time.monotonic()
-        wait_for(out, r'alive = 8 ', world, 60)
-        print(f'host b dropped {time.monotonic() - cut:.1f} s after its link went down')
+        wait_for(out, r'alive = 8 ', world, 90)
+        print(f'hosts a and b dropped {time.monotonic() - cut:.1f} s after the kill and the link went down')
         assert world.wait(timeout=300) == 0, out.read_text()
     finally:
         end([world, *joined])
@@ -246,6 +246,6 @@ def test_losing_a_host_by_kill_and_by_link_leaves_the_exact_alive_count_and_the_
     dropped = sorted(int(i) for ids in re.findall(r'dropped MAPs \[([\d, ]+)\]', out.read_text())
                      for i in ids.split(','))
     assert dropped == [8, 9, 10, 11], f'exactly the MAPs of hosts a and b were dropped: {dropped}'
-    assert alive[0] == 12 and alive[-1] == 8 and 10 in alive and all(a >= b for a, b in zip(alive, alive[1:]))
+    assert alive[0] == 12 and alive[-1] == 8 and all(a >= b for a, b in zip(alive, alive[1:]))
     rc = float(metrics[-1][2])
     assert rc >= 0.95, f'the 8 MAPs left cover the users again: R_c {rc:.3f} at the end'
