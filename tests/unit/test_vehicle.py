@@ -9,6 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from uav_agent.core.links import Links
 from uav_flock_tools.batch import BatchSimulator
@@ -89,7 +90,6 @@ def test_a_multirotor_run_records_truth_and_estimate_apart(multirotor_run: tuple
 def test_the_release_measures_only_the_maps_drawn_again_and_finds_every_pair_too_near(n: int, few: int) -> None:
     """After its first round a release measures only the MAPs just drawn again, against all (by hand when at most
     FEW, else with a tree): the pairs query_pairs on every MAP would find that hold one of them, each way."""
-    from scipy.spatial import cKDTree
     rng = np.random.default_rng(n + few)
     xy = rng.uniform(-1, 1, (n, 2)) * 3.0 * math.sqrt(n)  # crowded: most MAPs have one too near
     rows = np.sort(rng.choice(n, few, replace=False))
