@@ -14,7 +14,7 @@ from uav_agent.core.agent import Neighbourhood, agent_step
 from uav_agent.core.allocations.algorithm2 import mode_switch
 from uav_agent.core.allocations.demand import layout
 from uav_agent.core.allocations.demand.allocation import demand_switch, en_route
-from uav_agent.core.allocations.demand.chain import Chain, anchored, hushed, pivot, relay_place, swing_place
+from uav_agent.core.allocations.demand.chain import Chain, Ends, anchored, chain_of, hushed, pivot, relay_place, swing_place
 from uav_agent.core.allocations.demand.memory import Gossip, Mine
 from uav_agent.core.clusters import NO_GOAL, ClusterMap, key_of, mst_edges
 from uav_agent.core.params import FlockParams
@@ -141,20 +141,76 @@ def test_a_map_in_transit_passes_others_at_half_d_where_unrelated_settled_maps_k
     assert u(server_of_1, 0.3 * P.d, passing)[0] < alone(server_of_1)[0] - 1.0, 'closer than d/2 it repels'
 
 
+def test_a_relay_that_knows_its_rank_and_both_anchors_flies_to_its_share_of_the_span() -> None:
+    """Rule 'ends': each relay passes on its count of links to either anchor and where that anchor is, one hop more
+    than the member it hears on that side says; knowing both, a relay aims at its even share of the span at once.
+    A chain too short for its span, or one that knows one anchor only, is laid out taut from it; under the paper's
+    vehicle, or without the rule, the relay aims midway between the members it hears."""
+    from uav_agent.core.ablation import switched_off
+    lagged = replace(P, v_max=15.0, a_max=4.0, tau=0.3, keep=6.1)
+    clusters, edge = line([100.0]), (0, 1)
+    link = P.r - 1.0
+    q = np.array([80.0, 0.0, 20.0])
+    heard = np.array([[60.0, 0.0, 20.0], [100.0, 0.0, 20.0]])
+
+    def relays(below: tuple[float, ...], above: tuple[float, ...]) -> list[Told]:
+        return [Told(M1, 0, edge, Gossip(ends=below)), Told(M1, 0, edge, Gossip(ends=above))]
+
+    told = relays((3.0, 10.0, 0.0, 0.0), (0.0, 0.0, 2.0, 130.0))
+    assert chain_of(q, edge, heard, told, clusters, lagged).ends == Ends(4, 10.0, 3, 130.0)
+    assert relay_place(5, q, edge, heard, told, clusters, lagged) == pytest.approx(10.0 + 4 / 7 * 120.0)
+    assert relay_place(5, q, edge, heard, told, clusters, P) == 80.0, "the paper's vehicle: midway"
+    with switched_off(['ends']):
+        assert chain_of(q, edge, heard, told, clusters, lagged).ends == Ends()
+        assert relay_place(5, q, edge, heard, told, clusters, lagged) == 80.0
+    too_long = relays((3.0, 10.0, 0.0, 0.0), (0.0, 0.0, 2.0, 200.0))  # 190 m for 7 links of r - 1 m
+    assert relay_place(5, q, edge, heard, too_long, clusters, lagged) == pytest.approx(10.0 + 4 * link)
+    one_end = relays((3.0, 10.0, 0.0, 0.0), ())
+    assert relay_place(5, q, edge, heard, one_end, clusters, lagged) == pytest.approx(10.0 + 4 * link)
+    stale = relays((64.0, 10.0, 0.0, 0.0), (0.0, 0.0, 2.0, 130.0))  # a count past ENDS_HOPS: a loop, not a chain
+    assert chain_of(q, edge, heard, stale, clusters, lagged).ends == Ends(0, 0.0, 3, 130.0)
+    # the server heard below is the anchor itself, one link off, as a point on the line
+    rim = np.array([[35.0, 0.0, 20.0], heard[1]])  # within cluster 0's disc
+    server = chain_of(q, edge, rim, [Told(M2, 0, None), told[1]], clusters, lagged).ends
+    assert server[0] == 1 and server[1] == pytest.approx(35.0) and server[2:] == (3, 130.0)
+
+
 def test_on_a_lagged_vehicle_a_relay_and_its_servers_only_repel() -> None:
     """Rule 'loose': behind a lag the servers' pull held relays inside their cluster and the chain never spanned
     its gap; on the paper's vehicle they attract as before, and fellow relays always do."""
     from uav_agent.core.ablation import switched_off
     from uav_agent.core.policies import ALLOCATIONS
-    from uav_agent.core.state import APART, RELATED
+    from uav_agent.core.state import APART, INLINE, RELATED
     lagged = replace(P, v_max=15.0, a_max=4.0, tau=0.3, keep=6.1)
     demand = ALLOCATIONS['demand']
     relay, fellow, server = Told(M1, 0, (0, 1)), Told(M1, 0, (0, 1)), Told(M2, 1, None)
     assert demand.link(relay, server, P) == RELATED and demand.link(server, relay, P) == RELATED
     assert demand.link(relay, server, lagged) == APART and demand.link(server, relay, lagged) == APART
-    assert demand.link(relay, fellow, lagged) == RELATED
-    with switched_off(['loose']):
-        assert demand.link(relay, server, lagged) == RELATED
+    assert demand.link(relay, fellow, P) == RELATED and demand.link(relay, fellow, lagged) == INLINE
+    with switched_off(['loose', 'inline']):
+        assert demand.link(relay, server, lagged) == RELATED and demand.link(relay, fellow, lagged) == RELATED
+
+
+def test_fellow_relays_on_a_lagged_vehicle_space_themselves_along_their_edge_only() -> None:
+    """Rule 'inline': two fellow relays side by side across their edge's line (closer than d across it, level
+    along it) push each other neither aside nor along; one closer than d along the edge is pushed along it, and
+    by the same amount whatever its offset across the line."""
+    from uav_agent.core.control import flocking_terms
+    from uav_agent.core.state import INLINE, RELATED
+    axis = np.array([[1.0, 0.0, 0.0]])
+    own = np.array([[0.0, 0.0, P.height]])
+
+    def f(offset: list[float], link: int) -> np.ndarray:
+        nbr = own + np.array([offset])
+        return flocking_terms(own, np.zeros((1, 3)), np.zeros(1), np.array([0]), nbr, np.zeros((1, 3)), np.zeros(1),
+                              P, np.array([link]), axis)[0]
+
+    across = f([0.0, 0.5 * P.d, 0.0], INLINE)
+    assert np.allclose(across, 0.0), across
+    assert f([0.0, 0.5 * P.d, 0.0], RELATED)[1] < -1.0, 'in the plane the lattice pushes it aside'
+    near, off_line = f([0.5 * P.d, 0.0, 0.0], INLINE), f([0.5 * P.d, 0.4 * P.d, 0.0], INLINE)
+    assert near[0] < -1.0 and abs(near[1]) < 1e-12, near
+    assert np.allclose(near, off_line), (near, off_line)
 
 
 @settings(max_examples=60, deadline=None)

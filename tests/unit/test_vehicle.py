@@ -206,14 +206,15 @@ def test_every_envelope_rule_acts_on_a_multirotor_run() -> None:
     import os
     from uav_agent.core.ablation import VEHICLE_RULES, switched_off
     paper = load(os.path.join(get_package_share_directory('world_sim'), 'config', 'paper.yaml'))
-    # Rule 'traffic' acts only once a MAP closes on one faster than it could stop: not in the first 5 s.
-    later = {'traffic': 12.0}
+    # Rule 'traffic' acts only once a MAP closes on one faster than it could stop, rule 'ends' once relays have
+    # settled on their edges: not in the first 5 s.
+    later = {'traffic': 12.0, 'ends': 15.0}
     for rule in VEHICLE_RULES:
         s = replace(paper, vehicle=vehicle.MULTIROTOR, duration=later.get(rule, 5.0), flock=policy_sets(paper)['default'])
-        if rule == 'patient':  # a role silent for 10-30 s, not on the paper's layout: random layout 21 of the studies',
-            s = draw('paper', 22, (3, 6), 0)[21]  # where a long edge's relays came one by one and were declared lost at 42 s
+        if rule == 'patient':  # a role silent for 10-30 s, not on the paper's layout: random layout 21 of the studies,
+            s = draw('paper', 22, (3, 6), 0)[21]  # 30 % of its MAPs lost at 30 s, their roles unheard of from then
             s = replace(s, maps=math.ceil(1.5 * layouts.floor(s).total), duration=45.0, seed=0, survey='online',
-                        flock=policy_sets(s)['default'])
+                        flock=policy_sets(s)['default'], fail_at=30.0, fail_fraction=0.3)
         if rule == 'nearest':  # a new role, which the paper's layout has not: 300 users arriving at t = 3 s
             doc = to_doc(s)
             doc['users'] = {**doc['users'], 'survey': 'online', 'clusters': [

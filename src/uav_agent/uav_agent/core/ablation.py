@@ -54,6 +54,11 @@ VEHICLE_RULES = {
              '(envelope.spring)',
     'loose': 'a relay and the servers of its edge only repel, under the demand allocation: the chain rule alone places '
              'the relay (demand.loose)',
+    'inline': 'fellow relays of one chain space themselves along their edge only, not in the plane, on a lagged '
+              'vehicle under the demand allocation: no zig-zag stores relays sideways (demand.inline)',
+    'ends': "a relay that knows its rank in its chain and both anchors, passed on hop by hop, flies to its even "
+            'share of the span at once, or lays a chain too short for it out taut from one anchor, on a lagged vehicle '
+            "under the paper's channel (chain.ends_place)",
     'priority': "that braking is served first from a_max, eq. 9's terms from what is left (envelope.command)",
     'patient': 'a role is declared lost after PATIENT_STEPS unheard of, not VACANT_STEPS: a multirotor takes that long to '
                'cross to it, under the demand allocation (vacancy.vacant_steps)',

@@ -54,7 +54,7 @@ class Neighbourhood:
 
 class Plan(NamedTuple):
     """One MAP's decision of step k: its memory after it, what eq. 9's goal term aims at, and what each
-    neighbour's link is to the flocking terms (state.RELATED, APART or PASSING), rows as the neighbours'."""
+    neighbour's link is to the flocking terms (state.RELATED, APART, PASSING or INLINE), rows as the neighbours'."""
 
     memory: Memory
     reference: Reference

@@ -15,7 +15,7 @@ from .ablation import on
 from .clusters import segment_distance
 from .params import FlockParams
 from .potentials import F64, action, bump, sigma_abs, sigma_grad, sigma_norm
-from .state import M1, PASSING
+from .state import APART, INLINE, M1, PASSING
 
 
 def sum_edges(values: F64, owner: NDArray[np.intp], m: int) -> F64:
@@ -43,28 +43,34 @@ def spare_weight(n_users: F64, fp: FlockParams) -> F64:
 
 def flocking_terms(own_q: F64, own_p: F64, own_nu: F64, owner: NDArray[np.intp],
                    nbr_q: F64, nbr_p: F64, nbr_nu: F64, fp: FlockParams,
-                   apart: NDArray[np.integer] | None = None) -> F64:
+                   apart: NDArray[np.integer] | None = None, axis: F64 | None = None) -> F64:
     """f_i + g_i (eq. 10 and the consensus term) for every own MAP from its neighbours' q, p, N_u.
 
     apart says what each link is (state.RELATED, APART, PASSING; demand allocation). Unrelated MAPs keep
     the repulsion of Phi, so no two collide, but neither attract nor match velocities, so groups bound for
     different places part instead of dragging one another. A MAP on its way to a new role keeps only d/2
     from the MAPs it passes: kept at d by the servers on the rim of a cluster, it slid round the disc and
-    left it off the relay chain, out of everyone's range (docs/notes/dynamics.md, "Passing at d/2").
+    left it off the relay chain, out of everyone's range (docs/notes/dynamics.md, "Passing at d/2"). An INLINE
+    link (rule 'inline') is all of eq. 10 on the offset along the own MAP's edge, axis (m, 3) its unit vector.
     """
     m = own_q.shape[0]
     if owner.size == 0:
         return np.zeros((m, 3))
     dq = nbr_q - own_q[owner]
+    if apart is not None and axis is not None and (apart == INLINE).any():
+        along = apart == INLINE
+        u = axis[owner[along]]
+        dq[along] = np.einsum('ij,ij->i', dq[along], u)[:, None] * u
     z = sigma_norm(dq, fp.epsilon)
     gain = action(z, fp.d, fp.r, fp.epsilon, fp.a, fp.b, fp.gamma) + fp.a * overload_weight(nbr_nu, fp)
     spare = spare_weight(own_nu[owner], fp)
-    if apart is not None and apart.any():
-        gain = np.where(apart > 0, np.minimum(gain, 0.0), gain)
+    repel = None if apart is None else (apart == APART) | (apart == PASSING)
+    if repel is not None and repel.any():
+        gain = np.where(repel, np.minimum(gain, 0.0), gain)
         passing = apart == PASSING
         if passing.any():  # Phi's action again, with d/2 for d, on those links only
             gain[passing] = np.minimum(action(z[passing], fp.d / 2, fp.r, fp.epsilon, fp.a, fp.b, fp.gamma), 0.0)
-        spare = np.where(apart > 0, 0.0, spare)
+        spare = np.where(repel, 0.0, spare)
     f_edges = gain[:, None] * sigma_grad(dq, fp.epsilon)
     g_edges = spare[:, None] * (nbr_p - own_p[owner])
     return sum_edges(f_edges + g_edges, owner, m)
@@ -100,6 +106,15 @@ def bridge_term(q: F64, p_vel: F64, q1: F64, q2: F64, fp: FlockParams,
 
 
 
+def edge_axes(mode: NDArray[np.integer], q1: F64, q2: F64) -> F64:
+    """Per own MAP, the unit vector along the piece of edge q1-q2 its bridge term aims at (relay_slot lays it along
+    the edge); zero for a MAP not in M1 or a piece of no length. What rule 'inline' spaces fellow relays along."""
+    piece = np.where((np.asarray(mode) == M1)[:, None], q2 - q1, 0.0)
+    piece[:, 2] = 0.0
+    norm = np.linalg.norm(piece, axis=1, keepdims=True)
+    return np.where(norm > 1e-9, piece / np.maximum(norm, 1e-12), 0.0)
+
+
 def connectivity_potential(q: F64, q1: F64, q2: F64, fp: FlockParams) -> F64:
     """E_c of eq. 6: zero at the segment's ends, nearly flat along it and rising away from it."""
     return fp.k * (sigma_norm(q1 - q, fp.epsilon) + sigma_norm(q2 - q, fp.epsilon) - sigma_norm(q1 - q2, fp.epsilon))
@@ -117,7 +132,8 @@ def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer]
     position and velocity of each broadcast the MAPs' traffic receivers took in (rule 'traffic').
     """
     if envelope.limited(fp):
-        u = envelope.flocking_within(flocking_terms, own_q, own_p, own_nu, owner, nbr_q, nbr_p, nbr_nu, fp, apart)
+        u = envelope.flocking_within(flocking_terms, own_q, own_p, own_nu, owner, nbr_q, nbr_p, nbr_nu, fp, apart,
+                                     edge_axes(mode, bridge_a, bridge_b))
     else:
         u = flocking_terms(own_q, own_p, own_nu, owner, nbr_q, nbr_p, nbr_nu, fp, apart)
     bridging = np.asarray(mode) == M1

@@ -75,7 +75,8 @@ def spring(fp: FlockParams) -> float:
 
 
 def flocking_within(terms: Callable[..., F64], own_q: F64, own_p: F64, own_nu: F64, owner: NDArray[np.intp],
-                    nbr_q: F64, nbr_p: F64, nbr_nu: F64, fp: FlockParams, apart: NDArray[np.integer] | None) -> F64:
+                    nbr_q: F64, nbr_p: F64, nbr_nu: F64, fp: FlockParams, apart: NDArray[np.integer] | None,
+                    axis: F64 | None = None) -> F64:
     """Eq. 9's flocking terms (control.flocking_terms) as a lagged MAP flies them.
 
     Rule 'lead': taken where the MAP and its neighbours will be LEAD_LAGS (tau + STEP_S) ahead at their
@@ -84,7 +85,7 @@ def flocking_within(terms: Callable[..., F64], own_q: F64, own_p: F64, own_nu: F
     spring's stiffness times the lead). Rule 'soften': the terms scaled by SOFTEN, the springs with them.
     """
     lead = LEAD_LAGS * (fp.tau + STEP_S) if on('lead') else 0.0
-    u = terms(own_q + lead * own_p, own_p, own_nu, owner, nbr_q + lead * nbr_p, nbr_p, nbr_nu, fp, apart)
+    u = terms(own_q + lead * own_p, own_p, own_nu, owner, nbr_q + lead * nbr_p, nbr_p, nbr_nu, fp, apart, axis)
     return SOFTEN * u if on('soften') else u
 
 

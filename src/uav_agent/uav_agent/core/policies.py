@@ -38,8 +38,8 @@ class Allocation(Protocol):
 
     def link(self, a: Told, b: Told, fp: FlockParams) -> int:
         """What the link between two MAPs that stated a and b is to the flocking terms: state.RELATED (all
-        of eq. 10), APART (repulsion within d only) or PASSING (repulsion within d/2 only); fp says what they
-        fly (envelope.limited)."""
+        of eq. 10), APART (repulsion within d only), PASSING (repulsion within d/2 only) or INLINE (all of
+        eq. 10 along the own MAP's edge only); fp says what they fly (envelope.limited)."""
 
 
 ALLOCATIONS: dict[str, Allocation] = {

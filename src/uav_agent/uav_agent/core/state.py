@@ -10,8 +10,9 @@ from .clusters import NO_GOAL, ClusterMap, Edge
 
 M0, M1, M2 = 0, 1, 2  # dynamic, connectivity, static (Section IV-A)
 # What a neighbour link is to the flocking terms (control.flocking_terms): both roles related (all of eq. 10),
-# unrelated (repulsion within d only), or one of the two on its way to a new role (repulsion within d/2 only).
-RELATED, APART, PASSING = 0, 1, 2
+# unrelated (repulsion within d only), one of the two on its way to a new role (repulsion within d/2 only), or
+# fellow relays of one chain on a lagged vehicle (all of eq. 10 along their edge only: rule 'inline').
+RELATED, APART, PASSING, INLINE = 0, 1, 2, 3
 
 
 class Memory(NamedTuple):

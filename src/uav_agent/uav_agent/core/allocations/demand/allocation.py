@@ -12,7 +12,7 @@ import numpy as np
 from ... import envelope
 from ...ablation import on
 from ...clusters import NO_GOAL, ClusterMap
-from ...state import APART, M0, M1, M2, NOBODY, PASSING, RELATED, Memory, Near, Reference, Told, aim, hold
+from ...state import APART, INLINE, M0, M1, M2, NOBODY, PASSING, RELATED, Memory, Near, Reference, Told, aim, hold
 from .chain import anchored, chain_of, hushed, pivot, relay_place, relay_slot, swing_place, tally, taut
 from .memory import Mine, gossip_of
 from .vacancy import gossip, role_of, vacate
@@ -70,11 +70,13 @@ def demand_switch(mem: Mine, agent_id: int, r_g: float, q: np.ndarray, clusters:
         a, u, _ = clusters.axis(edge)
         if float(np.linalg.norm(a + u * swing_place(mem.swing, edge, clusters, fp) - np.asarray(q)[:2])) <= fp.d:
             mem = mem._replace(swing=None)
+    ends: tuple[float, ...] = ()
     if mem.settled and not mem.transit and mem.swing is None:
         chain = chain_of(q, edge, near.q, near.told, clusters, fp)
         mem = hushed(mem, chain, step, fp)
         mem = tally(mem, taut(mem, chain, fp), roles)
-    return mem
+        ends = tuple(float(x) for x in chain.ends) if chain.ends.below_hops or chain.ends.above_hops else ()
+    return mem if mem.ends == ends else mem._replace(ends=ends)
 
 
 def related(a: Told, b: Told) -> bool:
@@ -99,6 +101,14 @@ def loose(a: Told, b: Told, fp: FlockParams) -> bool:
     outweigh: relays bound out along their edge stayed inside the cluster's lattice and the chain never
     spanned its gap (docs/vehicle.md). The chain rule alone places a relay; fellow relays still attract."""
     return envelope.limited(fp) and (a.mode == M1) != (b.mode == M1) and on('loose')
+
+
+def inline(a: Told, b: Told, fp: FlockParams) -> bool:
+    """Rule 'inline': on a lagged vehicle two fellow relays of one chain space themselves along their edge only.
+    Eq. 10's lattice in the plane pushed relays closer than d along the edge to either side of its line, where
+    E_c's pull did not hold them: a chain bunched near its cluster as a zig-zag stored sideways the MAPs it needed
+    along its length, while its far end, taut, fell behind a drifting cluster (docs/notes/vehicle.md)."""
+    return envelope.limited(fp) and a.mode == M1 and b.mode == M1 and on('inline')
 
 
 def en_route(mem: Mine, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) -> int:
@@ -193,8 +203,8 @@ class Demand:
 
     def link(self, a: Told, b: Told, fp: FlockParams) -> int:
         """Only related MAPs attract (control.flocking_terms), and on a lagged vehicle not a relay and a server
-        (rule 'loose'); unrelated ones of which one is on its way to a new role pass each other at d/2
+        (rule 'loose'), and fellow relays along their edge only (rule 'inline'); unrelated ones of which one is on its way to a new role pass each other at d/2
         (docs/notes/dynamics.md, "Passing at d/2")."""
         if related(a, b):
-            return APART if loose(a, b, fp) else RELATED
+            return APART if loose(a, b, fp) else INLINE if inline(a, b, fp) else RELATED
         return PASSING if (gossip_of(a).transit or gossip_of(b).transit) and on('passing') else APART

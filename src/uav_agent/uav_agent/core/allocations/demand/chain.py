@@ -21,18 +21,32 @@ if TYPE_CHECKING:
     from ...params import FlockParams
 
 TAUT_STEPS = 100             # 10 s of a relay's chain found taut (demand.taut) find it one MAP short
+ENDS_HOPS = 64               # rule 'ends': a count of hops past this is a stale loop, not a chain
+
+
+class Ends(NamedTuple):
+    """Rule 'ends': how far a relay's chain reaches on each side as its members pass it on, hop by hop: the
+    links from the relay to the anchor (the outermost server heard of that side's cluster; 0: not known) and
+    where that anchor is, in m along the edge, as a point on its line (the reach from it in the plane; 0 when
+    not known, so a message never carries a NaN)."""
+
+    below_hops: int = 0
+    below_at: float = 0.0
+    above_hops: int = 0
+    above_at: float = 0.0
 
 
 class Chain(NamedTuple):
     """A relay's chain as it hears it, in m along the edge from its first centre: where the relay is, the
-    nearest member heard below it and above it (±inf: that side silent), and how far those two lie off the
-    edge's line."""
+    nearest member heard below it and above it (±inf: that side silent), how far those two lie off the
+    edge's line, and its ends as they pass them on (rule 'ends')."""
 
     here: float
     below: float
     above: float
     below_aside: float = 0.0
     above_aside: float = 0.0
+    ends: Ends = Ends()
 
 
 def hushed(mem: Mine, chain: Chain, step: int, fp: FlockParams) -> Mine:
@@ -124,8 +138,12 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
     should `stay` (rule 'stay': a settled relay under a lossy channel, whose chain is most likely there
     unheard; flying to its place by key it left a gap behind it, docs/links.md).
     """
-    here, below, above, below_aside, above_aside = chain_of(q, edge, nbr_q, told, clusters, fp)
+    chain = chain_of(q, edge, nbr_q, told, clusters, fp)
+    here, below, above, below_aside, above_aside = chain[:5]
     length = clusters.axis(edge)[2]
+    spread = ends_place(chain.ends, length, fp)
+    if spread is not None:
+        return spread
     if math.isfinite(below) and math.isfinite(above):
         return (below + above) / 2.0
     if math.isfinite(below):
@@ -145,21 +163,69 @@ def chain_of(q: np.ndarray, edge: Edge, nbr_q: np.ndarray, told: Sequence[Told],
     a, u, length = clusters.axis(edge)
     here = float(np.dot(np.asarray(q, dtype=float)[:2] - a, u))
     below, above = -math.inf, math.inf
-    below_q = above_q = None
+    below_q = above_q = below_t = above_t = None
     for qj, tj in zip(nbr_q, told):
         if not _in_place(qj, tj, edge, clusters, fp):
             continue
         at = float(np.dot(qj[:2] - a, u))
         if tj.mode != M1 and tj.goal == edge[0] or tj.mode == M1 and tj.bridge == edge and at < here:
             if at > below:
-                below, below_q = at, qj
+                below, below_q, below_t = at, qj, tj
         elif tj.mode != M1 and tj.goal == edge[1] or tj.mode == M1 and tj.bridge == edge and at > here:
             if at < above:
-                above, above_q = at, qj
+                above, above_q, above_t = at, qj, tj
 
     def aside(qj: Optional[np.ndarray]) -> float:
         return 0.0 if qj is None else abs(float(u[0] * (qj[1] - a[1]) - u[1] * (qj[0] - a[0])))
-    return Chain(here, below, above, aside(below_q), aside(above_q))
+    chain = Chain(here, below, above, aside(below_q), aside(above_q))
+    if not spreads(fp):
+        return chain
+    hb, eb = _end(below, chain.below_aside, below_t, +1, fp)
+    ha, ea = _end(above, chain.above_aside, above_t, -1, fp)
+    return chain._replace(ends=Ends(hb, eb, ha, ea))
+
+
+def spreads(fp: FlockParams) -> bool:
+    """Whether rule 'ends' acts: on a lagged vehicle under the paper's channel (a lossy one holds places through
+    silences instead: rule 'hold')."""
+    return fp.a_max > 0.0 and fp.hush <= 0 and on('ends')
+
+
+def _end(at: float, aside: float, told: Optional[Told], away: int, fp: FlockParams) -> tuple[int, float]:
+    """One side's end of a relay's chain from the nearest member heard on it (away: +1 below, -1 above): a server
+    is the anchor, one hop off; a relay passes on its own count and anchor on that side, one hop more."""
+    if told is None:
+        return 0, 0.0
+    if told.mode != M1:  # the anchor, as a point on the line: its reach in the plane less one link along it
+        return 1, _reach_past(at, aside, away, fp) - away * (reach_of(fp) - 1.0)
+    ends = gossip_of(told).ends
+    if len(ends) != 4:
+        return 0, 0.0
+    hops, end = (ends[0], ends[1]) if away > 0 else (ends[2], ends[3])
+    if not 0 < hops < ENDS_HOPS:
+        return 0, 0.0
+    return int(hops) + 1, float(end)
+
+
+def ends_place(ends: Ends, length: float, fp: FlockParams) -> Optional[float]:
+    """Rule 'ends': where along its edge (m) a relay aims that knows its rank in its chain, or None.
+
+    Each relay aiming midway between the members it hears, a chain's slack travels to its far end as a diffusion,
+    in a time that grows with the square of its length: a chain of a dozen relays fell behind a cluster drifting
+    at 2 m/s and broke at its far end with its relays bunched near the other (docs/notes/vehicle.md). Knowing
+    both anchors and its rank, a relay flies to its even share of the span at once; a chain too short for its
+    span (and one that knows one anchor only) is laid out taut from an anchor at a link of r - 1 m, from the
+    first cluster's when both are known, so every relay of it picks the same one.
+    """
+    reach = reach_of(fp) - 1.0
+    hb, eb, ha, ea = ends
+    if hb and ha and (ea - eb) <= (hb + ha) * reach:
+        return eb + hb * (ea - eb) / (hb + ha)
+    if hb:
+        return min(eb + hb * reach, length)
+    if ha:
+        return max(ea - ha * reach, 0.0)
+    return None
 
 
 def _reach_past(at: float, aside: float, away: int, fp: FlockParams) -> float:

@@ -20,6 +20,7 @@ class Gossip(NamedTuple):
     seen: tuple[tuple[int, int], ...] = ()   # (role code, last step a member was heard of)
     lost: tuple[Span, ...] = ()              # spans of keys known lost
     short: tuple[tuple[int, int], ...] = ()  # (role code, MAPs it was found short of)
+    ends: tuple[float, ...] = ()             # a relay's chain ends: hops and place below, hops and place above (chain.Ends)
 
 
 SILENT = Gossip()  # what a neighbour that said nothing of its own (step 0, or another allocation) counts as
@@ -41,7 +42,8 @@ class Own(NamedTuple):
     keeps the last step its links were whole (whole: a relay heard its chain on both sides, a server a relay of
     its cluster) and, while they have been broken no longer than the channel's losses last, the place it holds
     (hold: a relay's place along its edge, a server's offset from its cluster's centre; demand.hushed,
-    demand.anchored)."""
+    demand.anchored). A settled relay on a lagged vehicle keeps and tells its chain's ends as it last heard them
+    (ends: chain.Ends as four numbers, or none; rule 'ends')."""
 
     settled: bool = False
     transit: bool = False
@@ -54,10 +56,11 @@ class Own(NamedTuple):
     straight: bool = False
     whole: int = -1
     hold: Optional[tuple[float, ...]] = None
+    ends: tuple[float, ...] = ()
 
     def said(self) -> Gossip:
         """What the MAP's state message carries of it (Told.block)."""
-        return Gossip(self.transit, self.seen, self.lost, self.short)
+        return Gossip(self.transit, self.seen, self.lost, self.short, self.ends)
 
 
 COMMON = ('mode', 'goal', 'achieved', 'bridge')  # Memory's fields every allocation has
@@ -82,4 +85,4 @@ class Mine(_Joined):
 
     def told(self) -> Told:
         """What its state message says of its role."""
-        return Told(self.mode, self.goal, self.bridge, Gossip(self.transit, self.seen, self.lost, self.short))
+        return Told(self.mode, self.goal, self.bridge, Gossip(self.transit, self.seen, self.lost, self.short, self.ends))
