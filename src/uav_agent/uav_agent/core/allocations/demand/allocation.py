@@ -203,7 +203,8 @@ class Demand:
 
     def link(self, a: Told, b: Told, fp: FlockParams) -> int:
         """Only related MAPs attract (control.flocking_terms), and on a lagged vehicle not a relay and a server
-        (rule 'loose'), and fellow relays along their edge only (rule 'inline'); unrelated ones of which one is on its way to a new role pass each other at d/2
+        (rule 'loose'), and fellow relays along their edge only (rule 'inline'); unrelated ones of which one is
+        on its way to a new role pass each other at d/2
         (docs/notes/dynamics.md, "Passing at d/2")."""
         if related(a, b):
             return APART if loose(a, b, fp) else INLINE if inline(a, b, fp) else RELATED

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, NamedTuple, Optional, Sequence
 
 import numpy as np
 
+from ... import envelope
 from ...ablation import on
 from ...clusters import ClusterMap, Edge
 from ...state import M1, Near, Told
@@ -188,7 +189,7 @@ def chain_of(q: np.ndarray, edge: Edge, nbr_q: np.ndarray, told: Sequence[Told],
 def spreads(fp: FlockParams) -> bool:
     """Whether rule 'ends' acts: on a lagged vehicle under the paper's channel (a lossy one holds places through
     silences instead: rule 'hold')."""
-    return fp.a_max > 0.0 and fp.hush <= 0 and on('ends')
+    return envelope.limited(fp) and fp.hush <= 0 and on('ends')
 
 
 def _end(at: float, aside: float, told: Optional[Told], away: int, fp: FlockParams) -> tuple[int, float]:
