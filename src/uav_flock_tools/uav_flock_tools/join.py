@@ -9,8 +9,11 @@ folder holds its own logs, parameters and pids.json, so `kill --run FOLDER` work
 from __future__ import annotations
 
 import json
+import multiprocessing
+import os
 import signal
 import time
+from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Optional
 
@@ -27,6 +30,8 @@ POLL_S = 0.5
 # from it, so a participant still blind after 20 s was cut off from discovery (a refused TLS handshake under load
 # held a secured run's start 60 s in the whole suite, 11 of 12 MAPs ready).
 JOINED_RENEW_S = 20.0
+FETCH_TRY_S = JOINED_RENEW_S  # one participant's try at /run_info; a blind one is renewed after this long
+FETCH_GRACE_S = 10.0  # beyond its try, for a child's rclpy.init and participant (a loaded two-core host)
 
 
 class JoinError(Exception):
@@ -44,41 +49,70 @@ def parse_address(text: str) -> tuple[str, int]:
     return host, domain
 
 
-def fetch_run_info(address: str, env: dict[str, str], timeout: float, tls: bool = False) -> dict[str, object]:
-    """The run's /run_info, read through its discovery server (env: the run's); JoinError if nothing answers
-    in time."""
+def listen_for_run_info(env: dict[str, str], timeout: float) -> str:
+    """The text of the first /run_info heard within timeout through the run's discovery server, or ''."""
     adopt(env)
     import rclpy
     import rclpy.executors
     from rclpy.signals import SignalHandlerOptions
     from std_msgs.msg import String
 
-    from uav_flock_ros.executors import signals_deferred
     from uav_flock_ros.qos import LATCHED_QOS
     got: list[str] = []
-    with signals_deferred():
-        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    node = rclpy.create_node('uav_flock_join')
+    executor = rclpy.executors.SingleThreadedExecutor()
+    executor.add_node(node)
+    node.create_subscription(String, '/run_info', lambda m: got.append(m.data), LATCHED_QOS)
+    end = time.monotonic() + timeout
+    while not got and time.monotonic() < end:
+        executor.spin_once(timeout_sec=POLL_S)
+    return got[0] if got else ''
+
+
+def fetch_once(env: dict[str, str], timeout: float, answer: Connection) -> None:
+    """Body of one fetch's child process: sends what it heard and leaves by os._exit, past the DDS teardown (a
+    TLS participant's has held a process for minutes)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)  # Ctrl-C ends the child at once; the parent says so
     try:
-        with signals_deferred():
-            node = rclpy.create_node('uav_flock_join')
-            executor = rclpy.executors.SingleThreadedExecutor()
-            executor.add_node(node)
-        node.create_subscription(String, '/run_info', lambda m: got.append(m.data), LATCHED_QOS)
-        end = time.monotonic() + timeout
-        while not got and time.monotonic() < end:
-            executor.spin_once(timeout_sec=POLL_S)
-        node.destroy_node()
+        answer.send(listen_for_run_info(env, timeout))
     finally:
-        rclpy.try_shutdown()
-    if not got:
-        port = address.rpartition(':')[2]
-        if tls:
-            raise JoinError(f'no run answers at {address}: nothing on /run_info within {timeout:g} s (is `up --listen '
-                            f'--secure` running there with keys of the same `uav-flock keys`, and TCP port {port} '
-                            f'open to this host?)')
-        raise JoinError(f'no run answers at {address}: nothing on /run_info within {timeout:g} s (is `up --listen` '
-                        f'running there, and UDP port {port} open to this host?)')
-    return json.loads(got[0])
+        os._exit(0)
+
+
+def fetch_run_info(address: str, env: dict[str, str], timeout: float, tls: bool = False) -> dict[str, object]:
+    """The run's /run_info, read through its discovery server (env: the run's); JoinError if nothing answers
+    in time.
+
+    Each try is a child process with a participant of its own, killed once it has answered or its time is up:
+    in a whole suite one joining host's fetch over TLS printed nothing for 300 s (a participant blind to a
+    handshake refused under load, or one whose teardown hung), and its run waited for its MAPs to the end.
+    """
+    adopt(env)
+    forks = multiprocessing.get_context('fork')  # nothing of DDS lives in this process to be copied
+    end = time.monotonic() + timeout
+    while (left := end - time.monotonic()) > 0:
+        heard, answer = forks.Pipe(duplex=False)
+        child = forks.Process(target=fetch_once, args=(env, min(left, FETCH_TRY_S), answer), daemon=True)
+        child.start()
+        answer.close()
+        try:
+            text = heard.recv() if heard.poll(min(left, FETCH_TRY_S) + FETCH_GRACE_S) else ''
+        except EOFError:  # the child ended without a word (its log is this terminal)
+            text = ''
+        finally:
+            child.kill()
+            child.join()
+            heard.close()
+        if text:
+            return json.loads(text)
+    port = address.rpartition(':')[2]
+    if tls:
+        raise JoinError(f'no run answers at {address}: nothing on /run_info within {timeout:g} s (is `up --listen '
+                        f'--secure` running there with keys of the same `uav-flock keys`, and TCP port {port} '
+                        f'open to this host?)')
+    raise JoinError(f'no run answers at {address}: nothing on /run_info within {timeout:g} s (is `up --listen` '
+                    f'running there, and UDP port {port} open to this host?)')
 
 
 def check_ids(ids: list[int], info: dict[str, object]) -> None:

@@ -8,7 +8,7 @@ from pathlib import Path
 from .options import (AGENTS_PER_PROCESS_HELP, UsageError, auto_agents_per_process, default_out, host_keys, id_list,
                       positive_float, positive_int, run_folder)
 
-RUN_INFO_TIMEOUT_S = 20.0  # agents --join: how long a run's /run_info is waited for
+RUN_INFO_TIMEOUT_S = 60.0  # agents --join: how long a run's /run_info is waited for (three tries of 20 s)
 
 
 SUMMARY = 'agent processes on this host that join a run of `up --listen` on another'
