@@ -1,13 +1,16 @@
 """The demand allocation's roles (core/allocations/demand/layout.py): shares by demand, keys carried across surveys, kept shares, standing chains."""
 from __future__ import annotations
 
+import collections
 import math
 from typing import Any
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from uav_agent.core.ablation import switched_off
 from uav_agent.core.allocations.demand import layout
 from uav_agent.core.allocations.demand.allocation import demand_switch, en_route
 from uav_agent.core.allocations.demand.memory import Mine
@@ -124,7 +127,8 @@ def test_rule_nearest_staffs_an_arrival_from_the_clusters_nearest_it_on_the_tree
         first = ClusterMap(xy, fp.height, radii)
         before = role_ids(first, n, fp, near)
         arrived = ClusterMap(np.r_[xy, [[300.0, 160.0]]], fp.height, np.r_[radii, 15.0], previous=first)
-        after = role_ids(arrived, n, fp, near)
+        with switched_off(['cascade']):  # which keys pass, not where they end up: rule 'cascade' (below)
+            after = role_ids(arrived, n, fp, near)
         assert all(b == a or a in (3, (2, 3)) for b, a in zip(before, after)), 'only towards the arrival'
         moved[near] = [sum(b == c and a != c for b, a in zip(before, after)) for c in range(3)]
         if near:
@@ -134,6 +138,34 @@ def test_rule_nearest_staffs_an_arrival_from_the_clusters_nearest_it_on_the_tree
     # with the rule, the far end of the tree (cluster 0) lends what rounding leaves, and cluster 2 most
     assert moved[True][0] <= 1 < moved[False][0] and moved[True][2] > moved[False][2], moved
     assert moved[True][2] >= moved[True][1] > moved[True][0], moved
+
+
+@pytest.mark.parametrize('size', [15.0, 30.0])
+def test_rule_cascade_passes_an_arrivals_keys_hop_by_hop(size: float) -> None:
+    """Rule 'cascade': an arrival at the end of a line of three clusters, too large for its neighbour to staff
+    alone and no larger than it (which has all of its own MAPs to pass on), takes the same shares as without the rule, but each MAP that changes role crosses one hop of the tree
+    (to a neighbouring cluster, or onto an edge at its own cluster); without it, some cross two or three."""
+    fp, n = FlockParams(), 150
+    xy, radii = np.array([[0.0, 0.0], [150.0, 0.0], [300.0, 0.0]]), np.array([40.0, 30.0, 35.0])
+    first = ClusterMap(xy, fp.height, radii)
+    before = role_ids(first, n, fp, True)
+    tree = {(0, 1), (1, 2), (2, 3)}
+
+    def one_hop(b: Any, a: Any) -> bool:
+        if not isinstance(b, int):
+            return True  # a relay's keys move as they did
+        return tuple(sorted((a, b))) in tree if isinstance(a, int) else b in a
+
+    far, counts = {}, {}
+    for rule_off in ((), ('cascade',)):
+        with switched_off(rule_off):
+            arrived = ClusterMap(np.r_[xy, [[300.0, 160.0]]], fp.height, np.r_[radii, size], previous=first)
+            after = role_ids(arrived, n, fp, True)
+        far[rule_off] = sum(b != a and not one_hop(b, a) for b, a in zip(before, after))
+        counts[rule_off] = collections.Counter(map(str, after))
+    assert far[('cascade',)] >= 3, f'the case has no keys from two hops away to pass: {far}'
+    assert far[()] <= 1, f'with the rule, MAPs from two hops away: {far[()]} (one may be what rounding leaves)'
+    assert all(abs(counts[()][r] - counts[('cascade',)][r]) <= 1 for r in counts[()] | counts[('cascade',)]), counts
 
 
 def test_an_edge_that_leaves_the_tree_keeps_its_chain_while_the_new_one_is_staffed_from_the_surplus() -> None:

@@ -215,7 +215,7 @@ def test_every_envelope_rule_acts_on_a_multirotor_run() -> None:
             s = draw('paper', 22, (3, 6), 0)[21]  # 30 % of its MAPs lost at 30 s, their roles unheard of from then
             s = replace(s, maps=math.ceil(1.5 * layouts.floor(s).total), duration=45.0, seed=0, survey='online',
                         flock=policy_sets(s)['default'], fail_at=30.0, fail_fraction=0.3)
-        if rule == 'nearest':  # a new role, which the paper's layout has not: 300 users arriving at t = 3 s
+        if rule in ('nearest', 'cascade'):  # a new role, which the paper's layout has not: 300 users arriving at 3 s
             doc = to_doc(s)
             doc['users'] = {**doc['users'], 'survey': 'online', 'clusters': [
                 *doc['users']['clusters'], {'center': [150.0, 250.0], 'size': 300, 'spread': 14.0, 'start': 3.0}]}

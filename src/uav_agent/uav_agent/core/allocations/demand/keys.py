@@ -144,6 +144,44 @@ def halved(pieces: Sequence[Piece], role: RoleId, low: RoleId, high: RoleId) -> 
     return tuple((lo, hi, r) for lo, hi, r in _merged(out))
 
 
+def came_from(old: Sequence[Piece], new: Sequence[Piece], role: RoleId) -> dict[RoleId, float]:
+    """How much of what role holds in new each role held in old (keys it held itself included)."""
+    out: dict[RoleId, float] = {}
+    for lo, hi, r in new:
+        if r != role:
+            continue
+        for a, b, was in old:
+            t = min(hi, b) - max(lo, a)
+            if t > _EPS:
+                out[was] = out.get(was, 0.0) + t
+    return out
+
+
+def handed(pieces: Sequence[Piece], giver: RoleId, taker: RoleId, amount: float,
+           old: Sequence[Piece], source: RoleId) -> tuple[Piece, ...]:
+    """The layout with `amount` of giver's keys given to taker, of those that source held in old (giver's own, or
+    those it took from source at this survey), from the high end of the largest."""
+    cuts = [(max(lo, a), min(hi, b)) for lo, hi, r in pieces if r == giver for a, b, was in old
+            if was == source and min(hi, b) - max(lo, a) > _EPS]
+    moved: list[tuple[float, float]] = []
+    for lo, hi in sorted(cuts, key=lambda c: (c[1] - c[0], c[0]), reverse=True):
+        if amount <= _EPS:
+            break
+        t = min(amount, hi - lo)
+        moved.append((hi - t, hi))
+        amount -= t
+    out: list[list] = []
+    for lo, hi, r in pieces:
+        inside = sorted((max(lo, a), min(hi, b)) for a, b in moved if r == giver and min(hi, b) - max(lo, a) > _EPS)
+        at = lo
+        for a, b in inside:
+            out += [p for p in ([at, a, r], [a, b, taker]) if p[1] - p[0] > _EPS]
+            at = b
+        if hi - at > _EPS:
+            out.append([at, hi, r])
+    return tuple((lo, hi, r) for lo, hi, r in _merged(out))
+
+
 def end_to_end(shares: dict[RoleId, float]) -> list[tuple[RoleId, float, float]]:
     """(role, start, end) of shares laid end to end in role order, as `fresh` takes them."""
     at, out = 0.0, []

@@ -61,6 +61,7 @@ def _laid_out(now: ClusterMap, d: float, near: bool) -> 'Roles':
                 before = keys.halved(before, e, e[0], e[1])
         held = keys.totals(before)
         lenders: list[int] = []
+        arrived: list[int] = []
         joined = [k for e in tree if e not in was.edges for k in e]
         if stand:  # a standing chain keeps what it holds, lent by the clusters above their floor (kept)
             fixed = {e for e, _ in stand}
@@ -72,6 +73,8 @@ def _laid_out(now: ClusterMap, d: float, near: bool) -> 'Roles':
         share = kept(share, ids, held, SLACK if on('kept') else 1e-9, lenders)
         pieces = keys.carry(before, dict(zip(ids, share))) if on('carry') else \
             keys.fresh(keys.end_to_end(dict(zip(ids, share))))
+        if arrived and on('cascade'):
+            pieces = cascaded(before, pieces, tree, arrived)
     else:
         pieces = keys.fresh(zip(ids, starts.tolist(), bounds.tolist()))
     return Roles(edges, tuple(demand), share, pieces, stand)
@@ -93,6 +96,57 @@ def standing(was: 'Roles', tree: tuple[Edge, ...], now: ClusterMap) -> tuple[tup
     left = [(e, STANDING) for e in old if e not in tree and not ends & set(e)]
     going = [(e, n - 1) for e, n in was.standing if n > 1 and e not in tree]
     return tuple((e, n) for e, n in sorted(left + going) if now.ends_live(e))
+
+
+def cascaded(old: tuple[keys.Piece, ...], new: tuple[keys.Piece, ...], tree: tuple[Edge, ...],
+             arrived: list[int]) -> tuple[keys.Piece, ...]:
+    """Rule 'cascade': the keys an arriving cluster, or an edge to it, takes from a cluster more than one hop away
+    on the tree pass hop by hop instead: each cluster on the way gives as many of its own to the one before it
+    and takes the farther one's, so every MAP that changes role crosses one hop, and all cross at once.
+
+    Laid out as `kept` lends, an arrival's servers came from its neighbour down to its floor and from the cluster
+    beyond: those flew 200-250 m, crawling through their own lattice first, and the arrival was covered 25-37 s
+    after it came (docs/notes/vehicle.md, "Where an arrival's time goes"). Shares stay as `kept` laid them out.
+    """
+    links = tree_links(tree)
+    pieces = new
+    for role in [*arrived, *(e for e in tree if set(e) & set(arrived))]:
+        for source, amount in sorted(keys.came_from(old, pieces, role).items(), key=lambda kv: str(kv[0])):
+            if not isinstance(source, int) or source == role:
+                continue  # a relay's keys move as they did; so do a role's own
+            ways = [w for w in (path(links, end, source) for end in ([role] if isinstance(role, int) else role)) if w]
+            if not ways:
+                continue
+            way = min(ways, key=lambda w: (len(w), w))  # [an end of role, ..., source]
+            hops = way if isinstance(role, int) else [role, *way]
+            if len(hops) <= 2:
+                continue  # from a neighbour: one hop already
+            # no more than each cluster on the way holds of its own keys: none crosses two hops
+            amount = min(amount, *(keys.came_from(old, pieces, c).get(c, 0.0) for c in hops[1:-1]))
+            for near_one, far_one in zip(hops[:-2], hops[1:-1]):
+                pieces = keys.handed(pieces, far_one, near_one, amount, old, far_one)
+            pieces = keys.handed(pieces, role, hops[-2], amount, old, source)
+    return pieces
+
+
+def path(links: dict[int, list[int]], start: int, goal: int) -> list[int]:
+    """The clusters on the tree's path from start to goal, both included; [] if they are not joined."""
+    parent = {start: start}
+    frontier = [start]
+    while frontier and goal not in parent:
+        step = []
+        for c in frontier:
+            for n in links.get(c, []):
+                if n not in parent:
+                    parent[n] = c
+                    step.append(n)
+        frontier = step
+    if goal not in parent:
+        return []
+    out = [goal]
+    while out[-1] != start:
+        out.append(parent[out[-1]])
+    return out[::-1]
 
 
 def by_hops(tree: tuple[Edge, ...], start: list[int]) -> list[int]:
