@@ -143,8 +143,9 @@ def test_rule_nearest_staffs_an_arrival_from_the_clusters_nearest_it_on_the_tree
 @pytest.mark.parametrize('size', [15.0, 30.0])
 def test_rule_cascade_passes_an_arrivals_keys_hop_by_hop(size: float) -> None:
     """Rule 'cascade': an arrival at the end of a line of three clusters, too large for its neighbour to staff
-    alone and no larger than it (which has all of its own MAPs to pass on), takes the same shares as without the rule, but each MAP that changes role crosses one hop of the tree
-    (to a neighbouring cluster, or onto an edge at its own cluster); without it, some cross two or three."""
+    alone and no larger than it (which has all of its own MAPs to pass on), takes the same shares as without the
+    rule, but each MAP that changes role crosses one hop of the tree (to a neighbouring cluster, or onto an edge at
+    its own cluster); without it, some cross two or three."""
     fp, n = FlockParams(), 150
     xy, radii = np.array([[0.0, 0.0], [150.0, 0.0], [300.0, 0.0]]), np.array([40.0, 30.0, 35.0])
     first = ClusterMap(xy, fp.height, radii)

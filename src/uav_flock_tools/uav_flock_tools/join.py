@@ -49,9 +49,9 @@ def parse_address(text: str) -> tuple[str, int]:
     return host, domain
 
 
-def listen_for_run_info(env: dict[str, str], timeout: float) -> str:
-    """The text of the first /run_info heard within timeout through the run's discovery server, or ''."""
-    adopt(env)
+def listen_for_run_info(timeout: float) -> str:
+    """The text of the first /run_info heard within timeout through the run's discovery server (this process's
+    environment is the run's: fetch_run_info adopted it before the fork), or ''."""
     import rclpy
     import rclpy.executors
     from rclpy.signals import SignalHandlerOptions
@@ -70,12 +70,12 @@ def listen_for_run_info(env: dict[str, str], timeout: float) -> str:
     return got[0] if got else ''
 
 
-def fetch_once(env: dict[str, str], timeout: float, answer: Connection) -> None:
+def fetch_once(timeout: float, answer: Connection) -> None:
     """Body of one fetch's child process: sends what it heard and leaves by os._exit, past the DDS teardown (a
     TLS participant's has held a process for minutes)."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)  # Ctrl-C ends the child at once; the parent says so
     try:
-        answer.send(listen_for_run_info(env, timeout))
+        answer.send(listen_for_run_info(timeout))
     finally:
         os._exit(0)
 
@@ -92,12 +92,13 @@ def fetch_run_info(address: str, env: dict[str, str], timeout: float, tls: bool 
     forks = multiprocessing.get_context('fork')  # nothing of DDS lives in this process to be copied
     end = time.monotonic() + timeout
     while (left := end - time.monotonic()) > 0:
+        window = min(left, FETCH_TRY_S)
         heard, answer = forks.Pipe(duplex=False)
-        child = forks.Process(target=fetch_once, args=(env, min(left, FETCH_TRY_S), answer), daemon=True)
+        child = forks.Process(target=fetch_once, args=(window, answer), daemon=True)
         child.start()
         answer.close()
         try:
-            text = heard.recv() if heard.poll(min(left, FETCH_TRY_S) + FETCH_GRACE_S) else ''
+            text = heard.recv() if heard.poll(window + FETCH_GRACE_S) else ''
         except EOFError:  # the child ended without a word (its log is this terminal)
             text = ''
         finally:

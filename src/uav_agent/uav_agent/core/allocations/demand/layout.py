@@ -74,7 +74,7 @@ def _laid_out(now: ClusterMap, d: float, near: bool) -> 'Roles':
         pieces = keys.carry(before, dict(zip(ids, share))) if on('carry') else \
             keys.fresh(keys.end_to_end(dict(zip(ids, share))))
         if arrived and on('cascade'):
-            pieces = cascaded(before, pieces, tree, arrived)
+            pieces = cascaded(before, pieces, now, arrived)
     else:
         pieces = keys.fresh(zip(ids, starts.tolist(), bounds.tolist()))
     return Roles(edges, tuple(demand), share, pieces, stand)
@@ -98,7 +98,7 @@ def standing(was: 'Roles', tree: tuple[Edge, ...], now: ClusterMap) -> tuple[tup
     return tuple((e, n) for e, n in sorted(left + going) if now.ends_live(e))
 
 
-def cascaded(old: tuple[keys.Piece, ...], new: tuple[keys.Piece, ...], tree: tuple[Edge, ...],
+def cascaded(old: tuple[keys.Piece, ...], new: tuple[keys.Piece, ...], now: ClusterMap,
              arrived: list[int]) -> tuple[keys.Piece, ...]:
     """Rule 'cascade': the keys an arriving cluster, or an edge to it, takes from a cluster more than one hop away
     on the tree pass hop by hop instead: each cluster on the way gives as many of its own to the one before it
@@ -108,15 +108,12 @@ def cascaded(old: tuple[keys.Piece, ...], new: tuple[keys.Piece, ...], tree: tup
     beyond: those flew 200-250 m, crawling through their own lattice first, and the arrival was covered 25-37 s
     after it came (docs/notes/vehicle.md, "Where an arrival's time goes"). Shares stay as `kept` laid them out.
     """
-    links = tree_links(tree)
     pieces = new
-    for role in [*arrived, *(e for e in tree if set(e) & set(arrived))]:
+    for role in [*arrived, *(e for e in now.mst(now.live) if set(e) & set(arrived))]:
         for source, amount in sorted(keys.came_from(old, pieces, role).items(), key=lambda kv: str(kv[0])):
-            if not isinstance(source, int) or source == role:
-                continue  # a relay's keys move as they did; so do a role's own
-            ways = [w for w in (path(links, end, source) for end in ([role] if isinstance(role, int) else role)) if w]
-            if not ways:
-                continue
+            if not isinstance(source, int) or source == role or not now.live >> source & 1:
+                continue  # a relay's keys move as they did; so do a role's own, and an ended cluster's
+            ways = [path(now, end, source) for end in ([role] if isinstance(role, int) else role)]
             way = min(ways, key=lambda w: (len(w), w))  # [an end of role, ..., source]
             hops = way if isinstance(role, int) else [role, *way]
             if len(hops) <= 2:
@@ -129,24 +126,13 @@ def cascaded(old: tuple[keys.Piece, ...], new: tuple[keys.Piece, ...], tree: tup
     return pieces
 
 
-def path(links: dict[int, list[int]], start: int, goal: int) -> list[int]:
-    """The clusters on the tree's path from start to goal, both included; [] if they are not joined."""
-    parent = {start: start}
-    frontier = [start]
-    while frontier and goal not in parent:
-        step = []
-        for c in frontier:
-            for n in links.get(c, []):
-                if n not in parent:
-                    parent[n] = c
-                    step.append(n)
-        frontier = step
-    if goal not in parent:
-        return []
-    out = [goal]
-    while out[-1] != start:
-        out.append(parent[out[-1]])
-    return out[::-1]
+def path(now: ClusterMap, start: int, goal: int) -> list[int]:
+    """The clusters on the tree's path from start to goal, both included (ClusterMap.tree_hop, as MAPs in transit
+    fly it)."""
+    out = [start]
+    while out[-1] != goal:
+        out.append(now.tree_hop(out[-1], goal))
+    return out
 
 
 def by_hops(tree: tuple[Edge, ...], start: list[int]) -> list[int]:
