@@ -27,8 +27,7 @@ import rclpy  # imported once here, before the forks, as `up`'s agent template d
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Int64
 from uav_flock_tools.cleanup import clean_shared_memory
-from uav_flock_tools.domains import claim_domain, discovery_server_address, ros_env, start_discovery_server
-from uav_flock_tools.spawn import stop
+from uav_flock_tools.domains import DiscoveryServer, claim_domain, discovery_server_address, ros_env
 
 MODES = ('localhost', 'server', 'subnet', 'profile')
 PROFILE = Path(__file__).resolve().parent / 'fastdds_localhost_udp.xml'
@@ -79,7 +78,7 @@ def measure(mode: str, n: int, timeout: float) -> dict[str, float]:
     env = mode_env(mode, domain)
     server = None
     if mode == 'server':
-        server = start_discovery_server(discovery_server_address(domain), env, Path(os.devnull))
+        server = DiscoveryServer(discovery_server_address(domain), env, Path(os.devnull))
     ctx = multiprocessing.get_context('fork')  # this process has not initialised rclpy, so a plain fork is clean
     results: multiprocessing.Queue = ctx.Queue()
     everyone_done = ctx.Event()
@@ -102,7 +101,7 @@ def measure(mode: str, n: int, timeout: float) -> dict[str, float]:
                 p.kill()
                 p.join()
         if server is not None:
-            stop([server])
+            server.stop()
         clean_shared_memory(env)
         claim.release()
     after = resource.getrusage(resource.RUSAGE_CHILDREN)

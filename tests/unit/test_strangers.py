@@ -1,11 +1,13 @@
-"""Hosts refused at a secured run's discovery server (uav_flock_tools/strangers.py): the kernel's socket table as it
-reads it, over real sockets, and which addresses it names."""
+"""Hosts refused at a secured run's discovery server, and a server that stopped accepting
+(uav_flock_tools/strangers.py): the kernel's socket table as it reads it, over real sockets, which addresses it names
+and when it calls a server stalled."""
 from __future__ import annotations
 
 import socket
 import time
+from pathlib import Path
 
-from uav_flock_tools.strangers import Peer, Refusals, read_tables
+from uav_flock_tools.strangers import Peer, Refusals, Stall, backlog, read_tables
 
 
 def test_the_socket_table_shows_a_connection_held_and_then_closed_by_the_listening_side() -> None:
@@ -40,3 +42,27 @@ def test_an_address_is_named_once_after_its_dials_end_short_and_never_if_one_hel
     assert unseen.see(0.0, [Peer(stranger, 7, True)]) == [] and \
         unseen.see(0.5, [Peer(stranger, 7, False), Peer(stranger, 8, False)]) == [stranger], \
         'a connection seen established once and then closing did not hold; one first seen closing neither'
+
+
+def test_the_listeners_backlog_counts_connections_it_has_not_accepted() -> None:
+    with socket.create_server(('127.0.0.1', 0), backlog=8) as server:
+        port = server.getsockname()[1]
+        table = Path('/proc/net/tcp')
+        assert backlog(table.read_text().splitlines(), port) == 0
+        clients = [socket.create_connection(('127.0.0.1', port)) for _ in range(2)]
+        time.sleep(0.05)
+        waiting = backlog(table.read_text().splitlines(), port)
+        accepted, _ = server.accept()
+        after = backlog(table.read_text().splitlines(), port)
+        for c in (*clients, accepted):
+            c.close()
+    assert (waiting, after) == (2, 1)
+
+
+def test_a_backlog_is_a_stall_once_it_has_stayed_stalled_s_and_not_if_it_emptied_between() -> None:
+    stall = Stall(stalled_s=5.0)
+    assert [stall.see(t, 1) for t in (0.0, 2.0, 4.9)] == [False, False, False]
+    assert stall.see(5.0, 2), 'waiting since 0 s'
+    assert not stall.see(5.5, 1), 'counted anew after a stall was called'
+    assert not stall.see(9.0, 0) and not stall.see(9.5, 1) and not stall.see(14.0, 1), 'it emptied at 9 s'
+    assert stall.see(14.5, 1)

@@ -12,11 +12,13 @@ import random
 import signal
 import subprocess
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Optional
 
-from .spawn import dies_with_parent
+from . import strangers
+from .spawn import dies_with_parent, stop
 
 DISCOVERY_BASE_PORT = 11811  # a run's discovery server listens on this port plus its domain
 
@@ -55,24 +57,48 @@ def discovery_server_address(domain_id: int, host: str = '127.0.0.1') -> str:
     return f'{host}:{DISCOVERY_BASE_PORT + domain_id}'
 
 
-def start_discovery_server(address: str, env: dict[str, str], log: Path,
-                           profile: Optional[Path] = None) -> subprocess.Popen:
-    """The Fast DDS discovery server the wheels ship, on address (host:port, UDP), in its own session; or as
-    the XML profile says (secure.profile: TCP with TLS), and then a host refused at its handshake is named on
-    the terminal once, for as long as the server runs (strangers.py: Fast DDS logs nothing of it)."""
-    from . import strangers
-    from .secure import environment
-    host, port = address.rsplit(':', 1)
-    args = ['-x', str(profile)] if profile is not None else ['-i', '0', '-l', host, '-p', port]
-    env = environment(env, profile)
-    with open(log, 'w') as out:
-        server = subprocess.Popen(['fast-discovery-server', *args],
-                                  env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
-                                  preexec_fn=dies_with_parent(signal.SIGTERM))
-    if profile is not None:
-        strangers.watch(int(port), lambda: server.poll() is None,
-                        lambda line: print(f'uav-flock up: {line}', flush=True))
-    return server
+class DiscoveryServer:
+    """The Fast DDS discovery server the wheels ship, on address (host:port, UDP), in its own session; or as the
+    XML profile says (secure.profile: TCP with TLS), and then a host refused at its handshake is named on the
+    terminal once, for as long as the server runs (strangers.py: Fast DDS logs nothing of it), and a server that
+    stopped accepting is restarted on the same port (strangers.STALLED_S), said on the terminal and in its log."""
+
+    def __init__(self, address: str, env: dict[str, str], log: Path, profile: Optional[Path] = None) -> None:
+        from .secure import environment
+        host, port = address.rsplit(':', 1)
+        self.args = ['-x', str(profile)] if profile is not None else ['-i', '0', '-l', host, '-p', port]
+        self.env, self.log, self.restarts = environment(env, profile), log, 0
+        self._lock, self._retired = threading.Lock(), False
+        self.proc = self._start('w')
+        if profile is not None:
+            strangers.watch(int(port), lambda: not self._retired and self.proc.poll() is None,
+                            lambda line: print(f'uav-flock up: {line}', flush=True), self.restart)
+
+    def _start(self, mode: str) -> subprocess.Popen:
+        with open(self.log, mode) as out:
+            return subprocess.Popen(['fast-discovery-server', *self.args],
+                                    env=self.env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
+                                    preexec_fn=dies_with_parent(signal.SIGTERM))
+
+    def restart(self) -> None:
+        """The server anew on its port, unless it is being stopped: what was stalling it ends with the old one."""
+        with self._lock:
+            if self._retired or self.proc.poll() is not None:
+                return
+            self.proc.kill()
+            self.proc.wait()
+            self.restarts += 1
+            with open(self.log, 'a') as out:
+                out.write(f'--- restarted ({self.restarts}): it had stopped accepting connections\n')
+            self.proc = self._start('a')
+        print(f'uav-flock up: the discovery server stopped accepting connections for {strangers.STALLED_S:g} s: '
+              f'restarted ({self.restarts}); its clients dial it again', flush=True)
+
+    def stop(self) -> None:
+        """No restart from now on, and the server ended (spawn.stop)."""
+        with self._lock:
+            self._retired = True
+        stop([self.proc])
 
 
 # Domains a run may be given: 0, ROS's default, is left to whatever else runs ROS on the host. Above 101

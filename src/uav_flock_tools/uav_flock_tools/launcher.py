@@ -22,7 +22,7 @@ from world_sim.core.scenario import Scenario
 
 from . import bag, secure, viewer
 from .cleanup import clean_shared_memory
-from .domains import DomainClaim, claim_domain, discovery_server_address, ros_env, start_discovery_server
+from .domains import DiscoveryServer, DomainClaim, claim_domain, discovery_server_address, ros_env
 from .spawn import (GRACE_S, ForkedAgent, describe_exit, dies_with_parent, executable, relay_log,
                     start_agents, stop, write_pid_table)
 
@@ -118,7 +118,7 @@ class Run:
         self.world_log: Optional[threading.Thread] = None
         self.recorder: Optional[subprocess.Popen] = None
         self.viewer: Optional[subprocess.Popen] = None
-        self.server: Optional[subprocess.Popen] = None
+        self.server: Optional[DiscoveryServer] = None
         self.recorder_gone: Optional[int] = None
         self.interrupted = self.starting = self.stopping = False
         self.began_at = time.time()  # wall clock, as file times are
@@ -181,9 +181,9 @@ class Run:
         p, s = self.p, self.p.scenario
         self.starting = True
         if p.server_address:
-            self.server = start_discovery_server(p.server_address, p.env, p.logs / 'discovery_server.log',
-                                                 secure.role_profile(p.run, p.secure, 'server'))
-            self.info['discovery_server_pid'] = self.server.pid
+            self.server = DiscoveryServer(p.server_address, p.env, p.logs / 'discovery_server.log',
+                                          secure.role_profile(p.run, p.secure, 'server'))
+            self.info['discovery_server_pid'] = self.server.proc.pid
         self.raise_if_interrupted()
         if p.record:
             rec_params = write_params(p.run / 'recorder_params.yaml', {
@@ -245,7 +245,7 @@ class Run:
         stop([self.world] if self.world is not None else [], signal.SIGINT, {signal.SIGTERM: self.agents})
         stop([child for child in (self.recorder, self.viewer) if child is not None], signal.SIGINT)
         if self.server is not None:
-            stop([self.server])
+            self.server.stop()
         # A SIGKILLed agent cannot remove its files, nor one stopped while its participant was made (at start-up).
         if not self.p.server_address and (self.interrupted or any(a.poll() == -signal.SIGKILL for a in self.agents)):
             clean_shared_memory(self.p.env, since=self.began_at)

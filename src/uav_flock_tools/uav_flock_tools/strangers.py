@@ -1,4 +1,5 @@
-"""Hosts refused at a secured run's discovery server, named once on the listening side (`up --listen --secure`).
+"""Hosts refused at a secured run's discovery server, named once on the listening side (`up --listen --secure`), and
+a server that stopped accepting, restarted.
 
 Fast DDS 2.14 logs nothing when a TLS handshake on a connection it accepted fails: it closes the connection,
 and the dialler tries again some 5 s later. The kernel's socket table shows it all the same. A member's
@@ -8,6 +9,14 @@ server within a fraction of a second (tried: ESTABLISHED for 0.1-0.2 s, then FIN
 having held for HELD_S, is named; an address that ever held one is a member (one host's members and strangers share an
 address, and such a stranger is not told apart). The table is read from /proc/net/tcp and tcp6 of the
 process's own network namespace: no privileges, no packets.
+
+Fast DDS 2.14 accepts the next connection only once the last one's TLS handshake has ended, and a handshake has no
+deadline: one connection that sends nothing (`nc HOST PORT` from anywhere on the LAN, or a dialler that stalls)
+stops the server accepting for as long as it is open, and no participant that dials later is discovered (tried:
+no MAP of 8 seen for 90 s, the run went on within a second of that connection closing). The listener's own row of
+the table shows it: its receive queue is its backlog of connections the server has not taken. A backlog that stays
+for STALLED_S is a stalled server; `up` restarts it (domains.DiscoveryServer), the stalling connection dies with
+it and the clients dial the new one.
 """
 from __future__ import annotations
 
@@ -15,11 +24,12 @@ import ipaddress
 import threading
 import time
 from pathlib import Path
-from typing import Callable, Iterable, NamedTuple
+from typing import Callable, Iterable, NamedTuple, Optional
 
 HELD_S = 2.0          # a connection established this long was let in: its address is a member's
 REFUSED_TIMES = 2     # connections ended short before an address is named (a member's first dial may be reset)
 POLL_S = 0.5          # the socket table is read this often (a refused connection's TIME_WAIT lasts 60 s)
+STALLED_S = 5.0      # a backlog that stays this long: the server is not accepting (one handshake takes milliseconds)
 ESTABLISHED, LISTEN = 0x01, 0x0A
 TABLES = (Path('/proc/net/tcp'), Path('/proc/net/tcp6'))
 
@@ -84,25 +94,64 @@ class Refusals:
         return new
 
 
-def read_tables(port: int) -> list[Peer]:
-    """The connections to `port` in this network namespace, IPv4 and IPv6."""
-    found: list[Peer] = []
+def backlog(lines: Iterable[str], port: int) -> int:
+    """Connections to `port` that its listener has not accepted yet (the LISTEN row's receive queue), from the lines
+    of a socket table."""
+    waiting = 0
+    for line in lines:
+        fields = line.split()
+        if len(fields) > 4 and fields[0].endswith(':') and int(fields[3], 16) == LISTEN \
+                and int(fields[1].rsplit(':', 1)[1], 16) == port:
+            waiting += int(fields[4].split(':')[1], 16)
+    return waiting
+
+
+class Stall:
+    """Whether the listener's backlog has stayed for stalled_s: not once it has emptied."""
+
+    def __init__(self, stalled_s: float = STALLED_S) -> None:
+        self.stalled_s = stalled_s
+        self.since: Optional[float] = None
+
+    def see(self, now: float, waiting: int) -> bool:
+        if not waiting:
+            self.since = None
+            return False
+        self.since = now if self.since is None else self.since
+        if now - self.since < self.stalled_s:
+            return False
+        self.since = None  # a new server starts with a clean count
+        return True
+
+
+def _lines() -> list[str]:
+    lines: list[str] = []
     for table in TABLES:
         try:
-            found += peers(table.read_text().splitlines(), port)
+            lines += table.read_text().splitlines()
         except OSError:  # no IPv6, or no /proc: nothing to name
             pass
-    return found
+    return lines
 
 
-def watch(port: int, running: Callable[[], bool], say: Callable[[str], None]) -> threading.Thread:
-    """Read the socket table every POLL_S while running() and say one line for each address refused."""
+def read_tables(port: int) -> list[Peer]:
+    """The connections to `port` in this network namespace, IPv4 and IPv6."""
+    return peers(_lines(), port)
+
+
+def watch(port: int, running: Callable[[], bool], say: Callable[[str], None],
+          stalled: Callable[[], None] = lambda: None) -> threading.Thread:
+    """Read the socket table every POLL_S while running(): say one line for each address refused, and call stalled()
+    each time the listener's backlog has stayed STALLED_S."""
     def loop() -> None:
-        seen = Refusals()
+        seen, stall = Refusals(), Stall()
         while running():
-            for address in seen.see(time.monotonic(), read_tables(port)):
+            lines, now = _lines(), time.monotonic()
+            for address in seen.see(now, peers(lines, port)):
                 say(f'{address} was refused at the discovery server {len(seen.ended[address])} times (a failed TLS '
                     f'handshake: no certificate of this run\'s CA?); the run goes on without it')
+            if stall.see(now, backlog(lines, port)):
+                stalled()
             time.sleep(POLL_S)
     thread = threading.Thread(target=loop, name='strangers', daemon=True)
     thread.start()
