@@ -13,7 +13,7 @@ import sys
 import time
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator, Optional
+from typing import Any, Callable, Iterator, Optional
 
 import pytest
 import yaml
@@ -23,6 +23,7 @@ from helpers import netns
 SUBNET = '10.231.7'
 HOSTS = ['world', 'a', 'b']  # at SUBNET.1, .2, .3
 STRANGERS = ['nocert', 'otherca']  # at SUBNET.4, .5 in the secure run: TLS that checks nothing, no or a foreign certificate
+SILENT = 'silent'  # at SUBNET.6 in the secure run: dials the discovery server and says nothing (strangers.py)
 TESTS = Path(__file__).resolve().parents[1]
 # What DDS discovery says in clear over UDP: the run's topic names ('rt/' + name) and its message types.
 IN_CLEAR = (b'rt/map_', b'uav_flock_msgs::msg::dds_::AgentState_')
@@ -111,8 +112,9 @@ def captured(path: Path, env: dict[str, str]) -> Iterator[Path]:
 
 
 def start(hosts: dict[str, str], tmp_path: Path, env: dict[str, str], scenario: Path, duration: str,
-          here: int, a: str, b: str, refuse: bool = False,
-          keys: Optional[Path] = None) -> tuple[subprocess.Popen[str], list[subprocess.Popen[str]]]:
+          here: int, a: str, b: str, refuse: bool = False, keys: Optional[Path] = None,
+          before_join: Callable[[str], None] = lambda address: None
+          ) -> tuple[subprocess.Popen[str], list[subprocess.Popen[str]]]:
     def secure(role: str) -> tuple[str, ...]:
         return ('--secure', str(keys / role)) if keys is not None else ()
 
@@ -127,6 +129,7 @@ def start(hosts: dict[str, str], tmp_path: Path, env: dict[str, str], scenario: 
         assert wrong.returncode == 2 and wrong.stderr.strip().splitlines() == [
             'uav-flock: error: agents: --ids: MAP 12 is not one this run waits for from other hosts (it has 12 '
             'MAPs; 4-11 join from other hosts)'], wrong.stderr
+    before_join(address)
     joined = [in_ns(hosts[role], 'agents', '--join', address, '--ids', ids, '--out', str(tmp_path / role),
                     *secure(role), env=env, out=tmp_path / f'{role}.out') for role, ids in (('a', a), ('b', b))]
     return world, joined
@@ -172,18 +175,22 @@ def test_a_secure_run_over_three_hosts_equals_sim_and_strangers_neither_join_nor
     on the LAN publish well-formed states of MAP 5 with a false position at every step, dialling the discovery server
     over TLS that checks nothing itself: one with no certificate, one with a certificate of another run's CA. Neither
     discovers the run nor is discovered, `up` names each once (and no member), the run equals `sim` byte for byte,
-    and no topic or type name passes in clear."""
+    and no topic or type name passes in clear. A third host dials the discovery server before the joining hosts do
+    and says nothing, which stops the server accepting: `up` restarts it, and the joining hosts dial the new one."""
     from helpers.rogue import lax_profile
     from uav_flock_tools import keys, secure
     keys.make(tmp_path / 'keys', HOSTS)
     keys.make(tmp_path / 'other', ['otherca'])
     scenario = small_scenario(paper_scenario_path, tmp_path)
     strangers: list[subprocess.Popen[str]] = []
-    with network(HOSTS + STRANGERS) as hosts:
+    with network(HOSTS + STRANGERS + [SILENT]) as hosts:
         with captured(tmp_path / 'lan.raw', ros_env) as lan:
+            def silent(address: str) -> None:
+                strangers.append(helper_in_ns(hosts[SILENT], 'silent', *address.rsplit(':', 1), env=ros_env))
             # 15 s, not 6: the strangers start once the world names its address, and a run over by then had
             # refused one stranger's handshakes and not yet the other's (once in three whole suites)
-            world, joined = start(hosts, tmp_path, ros_env, scenario, '15', 4, '4-7', '8-11', keys=tmp_path / 'keys')
+            world, joined = start(hosts, tmp_path, ros_env, scenario, '15', 4, '4-7', '8-11', keys=tmp_path / 'keys',
+                                  before_join=silent)
             try:
                 address = wait_for(tmp_path / 'world.out', r'--join (\S+)', world, 10).group(1)
                 host, port = address.rsplit(':', 1)
@@ -191,7 +198,7 @@ def test_a_secure_run_over_three_hosts_equals_sim_and_strangers_neither_join_nor
                 member = secure.profile(keys.check(tmp_path / 'other' / 'otherca'), 'client', (host, int(port)))
                 for who in STRANGERS:
                     (tmp_path / f'{who}.xml').write_text(lax_profile(member, certificate=who == 'otherca'))
-                strangers = [helper_in_ns(hosts[who], 'rogue', '5', '61', env={
+                strangers += [helper_in_ns(hosts[who], 'rogue', '5', '61', env={
                     **ros_env, 'ROS_DOMAIN_ID': domain, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET',
                     'FASTRTPS_DEFAULT_PROFILES_FILE': str(tmp_path / f'{who}.xml')}) for who in STRANGERS]
                 assert ended(world, 300, tmp_path) == 0, (tmp_path / 'world.out').read_text()
@@ -205,6 +212,10 @@ def test_a_secure_run_over_three_hosts_equals_sim_and_strangers_neither_join_nor
                 said = [p.communicate(timeout=30)[0] for p in strangers]
     said_up = (tmp_path / 'world.out').read_text()
     assert 'secured: TCP with TLS only' in said_up
+    assert said[0].split() == ['closed', 'by', 'the', 'other', 'end'] and re.search(
+        r'^uav-flock up: the discovery server stopped accepting connections for 5 s: restarted \(1\)', said_up, re.M), \
+        f'the silent host said {said[0]!r}; up said: {said_up}'
+    said = said[1:]
     named = re.findall(r'^uav-flock up: (\S+) was refused at the discovery server \d+ times', said_up, re.M)
     assert sorted(named) == [f'{SUBNET}.4', f'{SUBNET}.5'], f'each stranger named once, no member: {said_up}'
     for who, text in zip(STRANGERS, said):

@@ -44,19 +44,21 @@ def test_an_address_is_named_once_after_its_dials_end_short_and_never_if_one_hel
         'a connection seen established once and then closing did not hold; one first seen closing neither'
 
 
-def test_the_listeners_backlog_counts_connections_it_has_not_accepted() -> None:
+def test_the_listeners_backlog_counts_connections_it_has_not_accepted_and_they_are_no_peers_yet() -> None:
     with socket.create_server(('127.0.0.1', 0), backlog=8) as server:
         port = server.getsockname()[1]
         table = Path('/proc/net/tcp')
         assert backlog(table.read_text().splitlines(), port) == 0
         clients = [socket.create_connection(('127.0.0.1', port)) for _ in range(2)]
         time.sleep(0.05)
-        waiting = backlog(table.read_text().splitlines(), port)
+        waiting, unseen = backlog(table.read_text().splitlines(), port), read_tables(port)
         accepted, _ = server.accept()
-        after = backlog(table.read_text().splitlines(), port)
+        after, seen = backlog(table.read_text().splitlines(), port), read_tables(port)
         for c in (*clients, accepted):
             c.close()
     assert (waiting, after) == (2, 1)
+    assert unseen == [] and len(seen) == 1 and seen[0].established, \
+        'a connection waiting in the backlog is no peer yet: it has neither held nor been refused'
 
 
 def test_a_backlog_is_a_stall_once_it_has_stayed_stalled_s_and_not_if_it_emptied_between() -> None:

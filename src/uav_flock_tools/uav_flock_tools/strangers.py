@@ -53,14 +53,16 @@ def _address(hex_address: str) -> str:
 
 
 def peers(lines: Iterable[str], port: int) -> list[Peer]:
-    """The connections whose local end is `port`, from the lines of a socket table (header and listener skipped)."""
+    """The connections whose local end is `port`, from the lines of a socket table (header and listener skipped, and
+    connections the listener has not accepted yet: established, no inode; a member kept waiting in the backlog of a
+    stalled server has neither held a connection nor been refused)."""
     out = []
     for line in lines:
         fields = line.split()
-        if len(fields) < 4 or not fields[0].endswith(':'):
+        if len(fields) < 10 or not fields[0].endswith(':'):
             continue  # the header
         local, remote, state = fields[1], fields[2], int(fields[3], 16)
-        if int(local.rsplit(':', 1)[1], 16) != port or state == LISTEN:
+        if int(local.rsplit(':', 1)[1], 16) != port or state == LISTEN or (state == ESTABLISHED and fields[9] == '0'):
             continue
         address, remote_port = remote.rsplit(':', 1)
         out.append(Peer(_address(address), int(remote_port, 16), state == ESTABLISHED))
