@@ -199,6 +199,7 @@ def test_the_vehicle_reads_back_and_tells_the_maps_its_envelope(paper_scenario_p
     assert load(paper_scenario_path).flock.a_max == 0.0
 
 
+@pytest.mark.slow  # fifteen runs of 5-15 s each: 35 s, a third of the fast tier's time on its own
 def test_every_envelope_rule_acts_on_a_multirotor_run() -> None:
     """Each rule of ablation.VEHICLE_RULES, switched off alone, changes a short multirotor run (and none acts on
     the paper's vehicle: test_the_ideal_vehicle_flies_the_runs_of_before_to_the_bit)."""
