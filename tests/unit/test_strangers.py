@@ -61,10 +61,14 @@ def test_the_listeners_backlog_counts_connections_it_has_not_accepted_and_they_a
         'a connection waiting in the backlog is no peer yet: it has neither held nor been refused'
 
 
-def test_a_backlog_is_a_stall_once_it_has_stayed_stalled_s_and_not_if_it_emptied_between() -> None:
+def test_a_backlog_is_a_stall_once_it_has_stayed_stalled_s_without_shrinking() -> None:
     stall = Stall(stalled_s=5.0)
     assert [stall.see(t, 1) for t in (0.0, 2.0, 4.9)] == [False, False, False]
-    assert stall.see(5.0, 2), 'waiting since 0 s'
+    assert stall.see(5.0, 2), 'waiting since 0 s, never fewer'
     assert not stall.see(5.5, 1), 'counted anew after a stall was called'
     assert not stall.see(9.0, 0) and not stall.see(9.5, 1) and not stall.see(14.0, 1), 'it emptied at 9 s'
     assert stall.see(14.5, 1)
+    busy = Stall(stalled_s=5.0)
+    assert not any(busy.see(t, w) for t, w in ((0.0, 3), (2.0, 5), (4.0, 4), (6.0, 6), (8.5, 6))), \
+        'a backlog that shrank at 4 s is a busy server: counted from then'
+    assert busy.see(9.0, 7)

@@ -15,7 +15,7 @@ deadline: one connection that sends nothing (`nc HOST PORT` from anywhere on the
 stops the server accepting for as long as it is open, and no participant that dials later is discovered (tried:
 no MAP of 8 seen for 90 s, the run went on within a second of that connection closing). The listener's own row of
 the table shows it: its receive queue is its backlog of connections the server has not taken. A backlog that stays
-for STALLED_S is a stalled server; `up` restarts it (domains.DiscoveryServer), the stalling connection dies with
+for STALLED_S, never shrinking, is a stalled server; `up` restarts it (domains.DiscoveryServer), the stalling connection dies with
 it and the clients dial the new one.
 """
 from __future__ import annotations
@@ -109,20 +109,24 @@ def backlog(lines: Iterable[str], port: int) -> int:
 
 
 class Stall:
-    """Whether the listener's backlog has stayed for stalled_s: not once it has emptied."""
+    """Whether the listener's backlog has stayed for stalled_s without shrinking: a busy server that takes its
+    connections slowly shrinks it now and then, a stalled one never does."""
 
     def __init__(self, stalled_s: float = STALLED_S) -> None:
         self.stalled_s = stalled_s
         self.since: Optional[float] = None
+        self.last = 0
 
     def see(self, now: float, waiting: int) -> bool:
-        if not waiting:
+        if not waiting or waiting < self.last:
             self.since = None
+        self.last = waiting
+        if not waiting:
             return False
         self.since = now if self.since is None else self.since
         if now - self.since < self.stalled_s:
             return False
-        self.since = None  # a new server starts with a clean count
+        self.since, self.last = None, 0  # a new server starts with a clean count
         return True
 
 
