@@ -1,8 +1,9 @@
 """A host that dials a TCP port and sends nothing until SIGTERM: what stops a Fast DDS TLS listener accepting
 (strangers.py).
 
-Usage: python -m helpers.silent HOST PORT. Prints 'ready' once connected; at SIGTERM, 'closed by the other end' if
-the listening side ended the connection meanwhile, else 'still open'.
+Usage: python -m helpers.silent HOST PORT. Dials until something listens there (up to 120 s), so it may start before
+the listener; prints 'ready' once connected; at SIGTERM, 'closed by the other end' if the listening side ended the
+connection meanwhile, else 'still open'.
 """
 from __future__ import annotations
 
@@ -10,12 +11,21 @@ import select
 import signal
 import socket
 import sys
+import time
 
 
 def main() -> int:
     ended = []
     signal.signal(signal.SIGTERM, lambda *_: ended.append(True))
-    conn = socket.create_connection((sys.argv[1], int(sys.argv[2])), timeout=10)
+    end = time.monotonic() + 120
+    while True:
+        try:
+            conn = socket.create_connection((sys.argv[1], int(sys.argv[2])), timeout=0.5)
+            break
+        except OSError:
+            if ended or time.monotonic() > end:
+                return 1
+            time.sleep(0.01)
     print('ready', flush=True)
     closed = False
     while not ended:

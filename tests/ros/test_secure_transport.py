@@ -8,8 +8,6 @@ import re
 import socket
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
 
 from helpers.rogue import lax_profile
@@ -86,32 +84,17 @@ def test_a_member_of_the_run_hears_it_and_strangers_fail_the_handshake(tmp_path:
     assert counts['no certificate'] == '0', said['no certificate']
 
 
-def _silent_connection(port: int, opened: threading.Event, close: threading.Event) -> None:
-    """A TCP connection to port, made as soon as something listens there, that sends nothing until close is set."""
-    while not close.is_set():
-        try:
-            conn = socket.create_connection(('127.0.0.1', port), timeout=0.5)
-            break
-        except OSError:
-            time.sleep(0.01)
-    else:
-        return
-    opened.set()
-    close.wait()
-    conn.close()
-
-
 def test_a_connection_that_never_starts_its_handshake_does_not_stall_a_secured_run(
         tmp_path: Path, ros_env: dict[str, str]) -> None:
     """Fast DDS accepts the next connection only once the last one's handshake has ended. A connection to the
     discovery server made before any member's, and silent for the whole run, held every MAP out (0 of 8 seen) until
     it closed; `up` restarts the stalled server and the run ends as `sim` flies it, byte for byte."""
     from helpers.runs import cli, ended, up
+    from uav_flock_tools.domains import DISCOVERY_BASE_PORT
     assert cli('keys', '--out', str(tmp_path / 'keys'), '--hosts', 'world').returncode == 0
-    domain = next(d for d in range(60, 102) if _bindable(11811 + d))
-    opened, close = threading.Event(), threading.Event()
-    silent = threading.Thread(target=_silent_connection, args=(11811 + domain, opened, close), daemon=True)
-    silent.start()
+    domain = next(d for d in range(60, 102) if _bindable(DISCOVERY_BASE_PORT + d))
+    silent = subprocess.Popen([sys.executable, '-m', 'helpers.silent', '127.0.0.1', str(DISCOVERY_BASE_PORT + domain)],
+                              cwd=Path(__file__).resolve().parents[1], env=ros_env, stdout=subprocess.PIPE, text=True)
     run = tmp_path / 'up'
     args = ('--scenario', 'paper', '--maps', '8', '--duration', '5')
     proc = up(*args, '--listen', '127.0.0.1', '--domain-id', str(domain), '--agents-here', '8',
@@ -119,9 +102,9 @@ def test_a_connection_that_never_starts_its_handshake_does_not_stall_a_secured_r
     try:
         said = ended(proc, 180, run)
     finally:
-        close.set()
-        silent.join(timeout=5)
-    assert opened.is_set(), 'the silent connection was never made: nothing listened on the server\'s port'
+        silent.terminate()
+        heard = silent.communicate(timeout=10)[0]
+    assert 'ready' in heard.split('\n'), 'the silent connection was never made: nothing listened on the server\'s port'
     assert proc.returncode == 0, said
     assert re.search(r'^uav-flock up: the discovery server stopped accepting connections for 5 s: restarted \(1\)',
                      said, re.M), said

@@ -24,7 +24,7 @@ import ipaddress
 import threading
 import time
 from pathlib import Path
-from typing import Callable, Iterable, NamedTuple, Optional
+from typing import Callable, Iterable, Iterator, NamedTuple, Optional
 
 HELD_S = 2.0          # a connection established this long was let in: its address is a member's
 REFUSED_TIMES = 2     # connections ended short before an address is named (a member's first dial may be reset)
@@ -52,17 +52,22 @@ def _address(hex_address: str) -> str:
     return str(ip)
 
 
+def _rows(lines: Iterable[str], port: int) -> Iterator[list[str]]:
+    """The fields of each row of a socket table whose local end is `port` (the header skipped)."""
+    for line in lines:
+        fields = line.split()
+        if len(fields) >= 10 and fields[0].endswith(':') and int(fields[1].rsplit(':', 1)[1], 16) == port:
+            yield fields
+
+
 def peers(lines: Iterable[str], port: int) -> list[Peer]:
-    """The connections whose local end is `port`, from the lines of a socket table (header and listener skipped, and
+    """The connections whose local end is `port`, from the lines of a socket table (the listener skipped, and
     connections the listener has not accepted yet: established, no inode; a member kept waiting in the backlog of a
     stalled server has neither held a connection nor been refused)."""
     out = []
-    for line in lines:
-        fields = line.split()
-        if len(fields) < 10 or not fields[0].endswith(':'):
-            continue  # the header
-        local, remote, state = fields[1], fields[2], int(fields[3], 16)
-        if int(local.rsplit(':', 1)[1], 16) != port or state == LISTEN or (state == ESTABLISHED and fields[9] == '0'):
+    for fields in _rows(lines, port):
+        remote, state = fields[2], int(fields[3], 16)
+        if state == LISTEN or (state == ESTABLISHED and fields[9] == '0'):
             continue
         address, remote_port = remote.rsplit(':', 1)
         out.append(Peer(_address(address), int(remote_port, 16), state == ESTABLISHED))
@@ -99,13 +104,7 @@ class Refusals:
 def backlog(lines: Iterable[str], port: int) -> int:
     """Connections to `port` that its listener has not accepted yet (the LISTEN row's receive queue), from the lines
     of a socket table."""
-    waiting = 0
-    for line in lines:
-        fields = line.split()
-        if len(fields) > 4 and fields[0].endswith(':') and int(fields[3], 16) == LISTEN \
-                and int(fields[1].rsplit(':', 1)[1], 16) == port:
-            waiting += int(fields[4].split(':')[1], 16)
-    return waiting
+    return sum(int(f[4].split(':')[1], 16) for f in _rows(lines, port) if int(f[3], 16) == LISTEN)
 
 
 class Stall:
