@@ -196,7 +196,7 @@ class World:
         q = sensed.q if sensed.truth is None else sensed.truth
         traj = [np.full(len(rows), self.k), np.full(len(rows), t), rows, q, sensed.p, modes, goals, sensed.n_users]
         if self.flight is not None:  # a multirotor's (records.VEHICLE_COLUMNS, ESTIMATE_COLUMNS)
-            watts = vehicle.power(self.flight.air(rows, sensed.p))
+            watts = self.flight.power(rows, sensed.p)
             row = np.r_[row, physics.least_distance(q, sensed.pairs), watts.mean() if len(rows) else 0.0, self.energy]
             self.energy += float(watts.sum()) * self.scenario.dt
             traj.append(sensed.q)

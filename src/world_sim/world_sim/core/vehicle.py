@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from uav_agent.core.checks import number
-from uav_agent.core.envelope import braking_room, saturate
+from uav_agent.core.envelope import braking_room, lengths, saturate
 
 F64 = NDArray[np.float64]
 MODELS = ('ideal', 'multirotor')
@@ -159,23 +159,27 @@ def traffic(truth: F64, told: F64, p: F64, v: Vehicle) -> NDArray[np.intp] | Non
         return None
     if len(truth) < 2:
         return np.zeros((0, 2), dtype=np.intp)
-    keep = v.envelope()['keep']
-    # No two MAPs close faster than twice the most any flies off the formation's mean velocity: a formation in
-    # transit flies together at v_max, and its pairs are sought as near as its settled ones (REACH_SLACK: the
+    keep = v.separation + v.margin  # envelope()['keep'], without building the MAPs' whole envelope each step
+    # No two MAPs close faster than the two that fly most off the formation's mean velocity, together: a formation
+    # in transit flies together at v_max, and its pairs are sought as near as its settled ones (REACH_SLACK: the
     # bound computed in floating point).
-    fastest = 2.0 * float(np.linalg.norm(p - p.mean(axis=0), axis=1).max())
-    reach = keep + braking_room(fastest, v.a_max, v.tau) + REACH_SLACK  # no pair farther apart (told) acts
+    off = p - p.sum(axis=0) / len(p)  # about the mean velocity: any point bounds it, the mean best
+    off = np.sqrt(np.partition(np.einsum('ij,ij->i', off, off), len(off) - 2)[-2:])
+    reach = keep + braking_room(float(off[0] + off[1]), v.a_max, v.tau) + REACH_SLACK  # no pair farther apart acts
     near = reach < v.traffic  # the same pairs, found among fewer: those within range (truth) kept once they act
-    pairs = cKDTree(told if near else truth).query_pairs(reach if near else v.traffic, output_type='ndarray')
-    d = np.hstack([told, p])  # one gather a side: j's told position and velocity less i's
-    d = d[pairs[:, 1]] - d[pairs[:, 0]]
-    dist = np.maximum(np.sqrt(np.einsum('ij,ij->i', d[:, :3], d[:, :3])), 1e-9)
-    closing = np.maximum(-np.einsum('ij,ij->i', d[:, 3:], d[:, :3]) / dist, 0.0)  # the same both ways
+    tree = cKDTree(told if near else truth, balanced_tree=False, compact_nodes=False)  # built each step: built quick
+    pairs = tree.query_pairs(reach if near else v.traffic, output_type='ndarray')
+    i, j = pairs[:, 0], pairs[:, 1]
+    dq, dp = told[j] - told[i], p[j] - p[i]
+    dist = np.maximum(np.sqrt(np.einsum('ij,ij->i', dq, dq)), 1e-9)
+    closing = np.maximum(-np.einsum('ij,ij->i', dp, dq) / dist, 0.0)  # the same both ways
     room = dist - braking_room(closing, v.a_max, v.tau)
-    acting = room < keep
+    acting = np.flatnonzero(room < keep)
+    if len(acting) == 0:  # most steps: no MAP needs to brake for another
+        return np.zeros((0, 2), dtype=np.intp)
     pairs, room = pairs[acting], room[acting]
     if near:
-        heard = np.linalg.norm(truth[pairs[:, 1]] - truth[pairs[:, 0]], axis=1) <= v.traffic
+        heard = lengths(truth[pairs[:, 1]] - truth[pairs[:, 0]]) <= v.traffic
         pairs, room = pairs[heard], room[heard]
     both, room = np.concatenate([pairs, pairs[:, ::-1]]).astype(np.intp), np.concatenate([room, room])
     both = both[np.lexsort((both[:, 1], room, both[:, 0]))]
@@ -247,12 +251,14 @@ class Flight:
     def estimate(self, rows: NDArray[np.intp], q: F64) -> F64:
         """Where the MAPs of these rows believe they are: the truth plus their GNSS error (horizontal)."""
         out = q.copy()
-        out[:, :2] += self.shared + self.own[rows]
+        out[:, :2] += self.shared + _of(self.own, rows)
         return out
 
-    def air(self, rows: NDArray[np.intp], p: F64) -> F64:
-        """Each MAP's speed through the air (m/s): its ground velocity less the wind where it is."""
-        return np.linalg.norm(p[:, :2] - self.mean_wind - self.gust[rows], axis=1)
+    def power(self, rows: NDArray[np.intp], p: F64) -> F64:
+        """Each MAP's propulsion power (W) at its speed through the air: its ground velocity less the wind where
+        it is (power, from the airspeed's square)."""
+        air = p[:, :2] - self.mean_wind - _of(self.gust, rows)
+        return _eq12((air * air).sum(axis=1))
 
     def step(self, rows: NDArray[np.intp], q: F64, p: F64, u: F64) -> tuple[F64, F64]:
         """q and p one step on: the command u (m/s^2) followed with lag tau within a_max, the gust's drag
@@ -260,29 +266,43 @@ class Flight:
         holds u. Then every MAP's gust and GNSS error move on."""
         v, dt = self.v, self.dt
         follow = 1.0 - math.exp(-dt / v.tau) if v.tau > 0 else 1.0
-        command = saturate(u, v.a_max)
-        self.lagged[rows] += (command - self.lagged[rows]) * follow
-        push = np.zeros_like(command)
-        push[:, :2] = DRAG * self.gust[rows]
-        a = saturate(self.lagged[rows] + push, v.a_max)
+        lagged = _of(self.lagged, rows)
+        lagged += (saturate(u, v.a_max) - lagged) * follow
+        if lagged is not self.lagged:
+            self.lagged[rows] = lagged
+        a = lagged.copy()
+        a[:, :2] += DRAG * _of(self.gust, rows)
+        a = saturate(a, v.a_max)
         p_next = saturate(p + a * dt, v.v_max)  # a projection: the step's acceleration only shrinks
         a = (p_next - p) / dt
-        self.gust = _markov(self.rng, self.gust, v.wind.gust, v.wind.gust_time, dt)
-        self.shared = _markov(self.rng, self.shared, self.shared_sigma, v.gnss.time, dt)
-        self.own = _markov(self.rng, self.own, v.gnss.own, v.gnss.time, dt)
+        self.gust, self.shared, self.own = _markov(self.rng, dt, (self.gust, v.wind.gust, v.wind.gust_time),
+                                                   (self.shared, self.shared_sigma, v.gnss.time),
+                                                   (self.own, v.gnss.own, v.gnss.time))
         return q + p * dt + 0.5 * a * dt * dt, p_next
+
+
+def _of(x: F64, rows: NDArray[np.intp]) -> F64:
+    """x's rows of these MAPs (sorted ids of those still flying): x itself while every MAP flies, not a copy."""
+    return x if len(rows) == len(x) else x[rows]
 
 
 def _stationary(rng: np.random.Generator, sigma: float, n: int) -> F64:
     return rng.normal(0.0, sigma, size=(n, 2)) if sigma > 0 else np.zeros((n, 2))
 
 
-def _markov(rng: np.random.Generator, x: F64, sigma: float, time: float, dt: float) -> F64:
-    """A first-order Gauss-Markov process of stationary sigma and correlation time `time`, one step on (exact)."""
-    if sigma <= 0:
-        return x
-    keep = math.exp(-dt / time)
-    return keep * x + sigma * math.sqrt(1.0 - keep * keep) * rng.normal(size=x.shape)
+def _markov(rng: np.random.Generator, dt: float, *processes: tuple[F64, float, float]) -> list[F64]:
+    """First-order Gauss-Markov processes (x, stationary sigma, correlation time), each one step on (exact). Their
+    draws in one call, as many and in the order separate calls would draw them."""
+    drawn = rng.normal(size=sum(x.size for x, sigma, _ in processes if sigma > 0))
+    out, at = [], 0
+    for x, sigma, time in processes:
+        if sigma <= 0:
+            out.append(x)
+            continue
+        keep = math.exp(-dt / time)
+        out.append(keep * x + sigma * math.sqrt(1.0 - keep * keep) * drawn[at:at + x.size].reshape(x.shape))
+        at += x.size
+    return out
 
 
 # Zeng, Xu and Zhang (IEEE TWC 2019), eq. 12 with their Table I: blade profile and induced power in hover (W), the
@@ -294,9 +314,14 @@ P0, PI, U_TIP, V0, D0, RHO, SOLIDITY, AREA = 79.86, 88.63, 120.0, 4.03, 0.6, 1.2
 def power(airspeed: F64) -> F64:
     """Propulsion power (W) of a rotary-wing UAV in level flight at this airspeed (m/s): eq. 12 of Zeng et al."""
     v = np.asarray(airspeed, dtype=float)
-    blade = P0 * (1.0 + 3.0 * v ** 2 / U_TIP ** 2)
-    induced = PI * np.sqrt(np.sqrt(1.0 + v ** 4 / (4.0 * V0 ** 4)) - v ** 2 / (2.0 * V0 ** 2))
-    parasite = 0.5 * D0 * RHO * SOLIDITY * AREA * v ** 3
+    return _eq12(v * v)
+
+
+def _eq12(v2: F64) -> F64:
+    """Eq. 12 of Zeng et al. from the airspeed's square (m^2/s^2): blade profile, induced and parasite power."""
+    blade = P0 + (3.0 * P0 / U_TIP ** 2) * v2
+    induced = PI * np.sqrt(np.sqrt(1.0 + v2 * v2 * (1.0 / (4.0 * V0 ** 4))) - v2 * (1.0 / (2.0 * V0 ** 2)))
+    parasite = (0.5 * D0 * RHO * SOLIDITY * AREA) * v2 * np.sqrt(v2)
     return blade + induced + parasite
 
 
