@@ -293,7 +293,8 @@ def _stationary(rng: np.random.Generator, sigma: float, n: int) -> F64:
 def _markov(rng: np.random.Generator, dt: float, *processes: tuple[F64, float, float]) -> list[F64]:
     """First-order Gauss-Markov processes (x, stationary sigma, correlation time), each one step on (exact). Their
     draws in one call, as many and in the order separate calls would draw them."""
-    drawn = rng.normal(size=sum(x.size for x, sigma, _ in processes if sigma > 0))
+    size = sum(x.size for x, sigma, _ in processes if sigma > 0)
+    drawn = rng.normal(size=size) if size else np.zeros(0)  # none drawn where none was: a calm, exact receiver
     out, at = [], 0
     for x, sigma, time in processes:
         if sigma <= 0:
