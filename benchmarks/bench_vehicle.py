@@ -132,8 +132,9 @@ def cost(maps: int, steps: int, repeats: int = 3) -> str:
             BatchSimulator(dataclasses.replace(spread, vehicle=vehicle.MULTIROTOR)).run()
             whole = time.perf_counter() - t0
         runs.append((whole / (whole - sum(spent.values())), whole, dict(spent)))
-    ratios = sorted(r for r, _, _ in runs)
-    ratio, whole, spent = sorted(runs, key=lambda run: run[0])[len(runs) // 2]
+    runs.sort(key=lambda run: run[0])
+    ratios = [r for r, _, _ in runs]
+    ratio, whole, spent = runs[len(runs) // 2]
     top = ', '.join(f'{k} {v:.3f}' for k, v in sorted(spent.items(), key=lambda kv: -kv[1])[:3])
     return (f'{maps} MAPs, {steps} steps: ideal {a:.2f} s, multirotor {b:.2f} s, ratio {b / a:.3f}; the vehicle\'s own '
             f'functions {sum(spent.values()):.3f} s of {whole:.2f} s, x {ratio:.3f} over the rest in the median of '

@@ -66,12 +66,17 @@ class Vehicle:
         (GNSS_MARGIN sigma of the difference) and what a step and the lag let them drift (KEEP_SLACK)."""
         return 0.0 if self.ideal else KEEP_SLACK + GNSS_MARGIN * math.sqrt(2.0) * self.gnss.own
 
+    @property
+    def keep(self) -> float:
+        """The distance (m) the MAPs keep: separation and its margin (what rule 'keep' is told as FlockParams.keep)."""
+        return self.separation + self.margin
+
     def envelope(self) -> dict[str, float]:
         """What the MAPs are told (FlockParams' ENVELOPE): zeros on the paper's vehicle."""
         if self.ideal:
             return {'v_max': 0.0, 'a_max': 0.0, 'tau': 0.0, 'keep': 0.0, 'traffic': 0.0}
         return {'v_max': min(self.cruise or self.v_max, self.v_max), 'a_max': self.a_max, 'tau': self.tau,
-                'keep': self.separation + self.margin, 'traffic': self.traffic}
+                'keep': self.keep, 'traffic': self.traffic}
 
     def describe(self) -> str:
         """The vehicle in words, as `sim` and `up` state it at the start of a run."""
@@ -159,7 +164,7 @@ def traffic(truth: F64, told: F64, p: F64, v: Vehicle) -> NDArray[np.intp] | Non
         return None
     if len(truth) < 2:
         return np.zeros((0, 2), dtype=np.intp)
-    keep = v.separation + v.margin  # envelope()['keep'], without building the MAPs' whole envelope each step
+    keep = v.keep
     # No two MAPs close faster than the two that fly most off the formation's mean velocity, together: a formation
     # in transit flies together at v_max, and its pairs are sought as near as its settled ones (REACH_SLACK: the
     # bound computed in floating point).
@@ -195,7 +200,7 @@ def release(q: F64, p: F64, v: Vehicle, centre: tuple[float, float], half_width:
     from the vehicle's stream), none faster than v_max. The release stream's draws stay as they were, so both vehicles leave the same seed's MAPs
     alike wherever those are far enough apart."""
     q, p = q.copy(), saturate(p.copy(), v.v_max)
-    apart = v.envelope()['keep']
+    apart = v.keep
     half_width = roomy(len(q), half_width, apart)
     again = np.arange(len(q))  # at first, every MAP
     for _ in range(10_000):
