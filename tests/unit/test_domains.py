@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from uav_flock_tools import domains
 from uav_flock_tools.domains import FRESH_DOMAINS, DomainInUse, claim_domain
 
 HOLDER = '''
@@ -18,7 +19,15 @@ time.sleep(300)
 '''
 
 
-def test_fresh_claims_never_share_a_domain_until_none_is_left() -> None:
+@pytest.fixture
+def own_claims(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A claim folder of the test's own: any other uav-flock run on the host claims and dates domains in the
+    host-wide one while the test counts on their order."""
+    monkeypatch.setattr(domains, 'DOMAIN_CLAIMS', tmp_path / 'claims')
+    return tmp_path / 'claims'
+
+
+def test_fresh_claims_never_share_a_domain_until_none_is_left(own_claims: Path) -> None:
     held = []
     try:
         with pytest.raises(DomainInUse, match='every ROS_DOMAIN_ID from 1 to 101 is in use'):
@@ -36,7 +45,7 @@ def test_fresh_claims_never_share_a_domain_until_none_is_left() -> None:
             c.release()
 
 
-def test_a_fresh_claim_takes_the_least_recently_used_domain() -> None:
+def test_a_fresh_claim_takes_the_least_recently_used_domain(own_claims: Path) -> None:
     """A SIGKILLed run's participants stay in discovery for their lease: the domain it just left is the last
     to be handed out again, not one in a hundred."""
     used = []
@@ -46,6 +55,7 @@ def test_a_fresh_claim_takes_the_least_recently_used_domain() -> None:
     assert sorted(used) == list(FRESH_DOMAINS), 'every domain is used once before any is used twice'
     with claim_domain() as domain:
         assert domain == used[0]
+    assert sorted(int(p.name) for p in own_claims.iterdir()) == list(FRESH_DOMAINS), 'claimed in the own folder'
 
 
 def test_a_domain_held_by_another_process_is_refused_and_freed_when_it_dies(tmp_path: Path) -> None:

@@ -86,7 +86,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     command = next((a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith('-')), '')
     if command not in PRINTERS:
         from .outlast import Outlasting
+        # stdout and stderr alike: `sim ... 2>&1 | head -1` closes the progress bar's stream, not only the prints'
         sys.stdout = Outlasting(sys.stdout)  # type: ignore[assignment]
+        sys.stderr = Outlasting(sys.stderr)  # type: ignore[assignment]
     try:
         return _main(argv)
     except KeyboardInterrupt:

@@ -1,4 +1,4 @@
-"""stdout that outlives its reader, for the commands whose records are their files (cli.PRINTERS are not)."""
+"""stdout and stderr that outlive their reader, for the commands whose records are their files (cli.PRINTERS are not)."""
 from __future__ import annotations
 
 import io
