@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 from helpers.runs import cli, dead, dropped_ids, helper, kill_during, shm_entries, up, wait_for_line
 from uav_flock_tools.domains import claim_domain
@@ -43,9 +44,12 @@ def test_lockstep_equals_the_batch_simulator_over_a_lossy_late_channel(tmp_path:
         'the channel changes the run'
 
 
-def test_lockstep_equals_the_batch_simulator_on_a_multirotor(tmp_path: Path, ros_env: dict[str, str]) -> None:
+@pytest.mark.parametrize('safety', ['rules', 'filter'])
+def test_lockstep_equals_the_batch_simulator_on_a_multirotor(tmp_path: Path, ros_env: dict[str, str],
+                                                            safety: str) -> None:
     """The world owns the vehicle (lag, limits, gusts, GNSS error): the MAPs decide from the estimate it tells
-    them, as the batch simulator's do, to the bit; the records keep the truth and the estimate apart."""
+    them, as the batch simulator's do, to the bit; the records keep the truth and the estimate apart. Under
+    today's rules and under the safety filter, whose QP each MAP's node solves for itself."""
     drawn = cli('layouts', '--count', '1', '--clusters', '3', '--seed', '4', '--out', str(tmp_path / 'layouts'))
     assert drawn.returncode == 0, drawn.stderr
     doc = yaml.safe_load((tmp_path / 'layouts' / 'layout-000.yaml').read_text())
@@ -53,6 +57,7 @@ def test_lockstep_equals_the_batch_simulator_on_a_multirotor(tmp_path: Path, ros
     # (rule 'traffic': the run differs with it off), which the world tells each MAP in its sensing.
     doc['vehicle'] = {'model': 'multirotor', 'separation': 15.0, 'wind': {'speed': 6.0, 'gust': 2.0},
                       'gnss': {'sigma': 2.0, 'own': 0.8}}
+    doc.setdefault('policies', {})['safety'] = safety
     (tmp_path / 'multirotor.yaml').write_text(yaml.safe_dump(doc))
     args = ('--scenario', str(tmp_path / 'multirotor.yaml'), '--maps', '24', '--duration', '8', '--fail-at', '4',
             '--fail-fraction', '0.2')

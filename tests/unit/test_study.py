@@ -285,3 +285,29 @@ def test_keep_leaves_each_runs_series_that_pandas_reads_and_a_row_flies_again(tm
     assert series['min_distance'].min() == row['least_distance']
     again = engine.execute(run, keep=True)['_series']
     assert again == {c: series[c].tolist() for c in series.columns}
+
+
+def test_a_study_folder_keeps_its_spec_and_refuses_the_runs_of_another(local: Path, tmp_path: Path) -> None:
+    """Another spec into the smoke study's folder would mix two studies in one table (two layouts 0 read as one):
+    refused in one line, exit 2, nothing written; so is a folder of no study (a sim run's), and a folder from
+    before the copy whose rows the spec has not."""
+    import shutil
+    assert yaml.safe_load((local / 'spec.yaml').read_text()) == yaml.safe_load(SMOKE.read_text())
+    other = tmp_path / 'other.yaml'
+    other.write_text(yaml.safe_dump({**yaml.safe_load(SMOKE.read_text()), 'duration': 5, 'variants': {'base': {}}}))
+    before = rows(local)
+    proc = study(str(other), '--out', str(local))
+    assert proc.returncode == 2 and proc.stderr.count('\n') == 1 and 'another spec' in proc.stderr, proc.stderr
+    assert rows(local) == before and parts(local) == 0
+    old = tmp_path / 'old'
+    shutil.copytree(local, old)
+    (old / 'spec.yaml').unlink()
+    proc = study(str(other), '--out', str(old))
+    assert proc.returncode == 2 and 'runs of another spec' in proc.stderr, proc.stderr
+    assert not (old / 'spec.yaml').exists()
+    run = tmp_path / 'run'
+    run.mkdir()
+    (run / 'metrics.csv').write_text('step,t\n')
+    proc = study(str(other), '--out', str(run))
+    assert proc.returncode == 2 and 'not a study folder' in proc.stderr, proc.stderr
+    assert sorted(p.name for p in run.iterdir()) == ['metrics.csv']

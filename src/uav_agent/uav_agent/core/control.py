@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from . import envelope
+from . import envelope, safety
 from .ablation import on
 from .clusters import segment_distance
 from .params import FlockParams
@@ -145,5 +145,16 @@ def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer]
     if not envelope.limited(fp):
         return u + h
     seen = traffic if traffic is not None and fp.traffic > 0 and on('traffic') else (owner, nbr_q, nbr_p)
+    if fp.safety == 'filter':  # nominal, then the one filter, then the command
+        by, at, vel = seen
+        dq, dv = at - own_q[by], vel - own_p[by]
+        rows = np.flatnonzero(safety.binding(dq, dv, fp))
+        links = None
+        if on('links'):  # the links it protects, of those its radio hears
+            l_dq, l_dv = nbr_q - own_q[owner], nbr_p - own_p[owner]
+            near = safety.link_budget(l_dq, l_dv, fp) < fp.a_max  # the rows a command within a_max can reach
+            chosen = np.flatnonzero(safety.protected(owner, l_dq, len(own_q), near))
+            links = owner[chosen], l_dq[chosen], l_dv[chosen]
+        return safety.filtered(u + h, own_p, by[rows], dq[rows], dv[rows], fp, links)
     brake = envelope.keep_apart(own_q, own_p, *seen, fp) + envelope.governor(own_p, fp)
     return envelope.command(u + h, brake, fp)

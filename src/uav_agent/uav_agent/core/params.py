@@ -16,6 +16,7 @@ OPEN_CHOICES: dict[str, tuple[str, ...]] = {
 }
 # FlockParams fields a scenario sets from its other sections (`links:`, `vehicle:`), not from `flock:`
 DERIVED = ('reach', 'hush', 'v_max', 'a_max', 'tau', 'keep', 'traffic')
+SAFETY = ('rules', 'filter')  # FlockParams.safety's values
 ENVELOPE = ('v_max', 'a_max', 'tau', 'keep', 'traffic')  # the vehicle's, 0 on the paper's (core/envelope.py)
 
 
@@ -42,6 +43,9 @@ class FlockParams:
     m1_pending: str = 'hold'
     m0_exhausted: str = 'bridge'
     edge_choice: str = 'keep_nearest'
+    # How a multirotor MAP keeps its distance and its envelope: 'rules' (core/envelope.py's keep, swerve, priority
+    # and brake's governor) or 'filter' (one safety filter, core/safety.py). Nothing on the paper's vehicle.
+    safety: str = 'rules'
     # The longest link a MAP relies on (m), 0 for r: where the scenario's channel delivers half of what is
     # sent (links.reach). Set from its `links:` section, never in `flock:`.
     reach: float = 0.0

@@ -14,7 +14,7 @@ import numpy as np
 from .allocations.algorithm2 import Algorithm2
 from .allocations.demand import Demand
 from .clusters import NO_GOAL, ClusterMap, merge_achieved
-from .params import OPEN_CHOICES, FlockParams
+from .params import OPEN_CHOICES, SAFETY, FlockParams
 from .params import check as check_values
 from .state import NOBODY, Memory, Near, Reference, Told
 
@@ -48,7 +48,7 @@ ALLOCATIONS: dict[str, Allocation] = {
 }
 DEFAULT = FlockParams().allocation  # what a scenario without `policies: allocation:` runs
 # Every choice where the paper is ambiguous or leaves the method open, with its allowed values (docs/choices.md).
-POLICY_VALUES: dict[str, tuple[str, ...]] = {'allocation': tuple(ALLOCATIONS), **OPEN_CHOICES}
+POLICY_VALUES: dict[str, tuple[str, ...]] = {'allocation': tuple(ALLOCATIONS), **OPEN_CHOICES, 'safety': SAFETY}
 
 
 def check(p: FlockParams, where: Callable[[str], str] = str) -> None:

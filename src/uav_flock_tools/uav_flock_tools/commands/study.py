@@ -51,6 +51,10 @@ def handle(args: argparse.Namespace) -> int:
         raise UsageError(f'study: {args.spec}: {exc}') from None
     if args.scheduler:
         _reach(args.scheduler)
+    try:
+        engine.claim(args.out, Path(args.spec), {r.key for r in grid})
+    except engine.StudyError as exc:
+        raise UsageError(f'study: {exc}') from None
     print(f'study: {len(grid)} run{"s" if len(grid) != 1 else ""} into {args.out / engine.RESULTS}'
           f' on {args.scheduler or "a local cluster"}', file=sys.stderr, flush=True)
     try:

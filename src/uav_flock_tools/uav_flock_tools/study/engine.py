@@ -74,6 +74,30 @@ def schema():  # -> pyarrow.Schema
     return pa.schema([(c, types.get(c, pa.float64())) for c in COLUMNS])
 
 
+SPEC_COPY = 'spec.yaml'  # the spec a study folder holds the runs of, as it was given
+
+
+def claim(out: Path, spec_path: Path, keys: set[str]) -> None:
+    """Make `out` the folder of this spec's study, or say in one line (StudyError) why it is not: it holds the runs
+    of another spec (by its copy of the spec, or, in a folder from before the copy, by a row no run of this spec
+    has), or it is not a study folder at all (a run folder, say). Then the folder keeps a copy of the spec."""
+    from world_sim.core.scenario import read_yaml
+    copy = out / SPEC_COPY
+    if copy.exists():
+        if read_yaml(copy, 'spec') != read_yaml(spec_path, 'spec'):
+            raise StudyError(f'{out} holds the study of another spec (its copy: {copy}): give another --out, or '
+                             'that spec')
+    elif out.exists() and any(out.iterdir()):
+        if not ((out / RESULTS).exists() or (out / PARTS).exists()):
+            raise StudyError(f'{out} is not a study folder (no {RESULTS}): give a new or empty --out')
+        alien = sorted({r['key'] for r in finished(out)} - keys)
+        if alien:
+            raise StudyError(f'{out} holds {len(alien)} runs of another spec: give another --out, or that spec')
+    out.mkdir(parents=True, exist_ok=True)
+    if not copy.exists():
+        copy.write_text(spec_path.read_text())
+
+
 def finished(out: Path) -> list[dict[str, Any]]:
     """The rows a study folder holds: results.parquet and the parts not yet gathered into it (a part is newer:
     it replaces the row of a run that raised and was computed again)."""

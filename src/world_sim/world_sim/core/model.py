@@ -176,7 +176,7 @@ class World:
         return Sensed(self.k, rows, told, p, physics.user_counts(assoc, len(rows)),
                       physics.cluster_coverage(self.users, assoc), physics.neighbour_pairs(q, fp.r),
                       physics.coverage_ratio(assoc), assoc=assoc, truth=None if self.flight is None else q,
-                      traffic=None if self.flight is None else vehicle.traffic(q, told, p, self.flight.v))
+                      traffic=None if self.flight is None else vehicle.traffic(q, told, p, self.flight.v, fp))
 
     def advance(self, sensed: Sensed, u: np.ndarray, modes: np.ndarray, goals: np.ndarray,
                 integrate: bool = True) -> np.ndarray:

@@ -13,8 +13,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from uav_agent.core import safety
 from uav_agent.core.checks import number
 from uav_agent.core.envelope import braking_room, lengths, saturate
+from uav_agent.core.params import FlockParams
 
 F64 = NDArray[np.float64]
 MODELS = ('ideal', 'multirotor')
@@ -154,12 +156,13 @@ FEW = 8  # MAPs drawn again that a release measures against all by hand, quicker
 TRAFFIC_MOST = 8  # the most broadcasts a MAP's traffic receiver passes on each step: the most urgent
 
 
-def traffic(truth: F64, told: F64, p: F64, v: Vehicle) -> NDArray[np.intp] | None:
+def traffic(truth: F64, told: F64, p: F64, v: Vehicle, fp: FlockParams | None = None) -> NDArray[np.intp] | None:
     """Ordered pairs (i, j) of rows, sorted by i then j: the broadcasts (position as j's GNSS tells it, velocity)
     that MAP i's traffic receiver passes on, of those within v.traffic m (truth). Only those rule 'keep' acts on,
     whose room left once MAP i had braked to a stop along the line between them is below keep (links it
     closes on faster than it could stop keep m short, or nearer than keep): the rule adds nothing for the
-    others. Of those, the TRAFFIC_MOST with least room. None: no receiver."""
+    others. Of those, the TRAFFIC_MOST with least room. None: no receiver. fp: what the MAPs fly; under the
+    safety filter (FlockParams.safety), the pairs whose barrier can bind (safety.binding), least budget first."""
     if v.ideal or v.traffic <= 0:
         return None
     if len(truth) < 2:
@@ -170,16 +173,25 @@ def traffic(truth: F64, told: F64, p: F64, v: Vehicle) -> NDArray[np.intp] | Non
     # bound computed in floating point).
     off = p - p.sum(axis=0) / len(p)  # about the mean velocity: any point bounds it, the mean best
     off = np.sqrt(np.partition(np.einsum('ij,ij->i', off, off), len(off) - 2)[-2:])
-    reach = keep + braking_room(float(off[0] + off[1]), v.a_max, v.tau) + REACH_SLACK  # no pair farther apart acts
+    if fp is not None and fp.safety != 'filter':
+        fp = None
+    if fp is not None:  # rule 'filter': the pairs whose barrier can bind
+        reach = safety.reach(float(off[0] + off[1]), fp) + REACH_SLACK
+    else:  # rule 'keep': the pairs it brakes on
+        reach = keep + braking_room(float(off[0] + off[1]), v.a_max, v.tau) + REACH_SLACK  # no pair farther acts
     near = reach < v.traffic  # the same pairs, found among fewer: those within range (truth) kept once they act
     tree = cKDTree(told if near else truth, balanced_tree=False, compact_nodes=False)  # built each step: built quick
     pairs = tree.query_pairs(reach if near else v.traffic, output_type='ndarray')
     i, j = pairs[:, 0], pairs[:, 1]
     dq, dp = told[j] - told[i], p[j] - p[i]
-    dist = np.maximum(np.sqrt(np.einsum('ij,ij->i', dq, dq)), 1e-9)
-    closing = np.maximum(-np.einsum('ij,ij->i', dp, dq) / dist, 0.0)  # the same both ways
-    room = dist - braking_room(closing, v.a_max, v.tau)
-    acting = np.flatnonzero(room < keep)
+    if fp is not None:  # the barrier's budget, the same both ways: least is most urgent
+        room = safety.budget(dq, dp, fp)
+        acting = np.flatnonzero(room < fp.a_max)
+    else:
+        dist = np.maximum(np.sqrt(np.einsum('ij,ij->i', dq, dq)), 1e-9)
+        closing = np.maximum(-np.einsum('ij,ij->i', dp, dq) / dist, 0.0)  # the same both ways
+        room = dist - braking_room(closing, v.a_max, v.tau)
+        acting = np.flatnonzero(room < keep)
     if len(acting) == 0:  # most steps: no MAP needs to brake for another
         return np.zeros((0, 2), dtype=np.intp)
     pairs, room = pairs[acting], room[acting]

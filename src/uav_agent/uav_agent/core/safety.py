@@ -1,0 +1,159 @@
+"""The safety filter (rule 'filter'): the acceleration a multirotor MAP commands is the one nearest to eq. 9's
+(the nominal) that keeps its distance from every MAP its traffic receiver reports and stays within its envelope.
+
+One small QP per MAP and step, decided from its own state and what the others broadcast:
+
+    minimise  |u - u_nom|^2 + SLACK_COST s     (u: the horizontal acceleration, s >= 0 a slack on separation)
+    subject to  n_ij . u <= (KAPPA h_ij - h_ij' c_ij + w_ij^2 / d_ij) / 2 + s     per reported MAP j
+                e_k . u <= a_max cos(pi / SIDES)                                   the polygon inside the disc a_max
+                u . p / |p| <= (v_max - |p|) / (tau + STEP_S)                      the speed within v_max
+
+h_ij = v_safe(d_ij - keep) - c_ij is the pairwise barrier for double integrators of Wang, Ames and Egerstedt
+(IEEE T-RO 2017): c the speed at which i and j close, w their speed sideways, n the unit vector from i to j, and
+v_safe(g) the closing speed from which both, braking at BRAKE_SHARE a_max each after the lag and the step's hold,
+stop within g (g = v T + v^2 / (4 a), T = tau + STEP_S: the lag's room is what sets it apart from their sqrt law).
+Its derivative along the pair's motion is n . (a_j - a_i) + w^2 / d - v_safe' c; each MAP takes half of each pair's
+budget, as they do, so ḣ >= -KAPPA h holds when both do their half. Separation is hard against the nominal (the
+slack's linear price outbids any nominal), soft only against the envelope, which the vehicle enforces anyway.
+"""
+from __future__ import annotations
+
+import math
+
+import daqp
+import numpy as np
+from numpy.typing import NDArray
+
+from .envelope import STEP_S, lengths, saturate
+from .params import FlockParams
+from .potentials import F64
+
+KAPPA = 2.0         # /s: how fast the barrier may be used up, ḣ >= -KAPPA h (at most 1 / (tau + STEP_S))
+BRAKE_SHARE = 0.5   # of a_max, each MAP's braking the barrier plans with: the rest is the lag's and the gusts'
+SIDES = 8           # the acceleration disc as the polygon of SIDES sides inside it (a QP has linear rows)
+SLACK_COST = 1e4    # (m/s^2 per unit slack): far above a protected link's, so separation gives way only to the envelope
+LINK_COST = 1e2     # a protected link's slack: above what the nominal, within a_max, can pull (2 a_max), below separation
+SLACK_WEIGHT = 1e-6  # the slacks' quadratic weight, only to keep the QP's Hessian positive definite
+LINK_MARGIN = 1.0   # m: a protected link is kept this much shorter than r, where the chains are laid taut
+_ANGLES = 2.0 * np.pi * np.arange(SIDES) / SIDES
+_FACES = np.column_stack([np.cos(_ANGLES), np.sin(_ANGLES)])
+_APOTHEM = math.cos(math.pi / SIDES)
+
+
+def horizon(fp: FlockParams) -> float:
+    """The time (s) before a command takes effect: the autopilot's lag and the step's hold."""
+    return fp.tau + STEP_S
+
+
+def braking(fp: FlockParams) -> float:
+    """Each MAP's braking (m/s^2) that the barrier plans with."""
+    return BRAKE_SHARE * fp.a_max
+
+
+def budget(dq: F64, dv: F64, fp: FlockParams) -> F64:
+    """Per pair (j at dq from i, moving at dv relative to it), the most of i's acceleration towards j that keeps
+    the pair's barrier: n . a_i <= budget (m/s^2). Negative: i must accelerate away. Symmetric: j's is the same."""
+    a, t = braking(fp), horizon(fp)
+    dist = np.maximum(lengths(dq), 1e-9)
+    closing = -(dq * dv).sum(axis=-1) / dist
+    sideways2 = np.maximum((dv * dv).sum(axis=-1) - closing * closing, 0.0)
+    root = np.sqrt(t * t + np.maximum(dist - fp.keep, 0.0) / a)
+    safe = 2.0 * a * (root - t)  # v_safe(gap)
+    return 0.5 * (KAPPA * (safe - closing) - closing / root + sideways2 / dist)
+
+
+def link_budget(dq: F64, dv: F64, fp: FlockParams) -> F64:
+    """Per protected link (j at dq from i, moving at dv relative to it), the most of i's acceleration away from j
+    that keeps the link's barrier h = v_safe(r - LINK_MARGIN - d) - o (o the speed at which the link opens):
+    -n . a_i <= link_budget. The sideways speed w opens a link at w^2 / d and counts against it."""
+    a, t = braking(fp), horizon(fp)
+    dist = np.maximum(lengths(dq), 1e-9)
+    opening = (dq * dv).sum(axis=-1) / dist
+    sideways2 = np.maximum((dv * dv).sum(axis=-1) - opening * opening, 0.0)
+    root = np.sqrt(t * t + np.maximum(fp.r - LINK_MARGIN - dist, 0.0) / a)
+    safe = 2.0 * a * (root - t)
+    return 0.5 * (KAPPA * (safe - opening) - opening / root - sideways2 / dist)
+
+
+def protected(owner: NDArray[np.intp], dq: F64, m: int, asked: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Per link (owner, j at dq from it; the MAPs its radio hears, grouped by owner) of those asked, whether the
+    owner protects it:
+    the links of the relative-neighbourhood graph, those no third neighbour k witnesses, max(d_ik, d_jk) < d_ij.
+
+    The graph contains the minimum spanning tree of the links (Toussaint 1980), so over all MAPs the protected links
+    span every connected part of the radio graph; both ends decide alike from the same broadcasts (a witness lies
+    within r of both), and a link stops being protected only once a witness joins its ends through two shorter
+    links, themselves protected or witnessed in turn by shorter ones: make before break."""
+    out = asked.copy()
+    first = np.searchsorted(owner, np.arange(m + 1))
+    for i in np.unique(owner[asked]):
+        lo, hi = first[i], first[i + 1]
+        if hi - lo < 2:
+            continue
+        block = dq[lo:hi]
+        d = lengths(block)
+        apart = lengths(block[:, None, :] - block[None, :, :])
+        out[lo:hi] &= ~(np.maximum(apart, d[None, :]) < d[:, None]).any(axis=1)
+    return out
+
+
+def binding(dq: F64, dv: F64, fp: FlockParams) -> NDArray[np.bool_]:
+    """The pairs whose barrier an acceleration within a_max can reach: the only rows a MAP's QP needs (what its
+    traffic receiver passes on, vehicle.traffic)."""
+    return budget(dq, dv, fp) < fp.a_max
+
+
+def reach(closing: float, fp: FlockParams) -> float:
+    """The distance (m) beyond which no pair closing at most at `closing` m/s binds (binding is False), whatever
+    it flies sideways: budget >= KAPPA (v_safe - c) / 2 - c / (2 T), so v_safe >= c + (2 a_max + c / T) / KAPPA
+    is enough."""
+    t, a = horizon(fp), braking(fp)
+    v = closing + (2.0 * fp.a_max + closing / t) / KAPPA
+    return fp.keep + v * t + v * v / (4.0 * a)
+
+
+def filtered(u_nom: F64, own_p: F64, owner: NDArray[np.intp], dq: F64, dv: F64, fp: FlockParams,
+             links: tuple[NDArray[np.intp], F64, F64] | None = None) -> F64:
+    """Each own MAP's command (m rows): u_nom (its z kept) filtered through the QP above, the pairs to keep apart
+    as rows (owner, j's position less i's, j's velocity less i's) grouped by owner, and likewise the protected
+    links to keep (none: no link rows)."""
+    m = len(u_nom)
+    l_owner, l_dq, l_dv = links if links is not None else (np.zeros(0, np.intp), np.zeros((0, 3)), np.zeros((0, 3)))
+    l_first = np.searchsorted(l_owner, np.arange(m + 1))
+    if len(l_owner):
+        l_n = l_dq[:, :2] / np.maximum(lengths(l_dq[:, :2]), 1e-9)[:, None]
+        l_b = link_budget(l_dq, l_dv, fp)
+    out = u_nom.copy()
+    limit = fp.a_max * _APOTHEM
+    speed = lengths(own_p[:, :2])
+    heading = own_p[:, :2] / np.maximum(speed, 1e-12)[:, None]
+    room = np.maximum((fp.v_max - speed) / horizon(fp), -limit)
+    moving = speed > 1e-9
+    first = np.searchsorted(owner, np.arange(m + 1)) if len(owner) else np.zeros(m + 1, dtype=np.intp)
+    if len(owner):
+        n = dq[:, :2] / np.maximum(lengths(dq[:, :2]), 1e-9)[:, None]
+        b = budget(dq, dv, fp)
+    nominal = saturate(u_nom[:, :2], fp.a_max)  # within a_max first: what a link slack's price must outbid is 2 a_max
+    outside = ((nominal @ _FACES.T) > limit).any(axis=1) | (moving & ((nominal * heading).sum(axis=1) > room))
+    for i in np.flatnonzero(outside | (first[1:] > first[:-1]) | (l_first[1:] > l_first[:-1])):
+        lo, hi, l_lo, l_hi = first[i], first[i + 1], l_first[i], l_first[i + 1]
+        # variables (s_sep, one slack per protected link, ux, uy); rows: separation, protected links, polygon, speed
+        links_here = l_hi - l_lo
+        width = 3 + links_here
+        rows = [np.c_[-np.ones(hi - lo), np.zeros((hi - lo, links_here)), n[lo:hi]] if hi > lo else np.zeros((0, width)),
+                np.c_[np.zeros(links_here), -np.eye(links_here), -l_n[l_lo:l_hi]] if links_here else np.zeros((0, width)),
+                np.c_[np.zeros((SIDES, 1 + links_here)), _FACES]]
+        upper = [b[lo:hi] if hi > lo else np.zeros(0), l_b[l_lo:l_hi] if links_here else np.zeros(0),
+                 np.full(SIDES, limit)]
+        if moving[i]:
+            rows.append(np.r_[np.zeros(1 + links_here), heading[i]][None, :])
+            upper.append(room[i:i + 1])
+        a_rows = np.ascontiguousarray(np.concatenate(rows))
+        bu = np.concatenate([np.full(1 + links_here, np.inf), *upper])
+        bl = np.concatenate([np.zeros(1 + links_here), np.full(len(a_rows), -np.inf)])
+        cost = np.r_[SLACK_COST, np.full(links_here, LINK_COST), -nominal[i]]
+        x, _, flag, _ = daqp.solve(np.diag(np.r_[np.full(1 + links_here, SLACK_WEIGHT), 1.0, 1.0]), cost, a_rows, bu, bl)
+        if flag < 1:  # no command within the envelope (cannot happen while the speed is within v_max): brake
+            x = np.r_[np.zeros(1 + links_here), -heading[i] * limit]
+        out[i, :2] = x[-2:]
+    return out

@@ -1,0 +1,156 @@
+"""The safety filter (rule 'filter', uav_agent/core/safety.py): separation and the envelope as constraints on each
+MAP's command, flown through the multirotor's own lag (world_sim/core/vehicle.Flight)."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from uav_agent.core import safety
+from uav_agent.core.params import FlockParams
+from world_sim.core import vehicle
+
+CALM = replace(vehicle.MULTIROTOR, wind=vehicle.Wind(0.0, 0.0, 0.0, 5.0), gnss=vehicle.Gnss(0.0, 60.0, 0.0))
+FP = replace(FlockParams(), **CALM.envelope())
+
+
+def pairs(q: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every ordered pair (i, j) as the filter takes it: owner i, j's position and velocity less i's."""
+    n = len(q)
+    i, j = np.array([(a, b) for a in range(n) for b in range(n) if a != b]).T
+    return i, q[j] - q[i], p[j] - p[i]
+
+
+def fly(q: np.ndarray, p: np.ndarray, nominal: np.ndarray, seconds: float, v: vehicle.Vehicle = CALM,
+        filter_on: bool = True) -> float:
+    """The MAPs flown from q, p, each commanding the filtered nominal (a fixed acceleration each) through the
+    vehicle's lag and limits: the least distance between two of them."""
+    f = vehicle.Flight(v, len(q), 0.1, np.random.default_rng(0))
+    rows, least = np.arange(len(q)), np.inf
+    for _ in range(int(round(seconds / 0.1))):
+        owner, dq, dv = pairs(q, p)
+        keep = np.flatnonzero(safety.binding(dq, dv, FP))
+        u = safety.filtered(nominal, p, owner[keep], dq[keep], dv[keep], FP) if filter_on else nominal
+        assert (np.linalg.norm(u[:, :2], axis=1) <= FP.a_max + 1e-9).all(), 'a command beyond a_max'
+        q, p = f.step(rows, q, p, u)
+        gaps = np.linalg.norm(q[:, None] - q[None], axis=2) + np.diag(np.full(len(q), np.inf))
+        least = min(least, float(gaps.min()))
+    return least
+
+
+@pytest.mark.parametrize('lateral', [0.0, 2.0])
+def test_two_maps_head_on_at_v_max_pushed_together_keep_their_separation(lateral: float) -> None:
+    """Both at 15 m/s straight at each other, heard at the traffic receiver's 100 m, each nominal pushing on at
+    a_max: the filter brakes them apart of the separation; without it they collide."""
+    q = np.array([[0.0, 0.0, 20.0], [100.0, lateral, 20.0]])
+    p = np.array([[15.0, 0.0, 0.0], [-15.0, 0.0, 0.0]])
+    nominal = np.array([[4.0, 0.0, 0.0], [-4.0, 0.0, 0.0]])
+    assert fly(q, p, nominal, 12.0) >= CALM.separation
+    assert fly(q, p, nominal, 12.0, filter_on=False) < CALM.separation, 'the case needs no filter'
+
+
+def test_a_crowd_pushed_onto_one_point_keeps_its_separation() -> None:
+    """Eight MAPs on a ring of 40 m, every nominal at a_max towards its centre, gusts and GNSS error of the shipped
+    profile included in the flight (the filter sees the truth here): none comes within the separation."""
+    angles = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
+    q = np.column_stack([40.0 * np.cos(angles), 40.0 * np.sin(angles), np.full(8, 20.0)])
+    p = np.zeros((8, 3))
+    nominal = np.column_stack([-4.0 * np.cos(angles), -4.0 * np.sin(angles), np.zeros(8)])
+    windy = replace(vehicle.MULTIROTOR, gnss=vehicle.Gnss(0.0, 60.0, 0.0))
+    assert fly(q, p, nominal, 20.0, windy) >= CALM.separation
+    assert fly(q, p, nominal, 20.0, windy, filter_on=False) < CALM.separation, 'the case needs no filter'
+
+
+def test_the_filter_leaves_a_nominal_alone_where_no_barrier_binds() -> None:
+    q = np.array([[0.0, 0.0, 20.0], [60.0, 0.0, 20.0]])
+    p = np.array([[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    owner, dq, dv = pairs(q, p)
+    assert not safety.binding(dq, dv, FP).any()
+    nominal = np.array([[0.5, -1.0, 0.0], [2.0, 1.0, 0.0]])
+    assert np.array_equal(safety.filtered(nominal, p, owner[:0], dq[:0], dv[:0], FP), nominal)
+
+
+def test_when_the_envelope_leaves_no_room_separation_is_relaxed_and_the_envelope_kept() -> None:
+    """Two MAPs 1 m apart closing at 30 m/s: no command within a_max keeps the barrier. Each brakes away from the
+    other with all it has and stays within the polygon inside a_max."""
+    q = np.array([[0.0, 0.0, 20.0], [5.0, 0.0, 20.0]])
+    p = np.array([[14.0, 0.0, 0.0], [-14.0, 0.0, 0.0]])
+    owner, dq, dv = pairs(q, p)
+    u = safety.filtered(np.array([[4.0, 0.0, 0.0], [-4.0, 0.0, 0.0]]), p, owner, dq, dv, FP)
+    assert u[0, 0] < -0.9 * FP.a_max and u[1, 0] > 0.9 * FP.a_max, u
+    assert (np.linalg.norm(u[:, :2], axis=1) <= FP.a_max + 1e-9).all(), u
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(2, 7), st.integers(0, 2 ** 31 - 1))
+def test_each_maps_command_is_the_same_alone_as_in_the_batch(n: int, seed: int) -> None:
+    """The node filters its one MAP, the batch simulator all at once: the same bits either way."""
+    rng = np.random.default_rng(seed)
+    q = np.c_[rng.uniform(0.0, 40.0, (n, 2)), np.full(n, 20.0)]
+    p = np.c_[rng.uniform(-15.0, 15.0, (n, 2)) / np.sqrt(2.0), np.zeros(n)]
+    nominal = np.c_[rng.normal(0.0, 4.0, (n, 2)), np.zeros(n)]
+    owner, dq, dv = pairs(q, p)
+    keep = np.flatnonzero(safety.binding(dq, dv, FP))
+    owner, dq, dv = owner[keep], dq[keep], dv[keep]
+    batch = safety.filtered(nominal, p, owner, dq, dv, FP)
+    assert (np.linalg.norm(batch[:, :2], axis=1) <= FP.a_max + 1e-9).all()
+    for i in range(n):
+        mine = owner == i
+        alone = safety.filtered(nominal[i:i + 1], p[i:i + 1], np.zeros(mine.sum(), dtype=np.intp), dq[mine],
+                                dv[mine], FP)
+        assert np.array_equal(alone[0], batch[i]), i
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(2, 40), st.floats(20.0, 120.0), st.integers(0, 2 ** 31 - 1))
+def test_the_protected_links_span_every_part_of_the_radio_graph_and_both_ends_agree(n: int, side: float,
+                                                                                  seed: int) -> None:
+    """Each MAP decides from what it hears alone; over all MAPs the links they protect join whatever the radio
+    graph joins (Toussaint's RNG contains the MST), and each is protected by both its ends."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    rng = np.random.default_rng(seed)
+    q = np.c_[rng.uniform(0.0, side, (n, 2)), np.full(n, 20.0)]
+    gaps = np.linalg.norm(q[:, None] - q[None], axis=2)
+    i, j = np.nonzero((gaps < FP.r) & ~np.eye(n, dtype=bool))  # sorted by owner, then neighbour: as heard
+    mask = safety.protected(i, q[j] - q[i], n, np.ones(len(i), dtype=bool))
+    kept = set(zip(i[mask].tolist(), j[mask].tolist()))
+    assert all((b, a) in kept for a, b in kept), 'a link protected by one end only'
+
+    def parts(a: np.ndarray, b: np.ndarray) -> int:
+        return connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)), directed=False)[0]
+    assert parts(i[mask], j[mask]) == parts(i, j)
+    assert mask.sum() <= 2 * 3 * n, 'the relative-neighbourhood graph of points in the plane has under 3n edges'
+
+
+def test_a_protected_link_holds_against_nominals_pulling_apart_at_a_max() -> None:
+    """Two MAPs 20 m apart, each nominal at a_max away from the other, through the vehicle's lag: the link stays
+    within r for 20 s; unprotected, it breaks."""
+    def widest(links: bool) -> float:
+        f = vehicle.Flight(CALM, 2, 0.1, np.random.default_rng(0))
+        q, p = np.array([[0.0, 0.0, 20.0], [20.0, 0.0, 20.0]]), np.zeros((2, 3))
+        nominal, most = np.array([[-4.0, 0.0, 0.0], [4.0, 0.0, 0.0]]), 0.0
+        for _ in range(200):
+            owner, dq, dv = pairs(q, p)
+            kept = np.flatnonzero(safety.protected(owner, dq, 2, safety.link_budget(dq, dv, FP) < FP.a_max))
+            held = (owner[kept], dq[kept], dv[kept]) if links else None
+            u = safety.filtered(nominal, p, owner[:0], dq[:0], dv[:0], FP, held)
+            q, p = f.step(np.arange(2), q, p, u)
+            most = max(most, float(np.linalg.norm(q[0] - q[1])))
+        return most
+    assert widest(True) < FP.r
+    assert widest(False) > FP.r
+
+
+def test_a_link_is_let_go_only_once_a_nearer_map_joins_its_ends() -> None:
+    """MAPs 0 and 1 are 22 m apart: alone, their link is protected; with MAP 2 between them, nearer to both, it
+    is not (2's links to each are, so the three stay joined)."""
+    q = np.array([[0.0, 0.0, 20.0], [22.0, 0.0, 20.0], [11.0, 3.0, 20.0]])
+    owner, dq, _ = pairs(q[:2], np.zeros((2, 3)))
+    assert safety.protected(owner, dq, 2, np.ones(2, dtype=bool)).all()
+    owner, dq, _ = pairs(q, np.zeros((3, 3)))
+    mask = safety.protected(owner, dq, 3, np.ones(len(owner), dtype=bool))
+    other = np.array([1, 2, 0, 2, 0, 1])  # pairs() lists each owner's others in ascending order
+    assert {tuple(sorted(e)) for e in zip(owner[mask].tolist(), other[mask].tolist())} == {(0, 2), (1, 2)}
