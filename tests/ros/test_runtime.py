@@ -67,6 +67,8 @@ def test_lockstep_equals_the_batch_simulator_on_a_multirotor(tmp_path: Path, ros
     assert batch.returncode == 0, batch.stderr
     for name in ('trajectory.csv', 'metrics.csv'):
         assert (tmp_path / 'up' / name).read_bytes() == (tmp_path / 'sim' / name).read_bytes(), name
+    flown = [yaml.safe_load((tmp_path / run / 'scenario.yaml').read_text()) for run in ('up', 'sim')]
+    assert flown[0] == flown[1] and flown[0]['policies']['safety'] == safety, 'each folder says what it flew'
     assert 'vehicle: multirotor: 15 m/s' in distributed.stdout and 'vehicle: multirotor: 15 m/s' in batch.stdout
     flight = [line.split('least distance')[1] for line in distributed.stdout.splitlines() if 'least distance' in line]
     assert flight and flight == [line.split('least distance')[1] for line in batch.stdout.splitlines()

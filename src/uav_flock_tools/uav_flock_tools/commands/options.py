@@ -166,7 +166,7 @@ def make_folder(path: Path, what: str) -> Path:
     return path
 
 
-RUN_MARKS = ('metrics.csv', 'run.json', 'bag')  # what every run folder of sim, up or run holds one of
+RUN_MARKS = ('metrics.csv', 'run.json', 'bag', 'scenario.yaml')  # what every run folder of sim, up or run holds one of
 
 def run_folder(path: Path, what: str, replace: bool) -> Path:
     """A new folder for one run's files: an earlier run's folder is refused, or with replace removed whole first.

@@ -22,7 +22,7 @@ def handle(args: argparse.Namespace) -> int:
     """The main job: a scenario (the paper's with 90 MAPs by default), distributed and recorded, then its report."""
     ns = argparse.Namespace(command='run', scenario=args.scenario, maps=args.maps, seed=args.seed,
                             duration=args.duration, fail_at=None, fail_fraction=None, vehicle=args.vehicle,
-                            out=args.out or str(default_out('run')), replace=args.replace)
+                            out=args.out or str(default_out('run')), replace=args.replace, argv=args.argv)
     if args.batch:
         if args.view is not None:
             raise UsageError('run: --view watches the distributed run; --batch has no topics to watch')

@@ -25,7 +25,7 @@ def handle(args: argparse.Namespace) -> int:
     from uav_agent.core.links import describe
     from world_sim.core import hearing, outcome, records
 
-    from .. import plots, simrun
+    from .. import plots, provenance, simrun
     cmd = args.command
     base = simrun.load_scenario(args.scenario).with_overrides(vehicle=args.vehicle)
     check_run_options(cmd, base, args)
@@ -48,6 +48,7 @@ def handle(args: argparse.Namespace) -> int:
             label = f'{s.maps} MAPs, seed {s.seed}'
             folder = out / f'maps{s.maps}_seed{s.seed}' if several else out
             bar.set_postfix_str(label)
+            provenance.record(folder, s, provenance.argv_of(args))
             result, complete = simrun.simulate(s, bar.update)
             simrun.write_run(result, folder, label, pictures=not several or args.pictures)
             done.append((label, result))

@@ -43,7 +43,7 @@ def handle(args: argparse.Namespace) -> int:
     """world_sim and the MAPs' agent processes (K MAPs a process), in lockstep or in real time."""
     from world_sim.shipped import resolve
 
-    from .. import domains, launcher, simrun
+    from .. import domains, launcher, provenance, simrun
     cmd = args.command
     path = resolve(args.scenario)
     base = simrun.load_scenario(args.scenario)
@@ -65,6 +65,7 @@ def handle(args: argparse.Namespace) -> int:
         serve_port(cmd, '--view', args.view)
     per_process = args.agents_per_process or auto_agents_per_process(s.maps, secure=keys is not None)
     out = run_folder(Path(args.out) if args.out else default_out(cmd), f'{cmd}: --out', args.replace)
+    provenance.record(out, s, provenance.argv_of(args))
     try:
         code = launcher.up(path.resolve(), s, out.resolve(), per_process, args.domain_id, args.discovery, args.record,
                            args.sync, args.rate, args.listen, args.agents_here, floor_note(s, s.maps), args.view,
