@@ -306,6 +306,15 @@ def test_replay_with_a_parameter_changed_is_an_experiment(tmp_path: Path) -> Non
     assert done.returncode == 0, done.stdout + done.stderr
     assert sorted(p.name for p in GOLDEN.iterdir()) == before, 'replay wrote into tests/golden'
     assert len(list((tmp_path / 'runs').glob('replay-*/replay_map2.png'))) == 1, done.stdout
+    # In a run folder, a second experiment is drawn beside the first, never over it.
+    import shutil
+    run = tmp_path / 'run'
+    shutil.copytree(GOLDEN / 'bag', run / 'bag')
+    (run / 'run.json').write_text('{}')
+    for value in ('c1=0.35', 'c1=0.4'):
+        done = cli('replay', str(run / 'bag'), '--agent', '2', '--set', value)
+        assert done.returncode == 0 and 'Warning' not in done.stderr, done.stdout + done.stderr
+    assert sorted(p.name for p in run.glob('replay_map2*.png')) == ['replay_map2-2.png', 'replay_map2.png']
 
 
 def test_a_replay_without_set_that_differs_fails() -> None:

@@ -135,9 +135,9 @@ class Run:
         self.info = {'domain_id': p.claim.domain, 'discovery_server': p.server_address,
                      'discovery_range': None if p.server_address else p.discovery_range,
                      'secure': secure.for_run(p.secure, p.server_address, p.run) if p.secure is not None else None,
-                     'scenario': str(p.scenario_path), 'maps': s.maps, 'seed': s.seed,
-                     'agents_per_process': p.agents_per_process, 'sync': p.sync,
-                     'rate': p.rate if p.sync == 'realtime' else None,
+                     'scenario': str(p.scenario_path), 'scenario_flown': 'scenario.yaml', 'maps': s.maps, 'seed': s.seed,
+                     'duration': s.duration, 'vehicle': s.vehicle.model, 'agents_per_process': p.agents_per_process,
+                     'sync': p.sync, 'rate': p.rate if p.sync == 'realtime' else None,
                      'bag': str(p.bag_path) if p.record else None}
         if p.remote:
             self.info['remote_ids'] = [p.remote[0], p.remote[-1]]
@@ -150,9 +150,9 @@ class Run:
         pace = f'realtime x{p.rate:g}' if p.sync == 'realtime' else 'lockstep'
         found = 'server ' + p.server_address if p.server_address else p.discovery_range
         said = [f'{maps} in {len(p.groups)} process{"es" if len(p.groups) != 1 else ""}, {pace}, '
-                f'ROS_DOMAIN_ID={p.claim.domain}, discovery {found}, run folder {p.run}']
+                f'ROS_DOMAIN_ID={p.claim.domain}, discovery {found}, {s.vehicle.model} vehicle, run folder {p.run}']
         said += [] if s.links.perfect else [f'radio between MAPs: {describe(s.links)}']
-        said += [] if s.vehicle.ideal else [f'vehicle: {s.vehicle.describe()}']
+        said += [f'vehicle: {s.vehicle.describe()}']
         said += [] if p.secure is None else [secure.banner(p.secure)]
         said += [f'MAPs {p.remote[0]}-{p.remote[-1]} join from other hosts: ./uav-flock agents --join '
                  f'{p.server_address} --ids {p.remote[0]}-{p.remote[-1]}{secure.join_option(p.secure)} '

@@ -116,10 +116,10 @@ def flight(t: np.ndarray, metrics: np.ndarray, separation: float, title: str, pa
 
 def command_difference(t: np.ndarray, du: np.ndarray, tolerance: float, title: str, path: Path) -> Path:
     """|Δu| of a replay against the recording over time, on a log axis where 1e-12 and 1 both read."""
-    fig, ax = plt.subplots(figsize=(6.4, 3.6))
-    floor = tolerance / 100 if tolerance > 0 else 1e-15
+    fig, ax, floor = *plt.subplots(figsize=(6.4, 3.6)), tolerance / 100 if tolerance > 0 else 1e-15
     ax.semilogy(t, np.maximum(du, floor), lw=1.2, label='|Δu|, replayed - recorded')
     ax.axhline(max(tolerance, floor), color='grey', ls='--', lw=1, label=f'tolerance {tolerance:g}')
+    ax.set_ylim(floor / 10, 10 * max(float(np.max(du, initial=0.0)), 10 * max(tolerance, floor)))  # never one value
     finish(ax, 'time t (s)', '|Δu| (m/s², log)', title)
     return save(fig, path)
 

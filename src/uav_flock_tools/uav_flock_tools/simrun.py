@@ -47,7 +47,8 @@ def write_run(result: RunResult, folder: Path, label: str, pictures: bool = True
     moving = None if result.motion is None else (lambda t: result.motion.at(int(round(t / dt))))
     radio = None if result.scenario.links.perfect else describe(result.scenario.links)
     return plots.run_figures(result.metrics, trajectory_columns(result), u.xyz[:, :2], u.cluster, u.centroids,
-                             result.scenario.flock.r, f'{result.scenario.name}, {label}', folder,
+                             result.scenario.flock.r, f'{result.scenario.name} ({result.scenario.vehicle.model}), {label}',
+                             folder,
                              [*events, *events_of(result.scenario)], moving, radio,
                              None if result.scenario.vehicle.ideal else result.scenario.vehicle.separation)
 

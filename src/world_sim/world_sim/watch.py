@@ -138,7 +138,9 @@ class Watch:
             # Sending the step's sensing again is harmless: each MAP answers a repeat with its state and
             # (if it already has one) its command of the step once more. It goes to the MAPs we wait for
             # and to their neighbours, whose states they may be missing.
-            self.resent += 1
+            # Step 0's first sample is the one discovery loses most: its repeat is part of starting, not a stall
+            # worth a line at the end (the log still says it).
+            self.resent += int(s.k > 0)
             self.step_resends += 1
             stalled = set(waiting)
             again = set(stalled)
@@ -149,6 +151,6 @@ class Watch:
             named = ', '.join(map(str, waiting[:SHOWN_WAITING])) + (', ...' if len(waiting) > SHOWN_WAITING else '')
             self.get_logger().info(f'step {s.k} stalled {time.monotonic() - self.step_started:.0f} s waiting for '
                                    f'{len(waiting)} MAPs ({named}): sensing sent again to them and their '
-                                   f'neighbours (time {self.resent})')
+                                   f'neighbours (time {self.step_resends} this step)')
             self.step_started = time.monotonic()
             self.publish_sensing(self.header(), again)

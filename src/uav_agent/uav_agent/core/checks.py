@@ -44,7 +44,17 @@ def number(value: Any, where: str, low: Optional[float] = None, high: Optional[f
            low_open: bool = False, integer: bool = False) -> Any:
     """value as a float (or int), or ValueError('where: ...') if it is no number or out of bounds."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f'{where}: expected a number, got {value!r}')
+        hint = ''
+        if isinstance(value, str):
+            try:
+                hint = f' (YAML reads {value} as text: write {float(value):.1e})' if math.isfinite(float(value)) else ''
+            except ValueError:
+                pass
+        raise ValueError(f'{where}: expected a number, got {value!r}{hint}')
+    if integer and isinstance(value, int):  # exactly: a float of 10^20 would be flown as another number
+        if (low is not None and (value <= low if low_open else value < low)) or (high is not None and value > high):
+            raise ValueError(f'{where}: must be {requirement(low, high, low_open, integer)}, got {value!r}')
+        return value
     v = float(value)
     below = low is not None and (v <= low if low_open else v < low)
     if not math.isfinite(v) or below or (high is not None and v > high) or (integer and v != int(v)):

@@ -35,7 +35,7 @@ def handle(args: argparse.Namespace) -> int:
         # Beside the bag in the run folder `up` made (run.json there); a bag elsewhere, perhaps tracked by git as
         # tests/golden/bag is, is not written beside: its picture goes into a new runs/replay-<time>/.
         home = path.parent if (path.parent / 'run.json').exists() else default_out('replay')
-        plot = Path(args.plot) if args.plot else home / f'replay_map{args.agent}.png'
+        plot = Path(args.plot) if args.plot else unused(home, f'replay_map{args.agent}')
         if args.set:
             make_folder(plot.parent, 'replay: --plot')
         outcome = replay.replay(path, args.agent, args.tolerance, args.timeout, dict(args.set or []))
@@ -51,6 +51,15 @@ def handle(args: argparse.Namespace) -> int:
         plots.command_difference(t, du, args.tolerance, f'MAP {args.agent} replayed with {setting}', plot)
         print(f'  |Δu| over time: {plot}')
     return 0 if outcome.ok else 1
+
+
+def unused(folder: Path, stem: str) -> Path:
+    """folder/stem.png, or stem-2.png, stem-3.png, ... if taken: a second experiment never overwrites the first."""
+    path, n = folder / f'{stem}.png', 1
+    while path.exists():
+        n += 1
+        path = folder / f'{stem}-{n}.png'
+    return path
 
 
 def replay_keys() -> list[str]:

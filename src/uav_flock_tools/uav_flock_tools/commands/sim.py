@@ -34,12 +34,11 @@ def handle(args: argparse.Namespace) -> int:
     out = run_folder(Path(args.out) if args.out else default_out(cmd), f'{cmd}: --out', args.replace)
     runs = simrun.grid(base, maps, seeds, duration=args.duration, fail_at=args.fail_at,
                        fail_fraction=args.fail_fraction)
+    print(f'vehicle: {base.vehicle.describe()}', flush=True)  # first: the same layout flies apart on each
     if (note := floor_note(base, min(maps))) is not None:
         print(note, file=sys.stderr, flush=True)
     if not base.links.perfect:
         print(f'radio between MAPs: {describe(base.links)}', flush=True)
-    if not base.vehicle.ideal:
-        print(f'vehicle: {base.vehicle.describe()}', flush=True)
     several = len(runs) > 1
     total = sum(s.steps for s in runs)
     done: list[tuple[str, object]] = []

@@ -152,6 +152,21 @@ def client_for(scheduler: Optional[str], workers: Optional[int]):  # -> (Client,
 
 
 @contextmanager
+def _quiet_shutdown() -> Iterator[None]:
+    """The client and the cluster closed without a word: connections that close under each other while they do
+    (CommClosedError, 'Stream is closed') are how a finished study ends, not a fault to print a traceback of."""
+    names = ('distributed', 'tornado', 'asyncio')
+    levels = {name: logging.getLogger(name).level for name in names}
+    for name in names:
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        for name, level in levels.items():
+            logging.getLogger(name).setLevel(level)
+
+
+@contextmanager
 def _interruptible() -> Iterator[Callable[[], bool]]:
     """Ctrl-C or SIGTERM stops the study even where Dask's waiting swallows the KeyboardInterrupt (a callback,
     a finalizer): the signal is also remembered, and asked after each run that comes back and at the end."""
@@ -212,9 +227,10 @@ def study(runs: list[Run], out: Path, scheduler: Optional[str] = None, workers: 
                     done += 1
                     progress(done, len(todo), time.monotonic() - t0)
         finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+            with _quiet_shutdown():
+                client.close()
+                if cluster is not None:
+                    cluster.close()
             gather(out, [r.key for r in runs])
     else:
         gather(out, [r.key for r in runs])

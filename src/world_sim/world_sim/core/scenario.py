@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Optional
 
 import yaml
 
@@ -123,16 +123,19 @@ def _num(where: str, value: Any, *, positive: bool = True, allow_zero: bool = Fa
         raise ScenarioError(str(exc)) from None
 
 
-def _int(where: str, value: Any, *, minimum: int = 1) -> int:
+SEED_MAX = 2 ** 63 - 1  # a ROS integer parameter (world_sim's `seed`) holds no more
+
+
+def _int(where: str, value: Any, *, minimum: int = 1, maximum: Optional[int] = None) -> int:
     try:
-        return int(number(value, where, low=minimum, integer=True))
+        return int(number(value, where, low=minimum, high=maximum, integer=True))
     except ValueError as exc:
         raise ScenarioError(str(exc)) from None
 
 
 # The values a command line or a node parameter may override: one check for them and for the file's own.
 _OVERRIDABLE: dict[str, Callable[[Any], Any]] = {
-    'seed': lambda v: _int('seed', v, minimum=0),
+    'seed': lambda v: _int('seed', v, minimum=0, maximum=SEED_MAX),
     'maps': lambda v: _int('maps', v),
     'duration': lambda v: _num('duration', v),
     'fail_at': lambda v: _num('failure.at', v, allow_zero=True),

@@ -83,7 +83,7 @@ class Vehicle:
     def describe(self) -> str:
         """The vehicle in words, as `sim` and `up` state it at the start of a run."""
         if self.ideal:
-            return "the paper's double integrator, unbounded"
+            return "ideal: the paper's double integrator, unbounded"
         w, g = self.wind, self.gnss
         cruise = f', cruising at {self.envelope()["v_max"]:g}' if self.cruise else ''
         hears = f'traffic within {self.traffic:g} m' if self.traffic else 'no traffic receiver'
