@@ -154,3 +154,14 @@ def test_a_link_is_let_go_only_once_a_nearer_map_joins_its_ends() -> None:
     mask = safety.protected(owner, dq, 3, np.ones(len(owner), dtype=bool))
     other = np.array([1, 2, 0, 2, 0, 1])  # pairs() lists each owner's others in ascending order
     assert {tuple(sorted(e)) for e in zip(owner[mask].tolist(), other[mask].tolist())} == {(0, 2), (1, 2)}
+
+
+def test_the_map_that_opens_a_link_takes_its_share_of_holding_it() -> None:
+    """A MAP flying away from a relay at rest brakes for their link, the relay is left where the network has it;
+    at rest both take half, and the two ends' shares always add up to the whole budget."""
+    dq = np.array([[20.0, 0.0, 0.0]])
+    still, leaving = np.zeros((1, 3)), np.array([[-8.0, 0.0, 0.0]])  # i flies away from j, along -n
+    assert safety.opening_share(dq, still, still)[0] == pytest.approx(0.5)
+    mine = safety.opening_share(dq, leaving, still)[0]
+    theirs = safety.opening_share(-dq, still, leaving)[0]
+    assert mine > 0.9 and mine + theirs == pytest.approx(1.0)

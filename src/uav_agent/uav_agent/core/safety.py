@@ -34,6 +34,7 @@ SIDES = 8           # the acceleration disc as the polygon of SIDES sides inside
 SLACK_COST = 1e4    # (m/s^2 per unit slack): far above a protected link's, so separation gives way only to the envelope
 LINK_COST = 1e2     # a protected link's slack: above what the nominal, within a_max, can pull (2 a_max), below separation
 SLACK_WEIGHT = 1e-6  # the slacks' quadratic weight, only to keep the QP's Hessian positive definite
+SHARE_FLOOR = 0.5   # m/s: what each end of a protected link counts as its opening speed at least (opening_share)
 LINK_MARGIN = 1.0   # m: a protected link is kept this much shorter than r, where the chains are laid taut
 _ANGLES = 2.0 * np.pi * np.arange(SIDES) / SIDES
 _FACES = np.column_stack([np.cos(_ANGLES), np.sin(_ANGLES)])
@@ -62,7 +63,17 @@ def budget(dq: F64, dv: F64, fp: FlockParams) -> F64:
     return 0.5 * (KAPPA * (safe - closing) - closing / root + sideways2 / dist)
 
 
-def link_budget(dq: F64, dv: F64, fp: FlockParams) -> F64:
+def opening_share(dq: F64, own_p: F64, nbr_p: F64) -> F64:
+    """Per link, the own MAP's share of the pair's budget: in proportion to how fast each end flies away from the
+    other (SHARE_FLOOR m/s each added, so half each while both hold still). The MAP that opens the link brakes for
+    it, and the one it leaves stays where the network has it; the two shares add up to the whole, so the link
+    holds when both do theirs, and both ends compute them alike from the same broadcasts."""
+    n = dq / np.maximum(lengths(dq), 1e-9)[:, None]
+    own, other = np.maximum(-(n * own_p).sum(axis=1), 0.0), np.maximum((n * nbr_p).sum(axis=1), 0.0)
+    return (own + SHARE_FLOOR) / (own + other + 2.0 * SHARE_FLOOR)
+
+
+def link_budget(dq: F64, dv: F64, fp: FlockParams, share: F64 | float = 0.5) -> F64:
     """Per protected link (j at dq from i, moving at dv relative to it), the most of i's acceleration away from j
     that keeps the link's barrier h = v_safe(r - LINK_MARGIN - d) - o (o the speed at which the link opens):
     -n . a_i <= link_budget. The sideways speed w opens a link at w^2 / d and counts against it."""
@@ -72,7 +83,7 @@ def link_budget(dq: F64, dv: F64, fp: FlockParams) -> F64:
     sideways2 = np.maximum((dv * dv).sum(axis=-1) - opening * opening, 0.0)
     root = np.sqrt(t * t + np.maximum(fp.r - LINK_MARGIN - dist, 0.0) / a)
     safe = 2.0 * a * (root - t)
-    return 0.5 * (KAPPA * (safe - opening) - opening / root - sideways2 / dist)
+    return share * (KAPPA * (safe - opening) - opening / root - sideways2 / dist)
 
 
 def protected(owner: NDArray[np.intp], dq: F64, m: int, asked: NDArray[np.bool_]) -> NDArray[np.bool_]:
@@ -122,7 +133,7 @@ def filtered(u_nom: F64, own_p: F64, owner: NDArray[np.intp], dq: F64, dv: F64, 
     l_first = np.searchsorted(l_owner, np.arange(m + 1))
     if len(l_owner):
         l_n = l_dq[:, :2] / np.maximum(lengths(l_dq[:, :2]), 1e-9)[:, None]
-        l_b = link_budget(l_dq, l_dv, fp)
+        l_b = link_budget(l_dq, l_dv, fp, opening_share(l_dq, own_p[l_owner], own_p[l_owner] + l_dv))
     out = u_nom.copy()
     limit = fp.a_max * _APOTHEM
     speed = lengths(own_p[:, :2])
