@@ -317,3 +317,14 @@ def test_a_traffic_receiver_keeps_two_maps_at_full_speed_apart(traffic: bool) ->
     else:
         assert least < v.separation, 'heard at r alone they would have kept apart: the case tests nothing'
     assert envelope.limited(fp)
+
+
+def test_the_cruise_speed_docs_name_is_sight_speeds_for_the_profile() -> None:
+    """docs/vehicle.md names the speed from which a head-on pair heard at r stops short without a traffic receiver."""
+    import re
+    from pathlib import Path
+    from uav_agent.core.envelope import sight_speed
+    doc = (Path(__file__).resolve().parents[2] / 'docs' / 'vehicle.md').read_text()
+    said = float(re.search(r'`envelope\.sight_speed`: ([0-9.]+) m/s for the profile', doc)[1])
+    v = vehicle.MULTIROTOR
+    assert said == round(sight_speed(24.0, v.keep, v.a_max, v.tau), 1)

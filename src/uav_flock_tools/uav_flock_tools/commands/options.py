@@ -6,6 +6,7 @@ line naming the option, exit code 2, before any work starts.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn, Optional
@@ -149,6 +150,32 @@ def serve_port(cmd: str, option: str, number: int) -> None:
         except OSError as exc:
             raise UsageError(f'{cmd}: {option} {number}: the port is in use ({exc.strerror}); '
                              f'give another ({option} PORT)') from None
+
+
+LOG_INTERVAL_S = 5.0  # a progress bar's pace when it writes into a log or a pipe
+
+
+class _Lines:
+    """A progress bar's stream for a log or a pipe: each update a line of its own, not a `\r` over the last."""
+
+    def __init__(self, stream: Any) -> None:
+        self.stream = stream
+
+    def write(self, text: str) -> None:
+        text = text.replace('\r', '').rstrip('\n')
+        if text.strip():
+            self.stream.write(text + '\n')
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
+def progress_bar(**options: Any) -> Any:
+    """tqdm on stderr: redrawn in place on a terminal; elsewhere a line every LOG_INTERVAL_S."""
+    from tqdm import tqdm
+    if sys.stderr.isatty():
+        return tqdm(mininterval=0.5, dynamic_ncols=True, **options)
+    return tqdm(file=_Lines(sys.stderr), mininterval=LOG_INTERVAL_S, ncols=100, **options)
 
 
 def default_out(kind: str) -> Path:

@@ -5,7 +5,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from .options import EXIT_INTERRUPTED, add_scenario_options, check_run_options, default_out, floor_note, run_folder
+from .options import (EXIT_INTERRUPTED, add_scenario_options, check_run_options, default_out, floor_note, progress_bar,
+                      run_folder)
 
 SUMMARY = 'run a scenario in-process for one or more MAP counts and seeds'
 
@@ -20,8 +21,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def handle(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     from uav_agent.core.links import describe
     from world_sim.core import hearing, outcome, records
 
@@ -42,7 +41,7 @@ def handle(args: argparse.Namespace) -> int:
     several = len(runs) > 1
     total = sum(s.steps for s in runs)
     done: list[tuple[str, object]] = []
-    with tqdm(total=total, unit='step', desc='simulating', mininterval=0.5, dynamic_ncols=True) as bar:
+    with progress_bar(total=total, unit='step', desc='simulating') as bar:
         for s in runs:
             label = f'{s.maps} MAPs, seed {s.seed}'
             folder = out / f'maps{s.maps}_seed{s.seed}' if several else out
