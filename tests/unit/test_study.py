@@ -285,6 +285,13 @@ def test_keep_leaves_each_runs_series_that_pandas_reads_and_a_row_flies_again(tm
     assert series['min_distance'].min() == row['least_distance']
     again = engine.execute(run, keep=True)['_series']
     assert again == {c: series[c].tolist() for c in series.columns}
+    # ... and the run's scenario beside it, which `sim` flies again to the same metrics
+    flown = out / 'series' / f'{run.key}.yaml'
+    proc = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'sim', '--scenario', str(flown), '--out',
+                           str(tmp_path / 'again')], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    metrics = pd.read_csv(tmp_path / 'again' / 'metrics.csv')
+    assert metrics['coverage_ratio'].tolist() == series['coverage_ratio'].tolist()
 
 
 def test_a_study_folder_keeps_its_spec_and_refuses_the_runs_of_another(local: Path, tmp_path: Path) -> None:

@@ -223,6 +223,7 @@ def study(runs: list[Run], out: Path, scheduler: Optional[str] = None, workers: 
                     if series is not None:
                         (out / SERIES).mkdir(exist_ok=True)
                         pq.write_table(pa.table(series), out / SERIES / f'{row["key"]}.parquet')
+                        _keep_scenario(futures[fut], out / SERIES / f'{row["key"]}.yaml')
                     pq.write_table(_table([row]), out / PARTS / f'{row["key"]}.parquet')
                     done += 1
                     progress(done, len(todo), time.monotonic() - t0)
@@ -237,6 +238,15 @@ def study(runs: list[Run], out: Path, scheduler: Optional[str] = None, workers: 
     if lost:
         raise StudyError(f'{len(lost)} runs came back from no worker (the same command computes them): {", ".join(lost[:3])}')
     return done, len(runs)
+
+
+def _keep_scenario(run: Run, path: Path) -> None:
+    """The run's scenario as flown beside its series: `sim --scenario` of it flies the run again, but for the rules
+    its variant switches off (named in the file) and a wipe-out's loss, which the study draws in flight."""
+    import yaml
+    off = f'# flown with these rules off (core/ablation.py): {", ".join(run.off)}\n' if run.off else ''
+    path.write_text(f'# study run {run.key}: layout {run.layout}, seed {run.seed}, {run.kind}, variant {run.variant}\n'
+                    + off + yaml.safe_dump(run.doc, sort_keys=False))
 
 
 class StudyError(RuntimeError):
