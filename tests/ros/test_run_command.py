@@ -12,8 +12,13 @@ def test_run_flies_distributed_records_and_reports(tmp_path: Path) -> None:
     done = cli('run', '--maps', '6', '--duration', '2', '--out', str(tmp_path / 'run'))
     assert done.returncode == 0, done.stdout + done.stderr
     assert 'Traceback' not in done.stderr
-    for made in ('metrics.csv', 'trajectory.csv', 'bag/metadata.yaml', 'report/summary.md'):
+    for made in ('metrics.csv', 'trajectory.csv', 'bag/metadata.yaml', 'report/summary.md', 'report/flight.png',
+                 'scenario.yaml', 'provenance.json'):
         assert (tmp_path / 'run' / made).exists(), made
+    # The multirotor flew (run's default): the first line, the report's table and the run folder say so.
+    assert 'multirotor vehicle' in done.stdout.splitlines()[0], done.stdout
+    summary = (tmp_path / 'run' / 'report' / 'summary.md').read_text()
+    assert '| multirotor |' in summary and 'least distance between two MAPs' in summary, summary
 
 
 def test_run_hands_up_every_option_up_has() -> None:

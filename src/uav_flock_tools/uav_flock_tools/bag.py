@@ -392,4 +392,5 @@ def run_params(s: Scenario) -> dict[str, object]:
 def scenario_summary(path: Path, s: Scenario) -> dict[str, object]:
     """What a bag says about the run it holds, beside the agents' parameters."""
     return {'scenario': Path(path).name, 'maps': s.maps, 'seed': s.seed, 'dt': s.dt, 'duration': s.duration,
-            'fail_at': s.fail_at, 'fail_fraction': s.fail_fraction, 'association': s.association}
+            'fail_at': s.fail_at, 'fail_fraction': s.fail_fraction, 'association': s.association,
+            'vehicle': s.vehicle.model, 'separation': None if s.vehicle.ideal else s.vehicle.separation}

@@ -45,6 +45,8 @@ def summary_table(s: dict[str, Any]) -> str:
         ('time to success: first t with R_c ≥ 95 % and λ2 > 0', _seconds(s['time_to_success_s'])),
         ('R_c ≥ 95 % held to the end, from', _seconds(s['time_to_95_coverage_s'])),
         ('λ2 > 0 held to the end, from', _seconds(s['time_to_connectivity_s'])),
+        ('vehicle', s.get('vehicle') or 'not recorded (a bag from before the vehicle was)'),
+        *[(k, v) for k, v in (s.get('flight') or {}).items()],
         ('failures', failures or 'none'),
         ('commands used and not recorded', _missing(s['missing_commands'])),
     ]
@@ -66,7 +68,14 @@ def report(path: Path, out: Path) -> tuple[dict[str, Any], list[Path]]:
     s = bag.summary(run)  # raises BagError for a bag without /metrics
     out.mkdir(parents=True, exist_ok=True)
     name = path.resolve().parent.name if path.name == 'bag' else path.name  # RUN/bag: the run's name
-    label = f'{s["maps_start"]} MAPs, {name}'
+    s['vehicle'] = run.scenario.get('vehicle')
+    least, power = (records.vehicle_column(run.metrics, c) for c in ('min_distance', 'power'))
+    if least is not None and power is not None:  # a multirotor's /metrics (VehicleMetrics)
+        energy = records.vehicle_column(run.metrics, 'energy')
+        s['flight'] = {'least distance between two MAPs': f'{float(np.min(least)):.2f} m',
+                       'mean power of a MAP': f'{float(np.mean(power)):.1f} W',
+                       'energy drawn by the formation': f'{float(energy[-1]) / 1e3:.1f} kJ'}
+    label = f'{s["maps_start"]} MAPs, {name}' + (f', {s["vehicle"]}' if s['vehicle'] else '')
     traj = records.columns(run.trajectory)
     u = run.users
     moving = None
@@ -76,7 +85,8 @@ def report(path: Path, out: Path) -> tuple[dict[str, Any], list[Path]]:
             return now.xyz[:, :2], now.cluster
     files = plots.run_figures(run.metrics, traj, None if u is None else u.xyz[:, :2], None if u is None else u.cluster,
                               None if u is None else u.centroids, run.r, label, out,
-                              sorted({f['t_s'] for f in s['failures']}), moving)
+                              sorted({f['t_s'] for f in s['failures']}), moving,
+                              separation=run.scenario.get('separation') if s.get('flight') else None)
     (out / 'summary.md').write_text(f'# Run recorded in {path}\n\n{summary_table(s)}\n')
     return s, files + [out / 'summary.md', write_scene(run, traj, out / 'scene.mcap')]
 
