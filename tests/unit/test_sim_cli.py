@@ -138,6 +138,7 @@ def test_same_seed_same_run(tmp_path: Path) -> None:
     (('sim', '--map', '40'), 'sim: unrecognized arguments: --map 40'),
     (('sim', '--maps', '60,', '--out', '{folder}/run'), "got '60,' (an empty item)"),
     (('sim', '--duration', '0.05', '--out', '{folder}/run'), 'sim: --duration 0.05 s is shorter than one step'),
+    (('sim', '--duration', '1e9', '--out', '{folder}/run'), 'sim: 1e+09 s is 1e+10 steps of 90 MAPs: their trajectory'),
     (('run', '--batch', '--duration', '0.05', '--out', '{folder}/run'), 'run: --duration 0.05 s'),
     (('view', '{golden}', '--port', '99999'), 'view: argument --port: expected an integer from 1 to 65535'),
     (('run', '--view', '70000', '--out', '{folder}/run'), 'run: argument --view: expected an integer from 1'),

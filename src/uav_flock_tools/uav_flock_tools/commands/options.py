@@ -255,6 +255,11 @@ def check_run_options(cmd: str, base: 'Scenario', args: argparse.Namespace) -> N
                          f'{base.dt:g} s (give {int(steps) * base.dt:g} or {(int(steps) + 1) * base.dt:g})')
     maps = args.maps if isinstance(args.maps, int) else max(args.maps or [base.maps])
     check_memory(cmd, base, maps)
+    steps = round(duration / base.dt) + 1
+    if steps * maps * TRAJECTORY_ROW_BYTES > (free := _free_memory()):
+        raise UsageError(f'{cmd}: {duration:g} s is {steps:.3g} steps of {maps} MAPs: their trajectory alone would take '
+                         f'{steps * maps * TRAJECTORY_ROW_BYTES / 2**30:.3g} GiB, and this machine has '
+                         f'{free / 2**30:.0f} GiB free: a shorter --duration, or fewer MAPs')
     if args.fail_fraction and args.fail_at is None and base.fail_at is None:
         raise UsageError(f'{cmd}: --fail-fraction needs --fail-at (or failure.at in the scenario)')
     if args.fail_at is None:
@@ -265,13 +270,20 @@ def check_run_options(cmd: str, base: 'Scenario', args: argparse.Namespace) -> N
         raise UsageError(f'{cmd}: --fail-at {args.fail_at:g} s is not before the end of the run ({duration:g} s)')
 
 
+TRAJECTORY_ROW_BYTES = 15 * 8  # a MAP-step of the records (trajectory.csv's columns, float64), at the least
+
+
+def _free_memory() -> int:
+    import psutil
+    return int(psutil.virtual_memory().available)
+
+
 def check_memory(cmd: str, s: 'Scenario', maps: int) -> None:
     """UsageError if the MAPs' radio pairs at release would take more memory than this machine has free."""
     from world_sim.core.physics import PAIR_BYTES, release_pairs
     pairs = release_pairs(maps, s.release_half_width, s.flock.r)
     need = pairs * PAIR_BYTES
-    import psutil
-    free = psutil.virtual_memory().available
+    free = _free_memory()
     if need > free:
         raise UsageError(f'{cmd}: {maps} MAPs released in a square of {2 * s.release_half_width:g} m make about '
                          f'{pairs:.2g} pairs within r = {s.flock.r:g} m, about {need / 2**30:.0f} GiB to hold, and this '
