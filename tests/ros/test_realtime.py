@@ -103,6 +103,7 @@ def test_agents_wait_for_a_world_that_comes_late(tmp_path: Path, ros_env: dict[s
         renewals = re.findall(r'no world_sim seen in 3 s: the DDS participant of MAPs \[0, 1\] made anew \((\d) of 3\)',
                               said)
         assert renewals == ['1', '2', '3'], said
+        assert 'MAP 0: waiting for world_sim (ROS_DOMAIN_ID=' in said, 'a node waiting for its world says so'
     finally:
         for p in (waiting, impatient):
             if p.poll() is None:

@@ -7,6 +7,7 @@ and unseen_at_start). A MAP that no longer sees world_sim ends on its own.
 """
 from __future__ import annotations
 
+import os
 import time
 from typing import Any, Optional
 
@@ -16,6 +17,7 @@ from uav_flock_ros import convert
 from uav_flock_ros.executors import take_waiting
 
 WATCH_PERIOD_S = 1.0
+WORLD_WAIT_NOTE_S = 5.0  # no world on the graph for this long at start: the node says it waits, once
 WORLD_TIMEOUT_S = 10.0  # no sensing and no world on the graph for this long (after it was seen): it is gone
 # lockstep: a reader that has heard nothing of a listed neighbour this long after the step's sensing (the
 # world re-sends a stalled step's sensing every 2 s, and each repeat makes the neighbour publish its state
@@ -91,6 +93,10 @@ class Recovery:
             self.silent_writers = False
         world_listed = self.count_publishers(f'/map_{self.map_id}/sensing') > 0
         self.world_seen = self.world_seen or world_listed
+        if not self.world_seen and silent > WORLD_WAIT_NOTE_S and not getattr(self, 'said_waiting', False):
+            self.said_waiting = True  # once: a node started by hand before its world should not look hung
+            self.get_logger().info(f'MAP {self.map_id}: waiting for world_sim (ROS_DOMAIN_ID='
+                                   f'{os.environ.get("ROS_DOMAIN_ID", "0")}), for {self.world_start_timeout:g} s at most')
         if not self.world_seen and silent > self.world_start_timeout:
             self.get_logger().error(f'no world_sim appeared within {silent:.0f} s: stopping MAP {self.map_id}')
             self.stopped = True
