@@ -41,12 +41,12 @@ def test_a_layout_set_piped_into_head_writes_every_layout_and_its_table(tmp_path
 
 
 def test_a_sim_whose_stderr_closes_flies_to_the_end_and_writes_its_folder(tmp_path: Path) -> None:
-    """`sim ... 2>&1 | head -1`: the floor note takes the one line, then the progress bar writes into the closed
-    pipe. Each seed's folder is written in full."""
+    """`sim ... 2>&1 | head -1`: the vehicle's line takes the one line, then the floor note and the progress bar
+    write into the closed pipe. Each seed's folder is written in full."""
     out = tmp_path / 'p'
     code, kept, said = piped(f'sim --maps 30 --duration 3 --seed 0,1 --out {out}', merged=True)
     assert code == 0 and 'Traceback' not in kept + said, kept + said
-    assert len(kept.splitlines()) == 1 and 'floor' in kept, kept
+    assert len(kept.splitlines()) == 1 and kept.startswith('vehicle:'), kept
     for seed in (0, 1):
         steps = read_csv(out / f'maps30_seed{seed}' / 'metrics.csv')['step']
         assert steps.astype(int).tolist() == list(range(31)), f'seed {seed}: {len(steps)} of 31 steps'
