@@ -341,3 +341,19 @@ def test_a_run_names_its_vehicle_first(tmp_path: Path, vehicle: str, first: str)
     assert done.returncode == 0, done.stderr
     assert done.stdout.splitlines()[0].startswith(first), done.stdout
     assert json.loads((tmp_path / 'r' / 'provenance.json').read_text())['vehicle'] == vehicle
+
+
+@pytest.mark.parametrize('survey, noted', [('given', True), ('online', False)])
+def test_moving_clusters_the_maps_are_never_told_of_get_a_note(tmp_path: Path, survey: str, noted: bool) -> None:
+    """A cluster that drifts under `survey: given`: its MAPs stay where its users were, and coverage falls as it
+    leaves; one line says so before the run, none when the MAPs follow it."""
+    import yaml
+    from world_sim.core.scenario import to_doc
+    from world_sim.shipped import load_scenario
+    doc = to_doc(load_scenario('paper'))
+    doc['users']['clusters'][0]['velocity'] = [1.0, 0.0]
+    doc['users']['survey'] = survey
+    (tmp_path / 's.yaml').write_text(yaml.safe_dump(doc))
+    done = sim('--scenario', str(tmp_path / 's.yaml'), '--duration', '0.2', '--out', str(tmp_path / 'r'))
+    assert done.returncode == 0, done.stderr
+    assert ('survey: online' in done.stderr) == noted, done.stderr

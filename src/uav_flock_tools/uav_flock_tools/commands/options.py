@@ -291,13 +291,19 @@ def check_memory(cmd: str, s: 'Scenario', maps: int) -> None:
 
 
 def floor_note(s: 'Scenario', maps: int) -> Optional[str]:
-    """One line when the MAPs asked for are below the floor LB of the scenario's layout (docs/allocation.md)."""
+    """A line when the MAPs asked for are below the floor LB of the scenario's layout (docs/allocation.md), and one
+    when its clusters move but the MAPs are never told (users.survey: given)."""
     from world_sim.core import layouts
     floor = layouts.floor(s).total
-    if maps >= floor:
-        return None
-    return (f'note: {maps} MAPs is below the floor of this layout, LB = {floor} MAPs (coverage discs and relay '
-            'chains no method can do without, docs/allocation.md): expect users uncovered or the network split')
+    notes = []
+    if maps < floor:
+        notes.append(f'note: {maps} MAPs is below the floor of this layout, LB = {floor} MAPs (coverage discs and '
+                     'relay chains no method can do without, docs/allocation.md): expect users uncovered or the '
+                     'network split')
+    if s.survey == 'given' and any(c.moves for c in s.clusters):
+        notes.append("note: clusters of this scenario move, but the MAPs know them only as drawn (users.survey: "
+                     "given): they stay where the users were; `survey: online` follows them (docs/scenarios.md)")
+    return '\n'.join(notes) or None
 
 
 VIEW_PORT = 8765  # the live view's WebSocket port when --view names none (Foxglove's usual)
