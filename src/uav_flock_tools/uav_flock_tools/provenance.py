@@ -3,6 +3,7 @@
 the bit, and where it came from (the command line, the uav-flock version and git commit)."""
 from __future__ import annotations
 
+import functools
 import json
 import platform
 import shlex
@@ -29,6 +30,7 @@ def version() -> str:
         return 'unknown'
 
 
+@functools.cache  # the checkout a process runs from does not change under it: one look for a sweep's folders
 def commit() -> Optional[str]:
     """The checkout's git commit, '+dirty' when tracked files differ from it; None outside a git checkout."""
     here = Path(__file__).resolve().parent

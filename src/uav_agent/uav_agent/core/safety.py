@@ -1,10 +1,12 @@
-"""The safety filter (rule 'filter'): the acceleration a multirotor MAP commands is the one nearest to eq. 9's
-(the nominal) that keeps its distance from every MAP its traffic receiver reports and stays within its envelope.
+"""The safety filter (`policies: {safety: filter}`, docs/vehicle.md): the acceleration a multirotor MAP commands
+is the one nearest to eq. 9's (the nominal) that keeps its distance from every MAP its traffic receiver reports,
+keeps the links it protects (rule 'links') and stays within its envelope.
 
 One small QP per MAP and step, decided from its own state and what the others broadcast:
 
-    minimise  |u - u_nom|^2 + SLACK_COST s     (u: the horizontal acceleration, s >= 0 a slack on separation)
+    minimise  |u - u_nom|^2 + SLACK_COST s + LINK_COST sum(s_l)   (u: the horizontal acceleration; slacks >= 0)
     subject to  n_ij . u <= (KAPPA h_ij - h_ij' c_ij + w_ij^2 / d_ij) / 2 + s     per reported MAP j
+               -n_il . u <= share_il (KAPPA h_il - h_il' o_il - w_il^2 / d_il) + s_l   per protected link l
                 e_k . u <= a_max cos(pi / SIDES)                                   the polygon inside the disc a_max
                 u . p / |p| <= (v_max - |p|) / (tau + STEP_S)                      the speed within v_max
 
@@ -51,16 +53,25 @@ def braking(fp: FlockParams) -> float:
     return BRAKE_SHARE * fp.a_max
 
 
+def _barrier(dq: F64, dv: F64, fp: FlockParams, sign: float, share: F64 | float) -> F64:
+    """The one braking-curve barrier of both rows: the speed s = sign n . dv at which the pair uses up its gap
+    (closing, sign -1, against `keep`; opening, sign +1, against r - LINK_MARGIN) kept below v_safe(gap), and this
+    MAP's share of the acceleration budget that keeps it so. Sideways speed w closes a gap that opens (w^2 / d)
+    and opens one that closes."""
+    a, t = braking(fp), horizon(fp)
+    dist = np.maximum(lengths(dq), 1e-9)
+    speed = sign * (dq * dv).sum(axis=-1) / dist
+    sideways2 = np.maximum((dv * dv).sum(axis=-1) - speed * speed, 0.0)
+    gap = dist - fp.keep if sign < 0 else fp.r - LINK_MARGIN - dist
+    root = np.sqrt(t * t + np.maximum(gap, 0.0) / a)
+    safe = 2.0 * a * (root - t)  # v_safe(gap)
+    return share * (KAPPA * (safe - speed) - speed / root - sign * sideways2 / dist)
+
+
 def budget(dq: F64, dv: F64, fp: FlockParams) -> F64:
     """Per pair (j at dq from i, moving at dv relative to it), the most of i's acceleration towards j that keeps
     the pair's barrier: n . a_i <= budget (m/s^2). Negative: i must accelerate away. Symmetric: j's is the same."""
-    a, t = braking(fp), horizon(fp)
-    dist = np.maximum(lengths(dq), 1e-9)
-    closing = -(dq * dv).sum(axis=-1) / dist
-    sideways2 = np.maximum((dv * dv).sum(axis=-1) - closing * closing, 0.0)
-    root = np.sqrt(t * t + np.maximum(dist - fp.keep, 0.0) / a)
-    safe = 2.0 * a * (root - t)  # v_safe(gap)
-    return 0.5 * (KAPPA * (safe - closing) - closing / root + sideways2 / dist)
+    return _barrier(dq, dv, fp, -1.0, 0.5)
 
 
 def opening_share(dq: F64, own_p: F64, nbr_p: F64) -> F64:
@@ -77,13 +88,7 @@ def link_budget(dq: F64, dv: F64, fp: FlockParams, share: F64 | float = 0.5) -> 
     """Per protected link (j at dq from i, moving at dv relative to it), the most of i's acceleration away from j
     that keeps the link's barrier h = v_safe(r - LINK_MARGIN - d) - o (o the speed at which the link opens):
     -n . a_i <= link_budget. The sideways speed w opens a link at w^2 / d and counts against it."""
-    a, t = braking(fp), horizon(fp)
-    dist = np.maximum(lengths(dq), 1e-9)
-    opening = (dq * dv).sum(axis=-1) / dist
-    sideways2 = np.maximum((dv * dv).sum(axis=-1) - opening * opening, 0.0)
-    root = np.sqrt(t * t + np.maximum(fp.r - LINK_MARGIN - dist, 0.0) / a)
-    safe = 2.0 * a * (root - t)
-    return share * (KAPPA * (safe - opening) - opening / root - sideways2 / dist)
+    return _barrier(dq, dv, fp, 1.0, share)
 
 
 def protected(owner: NDArray[np.intp], dq: F64, m: int, asked: NDArray[np.bool_]) -> NDArray[np.bool_]:
@@ -131,31 +136,27 @@ def filtered(u_nom: F64, own_p: F64, owner: NDArray[np.intp], dq: F64, dv: F64, 
     m = len(u_nom)
     l_owner, l_dq, l_dv = links if links is not None else (np.zeros(0, np.intp), np.zeros((0, 3)), np.zeros((0, 3)))
     l_first = np.searchsorted(l_owner, np.arange(m + 1))
-    if len(l_owner):
-        l_n = l_dq[:, :2] / np.maximum(lengths(l_dq[:, :2]), 1e-9)[:, None]
-        l_b = link_budget(l_dq, l_dv, fp, opening_share(l_dq, own_p[l_owner], own_p[l_owner] + l_dv))
+    l_n = l_dq[:, :2] / np.maximum(lengths(l_dq[:, :2]), 1e-9)[:, None]
+    l_b = link_budget(l_dq, l_dv, fp, opening_share(l_dq, own_p[l_owner], own_p[l_owner] + l_dv))
     out = u_nom.copy()
     limit = fp.a_max * _APOTHEM
     speed = lengths(own_p[:, :2])
     heading = own_p[:, :2] / np.maximum(speed, 1e-12)[:, None]
     room = np.maximum((fp.v_max - speed) / horizon(fp), -limit)
     moving = speed > 1e-9
-    first = np.searchsorted(owner, np.arange(m + 1)) if len(owner) else np.zeros(m + 1, dtype=np.intp)
-    if len(owner):
-        n = dq[:, :2] / np.maximum(lengths(dq[:, :2]), 1e-9)[:, None]
-        b = budget(dq, dv, fp)
+    first = np.searchsorted(owner, np.arange(m + 1))
+    n = dq[:, :2] / np.maximum(lengths(dq[:, :2]), 1e-9)[:, None]
+    b = budget(dq, dv, fp)
     nominal = saturate(u_nom[:, :2], fp.a_max)  # within a_max first: what a link slack's price must outbid is 2 a_max
     outside = ((nominal @ _FACES.T) > limit).any(axis=1) | (moving & ((nominal * heading).sum(axis=1) > room))
     for i in np.flatnonzero(outside | (first[1:] > first[:-1]) | (l_first[1:] > l_first[:-1])):
         lo, hi, l_lo, l_hi = first[i], first[i + 1], l_first[i], l_first[i + 1]
         # variables (s_sep, one slack per protected link, ux, uy); rows: separation, protected links, polygon, speed
         links_here = l_hi - l_lo
-        width = 3 + links_here
-        rows = [np.c_[-np.ones(hi - lo), np.zeros((hi - lo, links_here)), n[lo:hi]] if hi > lo else np.zeros((0, width)),
-                np.c_[np.zeros(links_here), -np.eye(links_here), -l_n[l_lo:l_hi]] if links_here else np.zeros((0, width)),
+        rows = [np.c_[-np.ones(hi - lo), np.zeros((hi - lo, links_here)), n[lo:hi]],
+                np.c_[np.zeros(links_here), -np.eye(links_here), -l_n[l_lo:l_hi]],
                 np.c_[np.zeros((SIDES, 1 + links_here)), _FACES]]
-        upper = [b[lo:hi] if hi > lo else np.zeros(0), l_b[l_lo:l_hi] if links_here else np.zeros(0),
-                 np.full(SIDES, limit)]
+        upper = [b[lo:hi], l_b[l_lo:l_hi], np.full(SIDES, limit)]
         if moving[i]:
             rows.append(np.r_[np.zeros(1 + links_here), heading[i]][None, :])
             upper.append(room[i:i + 1])

@@ -255,10 +255,11 @@ def check_run_options(cmd: str, base: 'Scenario', args: argparse.Namespace) -> N
                          f'{base.dt:g} s (give {int(steps) * base.dt:g} or {(int(steps) + 1) * base.dt:g})')
     maps = args.maps if isinstance(args.maps, int) else max(args.maps or [base.maps])
     check_memory(cmd, base, maps)
-    steps = round(duration / base.dt) + 1
-    if steps * maps * TRAJECTORY_ROW_BYTES > (free := _free_memory()):
+    from world_sim.core.records import ESTIMATE_COLUMNS, TRAJECTORY_COLUMNS
+    steps, row = round(duration / base.dt) + 1, 8 * len(TRAJECTORY_COLUMNS + ESTIMATE_COLUMNS)  # float64 a column
+    if steps * maps * row > (free := _free_memory()):
         raise UsageError(f'{cmd}: {duration:g} s is {steps:.3g} steps of {maps} MAPs: their trajectory alone would take '
-                         f'{steps * maps * TRAJECTORY_ROW_BYTES / 2**30:.3g} GiB, and this machine has '
+                         f'{steps * maps * row / 2**30:.3g} GiB, and this machine has '
                          f'{free / 2**30:.0f} GiB free: a shorter --duration, or fewer MAPs')
     if args.fail_fraction and args.fail_at is None and base.fail_at is None:
         raise UsageError(f'{cmd}: --fail-fraction needs --fail-at (or failure.at in the scenario)')
@@ -268,9 +269,6 @@ def check_run_options(cmd: str, base: 'Scenario', args: argparse.Namespace) -> N
         raise UsageError(f'{cmd}: --fail-at needs --fail-fraction (or failure.fraction in the scenario)')
     if args.fail_at >= duration:
         raise UsageError(f'{cmd}: --fail-at {args.fail_at:g} s is not before the end of the run ({duration:g} s)')
-
-
-TRAJECTORY_ROW_BYTES = 15 * 8  # a MAP-step of the records (trajectory.csv's columns, float64), at the least
 
 
 def _free_memory() -> int:

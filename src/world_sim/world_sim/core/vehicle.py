@@ -173,10 +173,9 @@ def traffic(truth: F64, told: F64, p: F64, v: Vehicle, fp: FlockParams | None = 
     # bound computed in floating point).
     off = p - p.sum(axis=0) / len(p)  # about the mean velocity: any point bounds it, the mean best
     off = np.sqrt(np.partition(np.einsum('ij,ij->i', off, off), len(off) - 2)[-2:])
-    if fp is not None and fp.safety != 'filter':
-        fp = None
-    if fp is not None:  # rule 'filter': the pairs whose barrier can bind
-        reach = safety.reach(float(off[0] + off[1]), fp) + REACH_SLACK
+    filt = fp if fp is not None and fp.safety == 'filter' else None  # the MAPs' safety filter, if they fly it
+    if filt is not None:  # the pairs whose barrier can bind
+        reach = safety.reach(float(off[0] + off[1]), filt) + REACH_SLACK
     else:  # rule 'keep': the pairs it brakes on
         reach = keep + braking_room(float(off[0] + off[1]), v.a_max, v.tau) + REACH_SLACK  # no pair farther acts
     near = reach < v.traffic  # the same pairs, found among fewer: those within range (truth) kept once they act
@@ -184,9 +183,9 @@ def traffic(truth: F64, told: F64, p: F64, v: Vehicle, fp: FlockParams | None = 
     pairs = tree.query_pairs(reach if near else v.traffic, output_type='ndarray')
     i, j = pairs[:, 0], pairs[:, 1]
     dq, dp = told[j] - told[i], p[j] - p[i]
-    if fp is not None:  # the barrier's budget, the same both ways: least is most urgent
-        room = safety.budget(dq, dp, fp)
-        acting = np.flatnonzero(room < fp.a_max)
+    if filt is not None:  # the barrier's budget, the same both ways: least is most urgent
+        room = safety.budget(dq, dp, filt)
+        acting = np.flatnonzero(room < filt.a_max)  # safety.binding, from the budget just computed
     else:
         dist = np.maximum(np.sqrt(np.einsum('ij,ij->i', dq, dq)), 1e-9)
         closing = np.maximum(-np.einsum('ij,ij->i', dp, dq) / dist, 0.0)  # the same both ways
