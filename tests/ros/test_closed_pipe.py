@@ -66,3 +66,18 @@ def test_a_study_whose_stderr_closes_computes_every_run(tmp_path: Path) -> None:
     assert len(kept.splitlines()) == 2, kept
     rows = pd.read_parquet(out / 'results.parquet')
     assert len(rows) == 4 and rows['error'].isna().all(), rows
+
+
+def test_a_sim_started_with_its_standard_streams_closed_writes_every_folder(tmp_path: Path) -> None:
+    """`./uav-flock sim ... >&- 2>&-` (and each stream alone): bash leaves its own script on the first free
+    descriptor, 2, read-only; the job runs as if both went to /dev/null, every folder written, exit 0."""
+    root = Path(__file__).resolve().parents[2]
+    for closed in ('>&-', '2>&-', '<&- >&- 2>&-'):
+        out = tmp_path / f'closed{len(closed)}'
+        command = f'{shlex.quote(str(root / "uav-flock"))} sim --maps 30 --duration 3 --seed 0,1 --out {out} {closed}'
+        done = subprocess.run(['bash', '-c', command], capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, f'{closed}: exit {done.returncode}'
+        for seed in (0, 1):
+            steps = read_csv(out / f'maps30_seed{seed}' / 'metrics.csv')['step']
+            assert steps.astype(int).tolist() == list(range(31)), f'{closed}, seed {seed}: {len(steps)} of 31 steps'
+        assert (out / 'summary.csv').exists(), f'{closed}: {sorted(p.name for p in out.iterdir())}'
