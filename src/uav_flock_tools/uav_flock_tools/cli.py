@@ -72,31 +72,6 @@ def _unraisable(args: 'sys.UnraisableHookArgs') -> None:
 
 
 
-def standard_streams() -> None:
-    """A command started with its standard streams closed (`sim ... >&- 2>&-`) runs as if they went to /dev/null.
-
-    A closed descriptor is taken by the first file opened after it: ./uav-flock's own script sits on descriptor 2
-    when bash is started with 2 closed, read-only, and Python's sys.stderr then raises EBADF at the first note, and
-    a records file opened on 1 would take in what is printed.
-    """
-    import fcntl
-    import os
-    for fd in (0, 1, 2):
-        try:
-            mode = fcntl.fcntl(fd, fcntl.F_GETFL) & os.O_ACCMODE
-        except OSError:
-            mode = None
-        if mode is None or (fd > 0 and mode == os.O_RDONLY):
-            null = os.open(os.devnull, os.O_RDWR)
-            if null != fd:
-                os.dup2(null, fd)
-                os.close(null)
-    for name, fd in (('stdin', 0), ('stdout', 1), ('stderr', 2)):
-        if getattr(sys, name) is None:
-            setattr(sys, name, open(fd, 'r' if fd == 0 else 'w', buffering=-1 if fd == 0 else 1, closefd=False))
-
-
-
 def install_interrupts() -> None:
     """`kill PID` stops a command as Ctrl-C does, so its clean-up (children stopped, partial records) runs too."""
     signal.signal(signal.SIGTERM, _interrupt)
@@ -108,10 +83,10 @@ def install_interrupts() -> None:
 def main(argv: Optional[Sequence[str]] = None) -> int:
     # Only the standard library is imported above: Ctrl-C while numpy, rclpy and the rest load is caught here too.
     install_interrupts()
+    from .outlast import Outlasting, standard_streams
     standard_streams()
     command = next((a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith('-')), '')
     if command not in PRINTERS:
-        from .outlast import Outlasting
         # stdout and stderr alike: `sim ... 2>&1 | head -1` closes the progress bar's stream, not only the prints'
         sys.stdout = Outlasting(sys.stdout)  # type: ignore[assignment]
         sys.stderr = Outlasting(sys.stderr)  # type: ignore[assignment]

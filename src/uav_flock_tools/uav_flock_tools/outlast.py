@@ -1,8 +1,10 @@
 """stdout and stderr that outlive their reader, for the commands whose records are their files (cli.PRINTERS are not)."""
 from __future__ import annotations
 
+import fcntl
 import io
 import os
+import sys
 
 
 class Outlasting(io.TextIOBase):
@@ -43,3 +45,25 @@ class Outlasting(io.TextIOBase):
     @property
     def encoding(self) -> str:  # type: ignore[override]
         return self._stream.encoding
+
+
+def standard_streams() -> None:
+    """A command started with its standard streams closed (`sim ... >&- 2>&-`) runs as if they went to /dev/null.
+
+    A closed descriptor is taken by the first file opened after it: ./uav-flock's own script sits on descriptor 2
+    when bash is started with 2 closed, read-only, and Python's sys.stderr then raises EBADF at the first note, and
+    a records file opened on 1 would take in what is printed.
+    """
+    for fd in (0, 1, 2):
+        try:
+            mode = fcntl.fcntl(fd, fcntl.F_GETFL) & os.O_ACCMODE
+        except OSError:
+            mode = None
+        if mode is None or (fd > 0 and mode == os.O_RDONLY):
+            null = os.open(os.devnull, os.O_RDWR)
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
+    for name, fd in (('stdin', 0), ('stdout', 1), ('stderr', 2)):
+        if getattr(sys, name) is None:
+            setattr(sys, name, open(fd, 'r' if fd == 0 else 'w', buffering=-1 if fd == 0 else 1, closefd=False))
