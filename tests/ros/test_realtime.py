@@ -138,6 +138,20 @@ def test_bad_node_parameters_and_sync_options_are_one_line_errors(ros_env: dict[
     assert sync.returncode == 2 and 'Traceback' not in sync.stderr, sync.stderr
 
 
+def test_a_bad_p_beside_a_params_file_setting_it_is_one_line(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """rcl keeps a --params-file's value and drops a -p of the wrong type without a word: the node says so."""
+    from uav_flock_tools.spawn import executable
+    params = tmp_path / 'params.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    c1: 0.4\n    duration: 3.0\n')
+    for pkg, node, args in (('uav_agent', 'uav_agent_node', ['--ids', '3', '--ros-args', '--params-file', str(params),
+                                                            '-p', 'c1:=abc']),
+                            ('world_sim', 'world_sim_node', ['--ros-args', '--params-file', str(params),
+                                                            '-p', 'duration:=long'])):
+        done = subprocess.run([executable(pkg, node), *args], env=ros_env, capture_output=True, text=True, timeout=60)
+        said = (done.stdout + done.stderr).strip()
+        assert done.returncode == 2 and said.count('\n') == 0 and 'did not take' in said, said
+
+
 def test_sigterm_ends_a_stepping_world_in_order(tmp_path: Path, ros_env: dict[str, str]) -> None:
     """`kill PID` on world_sim mid-run: records written, no fatal callback error from a signal raised inside one."""
     from uav_flock_tools.spawn import executable

@@ -19,7 +19,7 @@ from rclpy.context import Context
 from rclpy.duration import Duration
 from rclpy.executors import Executor
 from rclpy.signals import SignalHandlerOptions
-from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, checked_ros_args, make_executor
+from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, checked_ros_args, make_executor, unheeded
 from uav_flock_ros.processes import leave_after
 
 from .agent_node import AgentNode
@@ -150,6 +150,11 @@ def main(argv: Optional[list[str]] = None) -> int:
         process = AgentProcess(ids, argv)
     except PARAMETER_ERRORS as exc:  # a bad parameter value: the user's mistake
         print(f'uav_agent_node: error: {exc}', file=sys.stderr)
+        return 2
+    why = unheeded(argv, process.nodes[0]) if process.nodes else None
+    if why:
+        print(f'uav_agent_node: error: {why}', file=sys.stderr)
+        process.close()
         return 2
     try:
         while process.nodes and not stop.received and not all(n.stopped for n in process.nodes):

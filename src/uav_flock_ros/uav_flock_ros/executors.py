@@ -89,12 +89,44 @@ def checked_ros_args(program: str, argv: list[str]) -> Optional[list[str]]:
         return None
 
 
-def spun_node(program: str, factory: Callable[[], N], user_errors: tuple[type[Exception], ...]
-              ) -> tuple[Optional[N], Optional[Executor]]:
+class Unheeded(ValueError):
+    """A -p on the command line that the node did not take (unheeded)."""
+
+
+def unheeded(argv: list[str], node: Node) -> Optional[str]:
+    """Why a `-p NAME:=VALUE` of argv did not take, or None when each did: beside a --params-file that sets the
+    same parameter for every node (`/**`), rcl keeps the file's value and drops the -p without a word."""
+    import yaml
+    words = argv[argv.index('--ros-args') + 1:] if '--ros-args' in argv else []
+    for flag, text in zip(words, words[1:]):
+        if flag not in ('-p', '--param') or ':=' not in text:
+            continue
+        name, value = text.split(':=', 1)
+        name = name.rsplit(':', 1)[-1]
+        if not node.has_parameter(name):
+            continue
+        try:
+            wanted = yaml.safe_load(value)
+        except yaml.YAMLError:
+            wanted = value
+        got = node.get_parameter(name).value
+        numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (wanted, got))
+        if (float(wanted) != float(got)) if numbers else wanted != got:
+            return (f'parameter {name}: -p {text} did not take: a --params-file sets it to {got!r}, and rcl keeps '
+                    "the file's value; change it in the file instead")
+    return None
+
+
+def spun_node(program: str, factory: Callable[[], N], user_errors: tuple[type[Exception], ...],
+              argv: Optional[list[str]] = None) -> tuple[Optional[N], Optional[Executor]]:
     """The node on its executor; a user mistake in its parameters is one line on stderr and (None, None)."""
     try:
         node = factory()
-    except (*PARAMETER_ERRORS, *user_errors) as exc:
+        why = unheeded(sys.argv if argv is None else argv, node) if isinstance(node, Node) else None
+        if why:
+            node.destroy_node()
+            raise Unheeded(why)
+    except (*PARAMETER_ERRORS, *user_errors, Unheeded) as exc:
         print(f'{program}: error: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
         return None, None
@@ -112,7 +144,7 @@ def started(program: str, factory: Callable[[], N], user_errors: tuple[type[Exce
         raise SystemExit(2)
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     stop = StopSignals()
-    node, executor = spun_node(program, factory, user_errors)
+    node, executor = spun_node(program, factory, user_errors, argv)
     if node is None or executor is None:
         raise SystemExit(2)
     return node, executor, stop
