@@ -78,7 +78,8 @@ class Plan:
 
 def plan(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: int, domain_id: Optional[int],
          discovery: str, record: bool, sync: str, rate: float, listen: Optional[str] = None,
-         agents_here: Optional[int] = None, view: Optional[int] = None, keys: Optional[secure.HostKeys] = None) -> Plan:
+         agents_here: Optional[int] = None, view: Optional[int] = None, keys: Optional[secure.HostKeys] = None,
+         start_timeout: Optional[float] = None) -> Plan:
     """Stage 1: decide the run (and claim its ROS_DOMAIN_ID, held until every process of it has ended).
 
     With listen (an address of this host that the others reach), the discovery server listens there and
@@ -95,9 +96,8 @@ def plan(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process:
     claim = claim_domain(domain_id)
     server_address = discovery_server_address(claim.domain, listen or '127.0.0.1') if use_server else None
     discovery_range = 'SUBNET' if discovery == 'subnet' else 'LOCALHOST'
-    timeout = max(START_TIMEOUT_MIN_S, START_TIMEOUT_PER_PROCESS_S * processes)
-    if listen is not None:  # time for someone to start the agents on the other hosts
-        timeout = max(timeout, JOIN_TIMEOUT_S)
+    timeout = start_timeout or max(START_TIMEOUT_MIN_S, START_TIMEOUT_PER_PROCESS_S * processes,
+                                   JOIN_TIMEOUT_S if listen is not None else 0.0)  # time to start agents elsewhere
     env = secure.role_env(ros_env(claim.domain, server_address, discovery_range), run, keys, 'client')
     return Plan(scenario_path, scenario, run, agents_per_process, record, sync, rate, claim, server_address,
                 discovery_range, env, timeout, groups, list(range(here, scenario.maps)), view, keys)
@@ -274,11 +274,11 @@ def up(scenario_path: Path, scenario: Scenario, run: Path, agents_per_process: i
        domain_id: Optional[int] = None, discovery: str = 'auto', record: bool = False,
        sync: str = 'lockstep', rate: float = 1.0, listen: Optional[str] = None,
        agents_here: Optional[int] = None, note: Optional[str] = None,
-       view: Optional[int] = None, keys: Optional[secure.HostKeys] = None) -> int:
+       view: Optional[int] = None, keys: Optional[secure.HostKeys] = None, start_timeout: Optional[float] = None) -> int:
     """Run the scenario distributed, in stages; returns the exit code (the records are in the run folder).
     A note (e.g. too few MAPs for the layout) goes to stderr once the run is planned and its files written."""
     r = Run(plan(scenario_path, scenario, run, agents_per_process, domain_id, discovery, record, sync, rate,
-                 listen, agents_here, view, keys))
+                 listen, agents_here, view, keys, start_timeout))
     old_int, old_term = signal.signal(signal.SIGINT, r.on_signal), signal.signal(signal.SIGTERM, r.on_signal)
     try:
         try:

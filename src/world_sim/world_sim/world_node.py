@@ -187,7 +187,8 @@ class WorldNode(Watch, Node):
                 self.create_timer(self.scenario.dt / self.rate, self.end_step_realtime)
             self.begin_step()
         elif time.monotonic() - self.wall_start > self.start_timeout:
-            self.get_logger().error(f'only {ready} of {self.scenario.maps} MAPs appeared within {self.start_timeout:g} s')
+            self.get_logger().error(f'only {ready} of {self.scenario.maps} MAPs appeared within {self.start_timeout:g} s '
+                                    '(up --start-timeout SECONDS waits longer)')
             self.finish(ok=False)
         elif time.monotonic() - self.last_report >= START_REPORT_S:
             self.last_report = time.monotonic()

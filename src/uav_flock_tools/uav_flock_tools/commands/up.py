@@ -35,6 +35,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help='with --listen: this host\'s folder of `uav-flock keys`; every participant of the run on TCP '
                         'with TLS, peers verified against the run\'s CA (docs/multihost.md)')
     add_view_option(p)
+    p.add_argument('--start-timeout', type=positive_float, metavar='SECONDS',
+                   help='how long world_sim waits for every MAP to appear, and each MAP for world_sim (default: '
+                        '60 s, or 1.5 s a process when more; 300 s with --listen)')
     p.add_argument('--agents-here', type=non_negative_int, metavar='N',
                    help='with --listen: run MAPs 0..N-1 here and wait for the others to join (default: all here)')
 
@@ -69,7 +72,7 @@ def handle(args: argparse.Namespace) -> int:
     try:
         code = launcher.up(path.resolve(), s, out.resolve(), per_process, args.domain_id, args.discovery, args.record,
                            args.sync, args.rate, args.listen, args.agents_here, floor_note(s, s.maps), args.view,
-                           keys)
+                           keys, args.start_timeout)
     except (FileExistsError, ValueError, domains.DomainInUse) as exc:
         raise UsageError(f'{cmd}: {exc}') from None
     result = simrun.read_run(out, s)
