@@ -67,6 +67,9 @@ def test_lockstep_equals_the_batch_simulator_on_a_multirotor(tmp_path: Path, ros
     assert batch.returncode == 0, batch.stderr
     for name in ('trajectory.csv', 'metrics.csv'):
         assert (tmp_path / 'up' / name).read_bytes() == (tmp_path / 'sim' / name).read_bytes(), name
+    counts = read_csv(tmp_path / 'up' / 'metrics.csv')
+    held = counts['held'].sum() + counts['relaxed'].sum()  # what each node's filter did, carried in its commands
+    assert held > 0 if safety == 'filter' else held == 0, held
     flown = [yaml.safe_load((tmp_path / run / 'scenario.yaml').read_text()) for run in ('up', 'sim')]
     assert flown[0] == flown[1] and flown[0]['policies']['safety'] == safety, 'each folder says what it flew'
     assert 'vehicle: multirotor: 15 m/s' in distributed.stdout and 'vehicle: multirotor: 15 m/s' in batch.stdout

@@ -32,7 +32,7 @@ def fly(q: np.ndarray, p: np.ndarray, nominal: np.ndarray, seconds: float, v: ve
     for _ in range(int(round(seconds / 0.1))):
         owner, dq, dv = pairs(q, p)
         keep = np.flatnonzero(safety.binding(dq, dv, FP))
-        u = safety.filtered(nominal, p, owner[keep], dq[keep], dv[keep], FP) if filter_on else nominal
+        u = safety.filtered(nominal, p, owner[keep], dq[keep], dv[keep], FP).u if filter_on else nominal
         assert (np.linalg.norm(u[:, :2], axis=1) <= FP.a_max + 1e-9).all(), 'a command beyond a_max'
         q, p = f.step(rows, q, p, u)
         gaps = np.linalg.norm(q[:, None] - q[None], axis=2) + np.diag(np.full(len(q), np.inf))
@@ -69,7 +69,7 @@ def test_the_filter_leaves_a_nominal_alone_where_no_barrier_binds() -> None:
     owner, dq, dv = pairs(q, p)
     assert not safety.binding(dq, dv, FP).any()
     nominal = np.array([[0.5, -1.0, 0.0], [2.0, 1.0, 0.0]])
-    assert np.array_equal(safety.filtered(nominal, p, owner[:0], dq[:0], dv[:0], FP), nominal)
+    assert np.array_equal(safety.filtered(nominal, p, owner[:0], dq[:0], dv[:0], FP).u, nominal)
 
 
 def test_when_the_envelope_leaves_no_room_separation_is_relaxed_and_the_envelope_kept() -> None:
@@ -78,7 +78,7 @@ def test_when_the_envelope_leaves_no_room_separation_is_relaxed_and_the_envelope
     q = np.array([[0.0, 0.0, 20.0], [5.0, 0.0, 20.0]])
     p = np.array([[14.0, 0.0, 0.0], [-14.0, 0.0, 0.0]])
     owner, dq, dv = pairs(q, p)
-    u = safety.filtered(np.array([[4.0, 0.0, 0.0], [-4.0, 0.0, 0.0]]), p, owner, dq, dv, FP)
+    u = safety.filtered(np.array([[4.0, 0.0, 0.0], [-4.0, 0.0, 0.0]]), p, owner, dq, dv, FP).u
     assert u[0, 0] < -0.9 * FP.a_max and u[1, 0] > 0.9 * FP.a_max, u
     assert (np.linalg.norm(u[:, :2], axis=1) <= FP.a_max + 1e-9).all(), u
 
@@ -94,12 +94,12 @@ def test_each_maps_command_is_the_same_alone_as_in_the_batch(n: int, seed: int) 
     owner, dq, dv = pairs(q, p)
     keep = np.flatnonzero(safety.binding(dq, dv, FP))
     owner, dq, dv = owner[keep], dq[keep], dv[keep]
-    batch = safety.filtered(nominal, p, owner, dq, dv, FP)
+    batch = safety.filtered(nominal, p, owner, dq, dv, FP).u
     assert (np.linalg.norm(batch[:, :2], axis=1) <= FP.a_max + 1e-9).all()
     for i in range(n):
         mine = owner == i
         alone = safety.filtered(nominal[i:i + 1], p[i:i + 1], np.zeros(mine.sum(), dtype=np.intp), dq[mine],
-                                dv[mine], FP)
+                                dv[mine], FP).u
         assert np.array_equal(alone[0], batch[i]), i
 
 
@@ -136,7 +136,7 @@ def test_a_protected_link_holds_against_nominals_pulling_apart_at_a_max() -> Non
             owner, dq, dv = pairs(q, p)
             kept = np.flatnonzero(safety.protected(owner, dq, 2, safety.link_budget(dq, dv, FP) < FP.a_max))
             held = (owner[kept], dq[kept], dv[kept]) if links else None
-            u = safety.filtered(nominal, p, owner[:0], dq[:0], dv[:0], FP, held)
+            u = safety.filtered(nominal, p, owner[:0], dq[:0], dv[:0], FP, held).u
             q, p = f.step(np.arange(2), q, p, u)
             most = max(most, float(np.linalg.norm(q[0] - q[1])))
         return most
@@ -165,3 +165,20 @@ def test_the_map_that_opens_a_link_takes_its_share_of_holding_it() -> None:
     mine = safety.opening_share(dq, leaving, still)[0]
     theirs = safety.opening_share(-dq, still, leaving)[0]
     assert mine > 0.9 and mine + theirs == pytest.approx(1.0)
+
+
+def test_the_filter_says_when_a_link_held_a_map_back_and_when_it_gave_way() -> None:
+    """Two MAPs 22 m apart at rest, each pulled away at a_max: the link holds both back (HELD, not RELAXED). Flying
+    apart at 12 m/s already, no command within a_max keeps the link's barrier: it gives way (RELAXED). A nominal
+    that closes the link is neither."""
+    q = np.array([[0.0, 0.0, 20.0], [22.0, 0.0, 20.0]])
+    apart = np.array([[-4.0, 0.0, 0.0], [4.0, 0.0, 0.0]])
+    for p, nominal, want in ((np.zeros((2, 3)), apart, safety.HELD),
+                             (np.array([[-6.0, 0.0, 0.0], [6.0, 0.0, 0.0]]), apart, safety.HELD | safety.RELAXED),
+                             (np.zeros((2, 3)), -apart, 0)):
+        owner, dq, dv = pairs(q, p)
+        kept = np.flatnonzero(safety.protected(owner, dq, 2, np.ones(2, dtype=bool)))
+        flags = safety.filtered(nominal, p, owner[:0], dq[:0], dv[:0], FP, (owner[kept], dq[kept], dv[kept])).flags
+        assert flags.tolist() == [want, want], (p[0, 0], flags)
+    unprotected = safety.filtered(apart, np.zeros((2, 3)), owner[:0], dq[:0], dv[:0], FP).flags
+    assert unprotected.tolist() == [0, 0]

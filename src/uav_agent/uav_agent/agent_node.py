@@ -302,14 +302,14 @@ class AgentNode(Recovery, Node):
         coverage = np.zeros(self.clusters.count)
         if self.memory.goal != NO_GOAL:
             coverage[self.memory.goal] = s.goal_coverage  # r_g of the goal the world knows we hold
-        u, mem = agent_step(self.memory, self.map_id, s.q, s.p, s.n_users, coverage, hood, self.clusters,
-                            self.params, s.step, (s.traffic_q, s.traffic_p))
+        u, mem, did = agent_step(self.memory, self.map_id, s.q, s.p, s.n_users, coverage, hood, self.clusters,
+                                 self.params, s.step, (s.traffic_q, s.traffic_p))
         if not np.all(np.isfinite(u)):
             self.reject('core', f'non-finite control input at step {s.step}; holding u = 0')
             u = np.zeros(3)
         self.memory = mem
         self.pending = None
-        self.last_cmd = (s.step, convert.CommandData(self.map_id, s.step, u, mem.mode, mem.goal).to_msg(self.pending_header))
+        self.last_cmd = (s.step, convert.CommandData(self.map_id, s.step, u, mem.mode, mem.goal, did).to_msg(self.pending_header))
         self.cmd_pub.publish(self.last_cmd[1])
 
     def unheard(self, s: convert.SensingData) -> list[int]:

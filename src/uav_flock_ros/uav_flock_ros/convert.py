@@ -135,14 +135,16 @@ class CommandData(NamedTuple):
     u: np.ndarray                   # (3,) m/s^2
     mode: int
     goal: int
+    filter: int = 0                 # what the safety filter did to u (safety.RELAXED, HELD bits)
 
     def to_msg(self, header: Header) -> Command:
         return Command(header=header, id=int(self.id), step=int(self.step), accel=vector(self.u),
-                       mode=int(self.mode), goal=int(self.goal))
+                       mode=int(self.mode), goal=int(self.goal), filter=int(self.filter))
 
     @classmethod
     def from_msg(cls, msg: Any) -> 'CommandData':
-        return cls(int(msg.id), int(msg.step), xyz(msg.accel), int(msg.mode), int(msg.goal))
+        """A command recorded before the filter's field (a bag of an older uav-flock) says it did nothing."""
+        return cls(int(msg.id), int(msg.step), xyz(msg.accel), int(msg.mode), int(msg.goal), int(getattr(msg, 'filter', 0)))
 
 
 # /map_<id>/sensing's values: a MAP's own id, step k, q (m) and p (m/s) and N_u, as PassedData declares them
@@ -274,8 +276,8 @@ class MetricsData(NamedTuple):
     mode2: int
     # Under a channel: usable_fiedler, usable_components, heard_fiedler, heard_components, heard_share, oldest_used.
     links: Optional[tuple[float, int, float, int, float, int]] = None
-    # On a multirotor: min_distance, power, energy.
-    vehicle: Optional[tuple[float, float, float]] = None
+    # On a multirotor: min_distance, power, energy, relaxed, held.
+    vehicle: Optional[tuple[float, float, float, int, int]] = None
 
     @classmethod
     def of_row(cls, row: Iterable[float]) -> 'MetricsData':
@@ -284,7 +286,7 @@ class MetricsData(NamedTuple):
         flown = rest[len(heard):]
         links = None if not heard else (float(heard[0]), int(heard[1]), float(heard[2]), int(heard[3]),
                                         float(heard[4]), int(heard[5]))
-        vehicle = None if not flown else (float(flown[0]), float(flown[1]), float(flown[2]))
+        vehicle = None if not flown else (float(flown[0]), float(flown[1]), float(flown[2]), int(flown[3]), int(flown[4]))
         return cls(int(k), float(t), float(rc), float(lam2), int(alive), int(comp), int(m0), int(m1), int(m2), links,
                    vehicle)
 
@@ -308,13 +310,14 @@ class MetricsData(NamedTuple):
         flown = getattr(msg, 'vehicle', ())  # absent from bags recorded before the field: their type is in the bag
         if len(flown):
             v = flown[0]
-            vehicle = (float(v.min_distance), float(v.power), float(v.energy))
+            vehicle = (float(v.min_distance), float(v.power), float(v.energy), int(getattr(v, 'relaxed', 0)),
+                       int(getattr(v, 'held', 0)))  # both absent from bags recorded before the filter's counts
         return cls(int(msg.step), float(msg.t), float(msg.coverage_ratio), float(msg.fiedler), int(msg.alive),
                    int(msg.components), int(msg.mode0), int(msg.mode1), int(msg.mode2), links, vehicle)
 
 
 LINK_FIELDS = ('usable_fiedler', 'usable_components', 'heard_fiedler', 'heard_components', 'heard_share', 'oldest_used')
-VEHICLE_FIELDS = ('min_distance', 'power', 'energy')  # records.VEHICLE_COLUMNS
+VEHICLE_FIELDS = ('min_distance', 'power', 'energy', 'relaxed', 'held')  # records.VEHICLE_COLUMNS
 
 
 class FailureData(NamedTuple):

@@ -59,11 +59,11 @@ class BatchSimulator:
         ref_vel = np.array([ref.velocity for ref in refs]).reshape(-1, 3, 3)
         seen = None if sensed.traffic is None else (sensed.traffic[:, 0], sensed.q[sensed.traffic[:, 1]],
                                                    sensed.p[sensed.traffic[:, 1]])
-        u = control_input(sensed.q, sensed.p, sensed.n_users.astype(float), mode, target, qa, qb, owner, nbr.q,
-                          nbr.p, nbr.n_users, fp, np.array(apart, dtype=np.intp), ref_vel, seen)
+        u, flags = control_input(sensed.q, sensed.p, sensed.n_users.astype(float), mode, target, qa, qb, owner, nbr.q,
+                                 nbr.p, nbr.n_users, fp, np.array(apart, dtype=np.intp), ref_vel, seen)
         modes = np.array([self.memory[i].mode for i in rows], dtype=np.intp)
         goals = np.array([self.memory[i].goal for i in rows], dtype=np.intp)
-        w.advance(sensed, u, modes, goals, integrate)
+        w.advance(sensed, u, modes, goals, integrate, flags)
         return sensed
 
     def hear(self, sensed: Sensed, said: list[Said]) -> tuple[list[Neighbourhood], np.ndarray, Neighbourhood]:

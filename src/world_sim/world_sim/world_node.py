@@ -299,7 +299,8 @@ class WorldNode(Watch, Node):
         last = self.world.k >= self.scenario.steps
         if self.marker_period > 0 and s.k % self.marker_period == 0:
             self.markers_pub.publish(world_markers(self.header(), s, modes, self.world.users))
-        row = self.world.advance(s, u, modes, goals, integrate=not last)
+        did = np.array([c.filter if c else 0 for c in cmds], dtype=np.uint8)
+        row = self.world.advance(s, u, modes, goals, integrate=not last, flags=did)
         self.publish_metrics(row)
         if last:
             self.finish(ok=True)

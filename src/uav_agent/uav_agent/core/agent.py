@@ -72,14 +72,15 @@ def plan(mem: Memory, agent_id: int, q: np.ndarray, n_users: int, cluster_covera
 
 def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_users: int, cluster_coverage: np.ndarray,
                nbrs: Neighbourhood, clusters: ClusterMap, params: FlockParams, step: int = 0,
-               traffic: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, Memory]:
-    """Algorithm 1 lines 3-6 for one MAP at step k: its plan, then its control input (eq. 9). traffic: the
-    positions and velocities its traffic receiver took in (vehicle.traffic), None without one."""
+               traffic: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, Memory, int]:
+    """Algorithm 1 lines 3-6 for one MAP at step k: its plan, then its control input (eq. 9), and what the safety
+    filter did to it (safety.RELAXED, HELD bits). traffic: the positions and velocities its traffic receiver took
+    in (vehicle.traffic), None without one."""
     mem, ref, links = plan(mem, agent_id, q, n_users, cluster_coverage, nbrs, clusters, params, step)
     owner = np.zeros(len(nbrs.q), dtype=np.intp)
     seen = None if traffic is None else (np.zeros(len(traffic[0]), dtype=np.intp), *traffic)
-    u = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([ref.mode]),
+    u, flags = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([ref.mode]),
                       ref.target[None, :], ref.q1[None, :], ref.q2[None, :], owner, nbrs.q, nbrs.p,
                       np.asarray(nbrs.n_users, dtype=float), params, np.array(links, dtype=np.intp),
                       ref.velocity[None], seen)
-    return u[0], mem
+    return u[0], mem, int(flags[0])

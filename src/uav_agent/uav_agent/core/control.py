@@ -7,6 +7,8 @@ bit-identical results for the same inputs.
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -120,11 +122,18 @@ def connectivity_potential(q: F64, q1: F64, q2: F64, fp: FlockParams) -> F64:
     return fp.k * (sigma_norm(q1 - q, fp.epsilon) + sigma_norm(q2 - q, fp.epsilon) - sigma_norm(q1 - q2, fp.epsilon))
 
 
+class Control(NamedTuple):
+    """u_i for every own MAP, and what the safety filter did to each (safety.RELAXED, HELD bits; 0 without it)."""
+
+    u: F64
+    flags: NDArray[np.uint8]
+
+
 def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer], target: F64,
                   bridge_a: F64, bridge_b: F64, owner: NDArray[np.intp], nbr_q: F64, nbr_p: F64,
                   nbr_nu: F64, fp: FlockParams, apart: NDArray[np.integer] | None = None,
                   ref_vel: F64 | None = None,
-                  traffic: tuple[NDArray[np.intp], F64, F64] | None = None) -> F64:
+                  traffic: tuple[NDArray[np.intp], F64, F64] | None = None) -> Control:
     """u_i of eq. 9 for every own MAP: flocking terms plus the goal term its mode selects.
 
     target is q^r for M0/M2 rows; bridge_a/bridge_b are q_1^r/q_2^r for M1 rows (ignored elsewhere);
@@ -142,8 +151,9 @@ def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer]
     if np.any(bridging):
         h[bridging] = bridge_term(own_q[bridging], own_p[bridging], bridge_a[bridging], bridge_b[bridging], fp,
                                   v[bridging, 1], v[bridging, 2])
+    none = np.zeros(len(own_q), dtype=np.uint8)
     if not envelope.limited(fp):
-        return u + h
+        return Control(u + h, none)
     seen = traffic if traffic is not None and fp.traffic > 0 and on('traffic') else (owner, nbr_q, nbr_p)
     if fp.safety == 'filter':  # nominal, then the one filter, then the command
         by, at, vel = seen
@@ -155,6 +165,6 @@ def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer]
             near = safety.link_budget(l_dq, l_dv, fp) < fp.a_max  # the rows a command within a_max can reach
             chosen = np.flatnonzero(safety.protected(owner, l_dq, len(own_q), near))
             links = owner[chosen], l_dq[chosen], l_dv[chosen]
-        return safety.filtered(u + h, own_p, by[rows], dq[rows], dv[rows], fp, links)
+        return Control(*safety.filtered(u + h, own_p, by[rows], dq[rows], dv[rows], fp, links))
     brake = envelope.keep_apart(own_q, own_p, *seen, fp) + envelope.governor(own_p, fp)
-    return envelope.command(u + h, brake, fp)
+    return Control(envelope.command(u + h, brake, fp), none)

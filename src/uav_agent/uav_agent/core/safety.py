@@ -21,6 +21,7 @@ slack's linear price outbids any nominal), soft only against the envelope, which
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import daqp
 import numpy as np
@@ -37,7 +38,12 @@ SLACK_COST = 1e4    # (m/s^2 per unit slack): far above a protected link's, so s
 LINK_COST = 1e2     # a protected link's slack: above what the nominal, within a_max, can pull (2 a_max), below separation
 SLACK_WEIGHT = 1e-6  # the slacks' quadratic weight, only to keep the QP's Hessian positive definite
 SHARE_FLOOR = 0.5   # m/s: what each end of a protected link counts as its opening speed at least (opening_share)
+FLAG_TOL = 1e-6     # m/s^2: how far past a link's row a command must be for the flags to count it
 LINK_MARGIN = 1.0   # m: a protected link is kept this much shorter than r, where the chains are laid taut
+# What the filter did to a MAP's command at a step (Filtered.flags, bits; Command.msg's filter): a protected link
+# whose row it could not keep (its slack gave way), and a protected link that stopped the nominal, which would
+# have opened it faster than its barrier allows (the MAP held back from where eq. 9 sends it).
+RELAXED, HELD = 1, 2
 _ANGLES = 2.0 * np.pi * np.arange(SIDES) / SIDES
 _FACES = np.column_stack([np.cos(_ANGLES), np.sin(_ANGLES)])
 _APOTHEM = math.cos(math.pi / SIDES)
@@ -128,17 +134,24 @@ def reach(closing: float, fp: FlockParams) -> float:
     return fp.keep + v * t + v * v / (4.0 * a)
 
 
+class Filtered(NamedTuple):
+    """Each own MAP's command (m rows) and what the filter did to it (RELAXED, HELD bits; 0: nothing of either)."""
+
+    u: F64
+    flags: NDArray[np.uint8]
+
+
 def filtered(u_nom: F64, own_p: F64, owner: NDArray[np.intp], dq: F64, dv: F64, fp: FlockParams,
-             links: tuple[NDArray[np.intp], F64, F64] | None = None) -> F64:
-    """Each own MAP's command (m rows): u_nom (its z kept) filtered through the QP above, the pairs to keep apart
-    as rows (owner, j's position less i's, j's velocity less i's) grouped by owner, and likewise the protected
-    links to keep (none: no link rows)."""
+             links: tuple[NDArray[np.intp], F64, F64] | None = None) -> Filtered:
+    """Each own MAP's command: u_nom (its z kept) filtered through the QP above, the pairs to keep apart as rows
+    (owner, j's position less i's, j's velocity less i's) grouped by owner, and likewise the protected links to
+    keep (none: no link rows)."""
     m = len(u_nom)
     l_owner, l_dq, l_dv = links if links is not None else (np.zeros(0, np.intp), np.zeros((0, 3)), np.zeros((0, 3)))
     l_first = np.searchsorted(l_owner, np.arange(m + 1))
     l_n = l_dq[:, :2] / np.maximum(lengths(l_dq[:, :2]), 1e-9)[:, None]
     l_b = link_budget(l_dq, l_dv, fp, opening_share(l_dq, own_p[l_owner], own_p[l_owner] + l_dv))
-    out = u_nom.copy()
+    out, flags = u_nom.copy(), np.zeros(m, dtype=np.uint8)
     limit = fp.a_max * _APOTHEM
     speed = lengths(own_p[:, :2])
     heading = own_p[:, :2] / np.maximum(speed, 1e-12)[:, None]
@@ -168,4 +181,7 @@ def filtered(u_nom: F64, own_p: F64, owner: NDArray[np.intp], dq: F64, dv: F64, 
         if flag < 1:  # no command within the envelope (cannot happen while the speed is within v_max): brake
             x = np.r_[np.zeros(1 + links_here), -heading[i] * limit]
         out[i, :2] = x[-2:]
-    return out
+        if links_here:
+            pull = -l_n[l_lo:l_hi] @ np.stack([nominal[i], x[-2:]], axis=1) > l_b[l_lo:l_hi, None] + FLAG_TOL
+            flags[i] = RELAXED * pull[:, 1].any() + HELD * pull[:, 0].any()
+    return Filtered(out, flags)

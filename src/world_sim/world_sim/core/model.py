@@ -8,6 +8,7 @@ from typing import Optional
 import numpy as np
 
 from uav_agent.core.clusters import NO_GOAL, ClusterMap
+from uav_agent.core.safety import HELD, RELAXED
 
 from . import physics, vehicle
 from .records import Motion, metrics_columns
@@ -179,8 +180,9 @@ class World:
                       traffic=None if self.flight is None else vehicle.traffic(q, told, p, self.flight.v, fp))
 
     def advance(self, sensed: Sensed, u: np.ndarray, modes: np.ndarray, goals: np.ndarray,
-                integrate: bool = True) -> np.ndarray:
-        """Record step k with the MAPs' decisions and, unless told otherwise, integrate to k + 1.
+                integrate: bool = True, flags: Optional[np.ndarray] = None) -> np.ndarray:
+        """Record step k with the MAPs' decisions and, unless told otherwise, integrate to k + 1. flags: what each
+        MAP's safety filter did to its command (safety.RELAXED, HELD bits; None: nothing).
 
         Returns the metrics row of step k.
         """
@@ -197,7 +199,9 @@ class World:
         traj = [np.full(len(rows), self.k), np.full(len(rows), t), rows, q, sensed.p, modes, goals, sensed.n_users]
         if self.flight is not None:  # a multirotor's (records.VEHICLE_COLUMNS, ESTIMATE_COLUMNS)
             watts = self.flight.power(rows, sensed.p)
-            row = np.r_[row, physics.least_distance(q, sensed.pairs), watts.mean() if len(rows) else 0.0, self.energy]
+            did = np.zeros(len(rows), dtype=np.uint8) if flags is None else np.asarray(flags, dtype=np.uint8)
+            row = np.r_[row, physics.least_distance(q, sensed.pairs), watts.mean() if len(rows) else 0.0, self.energy,
+                        np.count_nonzero(did & RELAXED), np.count_nonzero(did & HELD)]
             self.energy += float(watts.sum()) * self.scenario.dt
             traj.append(sensed.q)
         self._metrics.append(row)
@@ -214,7 +218,7 @@ class World:
 
     def result(self) -> RunResult:
         columns = metrics_columns(self.scenario)
-        width = 12 + (3 if self.flight is not None else 0)
+        width = 12 + (3 if self.flight is not None else 0)  # trajectory: TRAJECTORY_COLUMNS, ESTIMATE_COLUMNS
         traj = np.concatenate(self._traj) if self._traj else np.zeros((0, width))
         motion = None
         if self._motion:

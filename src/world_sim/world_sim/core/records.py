@@ -18,10 +18,12 @@ TRAJECTORY_COLUMNS = ('step', 't', 'id', 'x', 'y', 'z', 'vx', 'vy', 'vz', 'mode'
 _METRICS_FMT = ('%d', '%.10g', '%.10g', '%.10g', '%d', '%d', '%d', '%d', '%d')
 _TRAJECTORY_FMT = ('%d', '%.10g', '%d') + ('%.17g',) * 6 + ('%d', '%d', '%d')
 # A multirotor's run (world_sim/core/vehicle.py) adds to metrics.csv the least distance between two MAPs (m),
-# the formation's mean propulsion power (W) and the energy it drew before the step (J); to the trajectory, where
+# the formation's mean propulsion power (W), the energy it drew before the step (J), and under the safety filter
+# the MAPs whose filter relaxed a protected link and those a protected link held back (safety.RELAXED, HELD; 0
+# under the rules); to the trajectory, where
 # each MAP believed it was (its GNSS estimate, m) beside x, y, z, which stay the truth.
-VEHICLE_COLUMNS = ('min_distance', 'power', 'energy')
-_VEHICLE_FMT = ('%.10g',) * 3
+VEHICLE_COLUMNS = ('min_distance', 'power', 'energy', 'relaxed', 'held')
+_VEHICLE_FMT = ('%.10g',) * 3 + ('%d',) * 2
 ESTIMATE_COLUMNS = ('x_est', 'y_est', 'z_est')
 TRAJECTORY_NPZ = 'trajectory.npz'
 # trajectory.npz's column types: the CSV's values exactly (t as computed, not printed to 10 digits)
