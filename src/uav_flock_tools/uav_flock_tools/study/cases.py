@@ -32,10 +32,12 @@ HELD_S = 10.0  # a run "ends covered and connected" when it is so over its last 
 # the disc graph under the paper's channel; under a `links:` channel the links that deliver half of what is
 # sent over them (docs/links.md), of which the disc graph is the share `disc`.
 FIGURES = ('converged', 'connected', 'outage', 'rc', 'recovery', 'ends_ok', 'end_rc', 'end_components', 'disc',
-           *('t_star', 'least_distance', 'top_speed', 'top_accel', 'power', 'energy'))
+           *('t_star', 'least_distance', 'top_speed', 'top_accel', 'power', 'energy', 'relaxed', 'held'))
 # A multirotor's (docs/vehicle.md; None on the ideal vehicle): T* (s), the least distance between two MAPs (m),
 # the top speed (m/s) and acceleration (m/s^2) over the ground read from the trajectory, the formation's mean
-# power per MAP after convergence (W; over the whole run if it never converged) and the energy it drew (J).
+# power per MAP after convergence (W; over the whole run if it never converged), the energy it drew (J), and the
+# shares of MAP-steps whose safety filter relaxed a protected link and that a protected link held back (0 under
+# the rules).
 
 
 def lb_along(s: Scenario, until: float) -> int:
@@ -137,7 +139,8 @@ def flight_figures(s: Scenario, m: np.ndarray, trajectory: np.ndarray, centroids
     after = m[:, 1] >= (converged if converged is not None else 0.0)
     return {'t_star': outcome.t_star(s, centroids), 'least_distance': float(np.nanmin(records.vehicle_column(m, 'min_distance'))),
             'top_speed': speed, 'top_accel': accel, 'power': float(records.vehicle_column(m, 'power')[after].mean()),
-            'energy': float(records.vehicle_column(m, 'energy')[-1])}
+            'energy': float(records.vehicle_column(m, 'energy')[-1]),
+            **{name: float(records.vehicle_column(m, name).sum() / max(m[:, 4].sum(), 1.0)) for name in ('relaxed', 'held')}}
 
 
 def figures(m: np.ndarray, dt: float, event: Optional[float]) -> dict[str, Optional[float]]:

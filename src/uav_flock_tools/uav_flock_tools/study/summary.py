@@ -84,7 +84,8 @@ def flight(rows: list[dict[str, Any]]) -> str:
         return ''
     from world_sim.core.vehicle import HOVER
     out = ['| kind | variant | converged / T*: median | worst | least distance (m) | top speed (m/s) | '
-           'top acceleration (m/s²) | power after convergence / hover: mean | worst |', '|---' * 9 + '|']
+           'top acceleration (m/s²) | power after convergence / hover: mean | worst | MAP-steps a protected link '
+           'gave way, held back (filter) |', '|---' * 10 + '|']
     for kind in dict.fromkeys(r['kind'] for r in rows):
         for variant in dict.fromkeys(r['variant'] for r in rows):
             cell = [r for r in rows if r['kind'] == kind and r['variant'] == variant and r.get('t_star') is not None]
@@ -94,8 +95,17 @@ def flight(rows: list[dict[str, Any]]) -> str:
             power = np.array([r['power'] / HOVER for r in cell])
             out.append(f"| {kind} | {variant} | {np.median(ratio):.2f} | {ratio.max():.2f} | "
                        f"{min(r['least_distance'] for r in cell):.2f} | {max(r['top_speed'] for r in cell):.2f} | "
-                       f"{max(r['top_accel'] for r in cell):.2f} | {power.mean():.3f} | {power.max():.3f} |")
+                       f"{max(r['top_accel'] for r in cell):.2f} | {power.mean():.3f} | {power.max():.3f} | "
+                       f"{_shares(cell)} |")
     return '\n## Flight (multirotor)\n\n' + '\n'.join(out) + '\n'
+
+
+def _shares(cell: list[dict[str, Any]]) -> str:
+    """The filter's relaxed and held shares of MAP-steps over a cell's runs, as percentages ('' for runs flown
+    before they were counted)."""
+    if any(r.get('relaxed') is None for r in cell):
+        return ''
+    return f"{100 * np.mean([r['relaxed'] for r in cell]):.2f} %, {100 * np.mean([r['held'] for r in cell]):.2f} %"
 
 
 def write(rows: list[dict[str, Any]], out: Path) -> list[Path]:
