@@ -56,7 +56,7 @@ VALUES = {
     convert.AgentStateData: st.builds(convert.AgentStateData, *STATE,
                                       st.lists(st.builds(convert.PassedData, *STATE), max_size=8).map(tuple)),
     convert.CommandData: st.builds(convert.CommandData, U32, st.integers(0, 2**63), VEC, st.integers(0, 2),
-                                   st.integers(-1, 99)),
+                                   st.integers(-1, 99), st.integers(0, 3)),
     convert.SensingData: st.tuples(ids(), ids(8)).flatmap(lambda nt: st.builds(
         convert.SensingData, U32, st.integers(0, 2**63), VEC, VEC, U32, st.floats(0, 1), st.just(nt[0]),
         arrays(np.float64, len(nt[0]), elements=st.floats(0, 1e4)), U32, st.just(nt[1]),
@@ -73,7 +73,8 @@ VALUES = {
         arrays(np.float64, st.integers(0, 8), elements=st.floats(0, 1)), st.floats(0, 1))),
     convert.MetricsData: st.builds(convert.MetricsData, st.integers(0, 2**63), FINITE, st.floats(0, 1), FINITE,
                                    U32, U32, U32, U32, U32,
-                                   st.one_of(st.none(), st.tuples(FINITE, U32, FINITE, U32, st.floats(0, 1), U32))),
+                                   st.one_of(st.none(), st.tuples(FINITE, U32, FINITE, U32, st.floats(0, 1), U32)),
+                                   st.one_of(st.none(), st.tuples(FINITE, FINITE, FINITE, U32, U32))),
     convert.FailureData: st.builds(convert.FailureData, st.integers(0, 2**63), ids().map(lambda a: tuple(a.tolist())),
                                    st.sampled_from(['scheduled', 'killed'])),
 }
