@@ -6,6 +6,8 @@ import matplotlib
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
 
 from uav_flock_tools import plots  # noqa: E402
 
@@ -92,3 +94,17 @@ def test_an_interrupted_run_and_a_map_killed_by_hand_are_marked_on_its_pictures(
         plots.run_figures = original
     assert captured['label'].endswith('interrupted at t = 1.0 s'), captured['label']
     assert (0.5, '2 MAPs killed') in captured['events'] and (1.0, 'run interrupted') in captured['events']
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(0, 80))
+def test_the_links_drawn_are_every_pair_within_r_once(seed: int, n: int) -> None:
+    """One polyline, a NaN between links: its pieces are the pairs within r, each once."""
+    q = np.random.default_rng(seed).uniform(0.0, 100.0, (n, 2))
+    x, y = plots.links_within(q, 24.0)
+    pieces = np.column_stack([x, y]).reshape(-1, 3, 2)
+    assert np.isnan(pieces[:, 2]).all()
+    drawn = {tuple(sorted((tuple(a), tuple(b)))) for a, b in pieces[:, :2]}
+    d = np.linalg.norm(q[:, None] - q[None], axis=-1)
+    want = {tuple(sorted((tuple(q[i]), tuple(q[j])))) for i, j in zip(*np.nonzero(np.triu(d <= 24.0, 1)))}
+    assert drawn == want and len(pieces) == len(want)

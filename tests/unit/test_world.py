@@ -66,6 +66,18 @@ def test_fiedler_of_a_large_formation_is_the_dense_value() -> None:
     assert physics.fiedler(pairs, n) == physics.fiedler(pairs, n)
 
 
+def test_fiedler_of_a_packed_square_of_many_maps_is_the_dense_value() -> None:
+    """Above DENSE_UNTIL MAPs a packed release square (mean degree in the hundreds, where below it the dense
+    solver is quicker) also goes to the sparse solver: `sim --maps 5000` sat minutes at its first step on it."""
+    rng = np.random.default_rng(5)
+    n = physics.DENSE_UNTIL + 100
+    q = np.column_stack([rng.uniform(0, 150, n), rng.uniform(0, 150, n), np.zeros(n)])
+    pairs = physics.neighbour_pairs(q, 24.0)
+    assert len(pairs) > physics.SPARSE_DEGREE * n, 'packed: denser than the sparse rule alone takes'
+    dense = np.linalg.eigvalsh(physics.laplacian(pairs, n))[1]
+    assert physics.fiedler(pairs, n) == pytest.approx(dense, rel=1e-9)
+
+
 def test_fiedler_of_a_disconnected_graph_is_zero() -> None:
     pairs = _pairs([(0, 1), (2, 3)])
     assert physics.components(pairs, 4) == 2

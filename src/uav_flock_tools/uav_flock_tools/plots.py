@@ -7,6 +7,7 @@ from typing import Callable, Sequence, Union
 import matplotlib
 
 matplotlib.use('Agg')
+matplotlib.rcParams['agg.path.chunksize'] = 10000  # the links of thousands of MAPs as one path (links_within)
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from world_sim.core import records  # noqa: E402
@@ -132,11 +133,16 @@ def mode_counts(t: np.ndarray, counts: np.ndarray, title: str, path: Path) -> Pa
     return save(fig, path)
 
 
-def links_within(q: np.ndarray, r: float) -> np.ndarray:
-    """The MAP-MAP links of a formation as segments (n, 2, 2): every pair within r, once."""
-    d = np.linalg.norm(q[:, None] - q[None], axis=-1)
-    i, j = np.nonzero(np.triu(d <= r, 1))
-    return np.stack([q[i], q[j]], axis=1)
+def links_within(q: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
+    """The MAP-MAP links of a formation (every pair within r, once) as one polyline, x and y, a NaN between links.
+
+    One path, not a collection of one per link: a packed release square of 5000 MAPs has 2.7 million links, which
+    matplotlib took 40 s a picture to make into paths."""
+    from scipy.spatial import cKDTree
+    pairs = cKDTree(q).query_pairs(r, output_type='ndarray') if len(q) > 1 else np.zeros((0, 2), dtype=np.intp)
+    line = np.full((len(pairs), 3, 2), np.nan)
+    line[:, 0], line[:, 1] = q[pairs[:, 0]], q[pairs[:, 1]]
+    return line[:, :, 0].ravel(), line[:, :, 1].ravel()
 
 
 def legend_handles(r: float, lost: bool = False, tracks: bool = False) -> list[plt.Line2D]:
@@ -155,10 +161,9 @@ def legend_handles(r: float, lost: bool = False, tracks: bool = False) -> list[p
 def formation(ax: plt.Axes, users_xy: np.ndarray, users_cluster: np.ndarray, centroids: np.ndarray,
               q: np.ndarray, mode: np.ndarray, r: float, title: str) -> None:
     """MSDs (grey, by cluster), MAPs coloured by mode, MAP-MAP links within r, cluster centroids."""
-    from matplotlib.collections import LineCollection
     ax.scatter(users_xy[:, 0], users_xy[:, 1], s=2, c='0.75', zorder=1, label='MSD')
     if len(q):
-        ax.add_collection(LineCollection(links_within(q[:, :2], r), colors='0.35', linewidths=0.5, zorder=2))
+        ax.plot(*links_within(q[:, :2], r), color='0.35', lw=0.5, zorder=2)
     for m in range(3):
         sel = mode == m
         if np.any(sel):
@@ -244,7 +249,6 @@ class FormationMovie:
     def __init__(self, traj: dict[str, np.ndarray], shown: list[float],
                  users: dict[float, tuple[np.ndarray, np.ndarray]], r: float, title: str,
                  metrics: np.ndarray | None) -> None:
-        from matplotlib.collections import LineCollection
         self.traj, self.shown, self.users, self.r, self.title, self.metrics = traj, shown, users, r, title, metrics
         self.centroids = [label_centroids(*users[t]) for t in shown]
         self.rows = [np.flatnonzero(traj['t'] == t) for t in shown]
@@ -263,7 +267,7 @@ class FormationMovie:
         ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), xlabel='x (m)', ylabel='y (m)')
         ax.set_aspect('equal')
         self.msd = ax.scatter(*users[shown[0]][0].T, s=2, c='0.75', zorder=1)
-        self.links = ax.add_collection(LineCollection([], colors='0.35', linewidths=0.5, zorder=2))
+        self.links = ax.plot([], [], color='0.35', lw=0.5, zorder=2)[0]
         self.tracks = {k: ax.plot([], [], color='tab:purple', lw=1.0, zorder=2)[0] for c in self.centroids for k in c}
         self.maps = [ax.scatter([], [], s=14, c=colour, zorder=3) for colour in MODE_COLOURS]
         self.marks = ax.scatter([], [], marker='x', s=50, c='k', zorder=4)
@@ -287,7 +291,7 @@ class FormationMovie:
         q = np.column_stack([traj['x'][sel], traj['y'][sel]])
         ids, mode = traj['id'][sel].astype(int).tolist(), traj['mode'][sel].astype(int)
         self.msd.set_offsets(self.users[t][0])
-        self.links.set_segments(links_within(q, self.r))
+        self.links.set_data(*links_within(q, self.r))
         for m, artist in enumerate(self.maps):
             artist.set_offsets(q[mode == m] if np.any(mode == m) else np.zeros((0, 2)))
         self.marks.set_offsets(np.array(list(self.centroids[n].values())).reshape(-1, 2))

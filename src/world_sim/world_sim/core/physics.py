@@ -156,7 +156,9 @@ def components(pairs: NDArray[np.intp], n: int) -> int:
 
 
 SPARSE_FROM = 500  # MAPs: above, lambda2 from the sparse Laplacian (at 993 MAPs 8-16 ms a step against 65-180 ms) ...
-SPARSE_DEGREE = 50  # ... when its mean degree is no more: a packed release square (degree 140-170) factors slower
+SPARSE_DEGREE = 50  # ... when its mean degree is no more: a packed release square (degree 140-170) factors slower ...
+DENSE_UNTIL = 1500  # ... except above this many MAPs, whatever the degree: at 2000 MAPs packed (degree 426) 0.6 s
+                    # against 8.5 s dense, at 5000 (degree 1079) 10 s, where the dense solver took minutes
 _SHIFT = 1e-2      # L + _SHIFT I is positive definite: its LU is what shift-invert solves with
 
 
@@ -168,7 +170,8 @@ def fiedler(pairs: NDArray[np.intp], n: int, n_components: int | None = None) ->
         n_components = components(pairs, n)
     if n_components > 1:
         return 0.0
-    value = _sparse_fiedler(pairs, n) if n > SPARSE_FROM and len(pairs) <= SPARSE_DEGREE * n else None
+    sparse = n > DENSE_UNTIL or (n > SPARSE_FROM and len(pairs) <= SPARSE_DEGREE * n)
+    value = _sparse_fiedler(pairs, n) if sparse else None
     if value is None:
         value = eigh(laplacian(pairs, n), eigvals_only=True, subset_by_index=[1, 1])[0]
     return float(max(value, 0.0))
