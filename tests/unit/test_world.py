@@ -117,3 +117,20 @@ def test_users_follow_the_scenario(paper_scenario_path: str) -> None:
     assert users.cluster_sizes.tolist() == [c.size for c in s.clusters]
     for k, c in enumerate(s.clusters):
         assert np.linalg.norm(users.centroids[k] - c.center) < 3 * c.spread / np.sqrt(c.size) * 3
+
+
+def test_one_map_serving_its_cluster_is_a_network_that_succeeds() -> None:
+    """A single MAP over a small cluster covers it; its lambda2 is 0, but one MAP is one network: the run succeeds."""
+    import yaml
+    from uav_flock_tools.batch import BatchSimulator
+    from world_sim.core import outcome
+    from world_sim.core.scenario import parse
+    from world_sim.shipped import resolve
+    doc = yaml.safe_load(resolve('paper').read_text())
+    doc.update(name='one', maps=1, duration=20.0)
+    doc['release']['half_width'] = 5.0
+    doc['users']['clusters'] = [{'center': [-130.0, 50.0], 'spread': 2.0, 'size': 5}]
+    m = BatchSimulator(parse(doc)).run().metrics
+    assert m[-1, 2] == 1.0 and m[-1, 3] == 0.0, 'covered, with the lambda2 of a single MAP'
+    assert outcome.time_to_success(m) < 20.0
+    assert outcome.joined(m).all()

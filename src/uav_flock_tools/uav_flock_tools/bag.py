@@ -313,7 +313,7 @@ def summary(run: BagRun) -> dict[str, Any]:
         'final_fiedler': float(lam2[-1]),
         'time_to_success_s': _finite(outcome.time_to_success(m)),
         'time_to_95_coverage_s': first_time(t, rc >= 0.95),
-        'time_to_connectivity_s': first_time(t, lam2 > 0),
+        'time_to_connectivity_s': first_time(t, outcome.joined(m)),
         'failures': [{'t_s': step * run.dt, 'ids': ids, 'cause': cause} for step, ids, cause in run.failures],
         'missing_commands': missing_commands(run),
         # what the run was set to do (None from a bag without our metadata): a run cut short says so

@@ -7,7 +7,7 @@ from typing import Callable, Sequence, Union
 import matplotlib
 
 matplotlib.use('Agg')
-matplotlib.rcParams['agg.path.chunksize'] = 10000  # the links of thousands of MAPs as one path (links_within)
+matplotlib.rcParams['agg.path.chunksize'] = 10000  # links_within's one path of thousands of links
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from world_sim.core import records  # noqa: E402
@@ -134,14 +134,10 @@ def mode_counts(t: np.ndarray, counts: np.ndarray, title: str, path: Path) -> Pa
 
 
 def links_within(q: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
-    """The MAP-MAP links of a formation (every pair within r, once) as one polyline, x and y, a NaN between links.
-
-    One path, not a collection of one per link: a packed release square of 5000 MAPs has 2.7 million links, which
-    matplotlib took 40 s a picture to make into paths."""
+    """The links within r, each once, as one polyline (x, y; NaN between links): 5000 MAPs packed took 40 s a path a link."""
     from scipy.spatial import cKDTree
-    pairs = cKDTree(q).query_pairs(r, output_type='ndarray') if len(q) > 1 else np.zeros((0, 2), dtype=np.intp)
-    line = np.full((len(pairs), 3, 2), np.nan)
-    line[:, 0], line[:, 1] = q[pairs[:, 0]], q[pairs[:, 1]]
+    pairs = cKDTree(np.reshape(q, (-1, 2))).query_pairs(r, output_type='ndarray')
+    line = np.stack([q[pairs[:, 0]], q[pairs[:, 1]], np.full((len(pairs), 2), np.nan)], axis=1)
     return line[:, :, 0].ravel(), line[:, :, 1].ravel()
 
 

@@ -71,7 +71,7 @@ def handle(args: argparse.Namespace) -> int:
             print(f'{" " * len(label)}  {outcome.flight_summary(r.scenario, m, r.trajectory, r.users.centroids)}')
     if several:
         table = simrun.write_summary([r for _, r in done], out)
-        print('\n'.join(['', 'Mean ± std over the seeds (time to success: first t with R_c ≥ 95 % and λ2 > 0):',
+        print('\n'.join(['', 'Mean ± std over the seeds (time to success: first t with R_c ≥ 95 % and one network, λ2 > 0):',
                           *table, f'one row per run in {out / simrun.SUMMARY_FILE}']))
     print(f'results in {out}')
     return 0

@@ -147,8 +147,9 @@ def figures(m: np.ndarray, dt: float, event: Optional[float]) -> dict[str, Optio
     """FIGURES of one run from its metrics rows (world_sim.core.records.METRICS_COLUMNS, then under a channel
     hearing.LINK_COLUMNS, whose first is the usable graph's lambda2); None where a run that never converged, or
     has no event, has none."""
-    t, rc, disc = m[:, 1], m[:, 2], m[:, 3] > 0
-    connected = m[:, len(METRICS_COLUMNS)] > 0 if records.has_links(m) else disc
+    from world_sim.core.outcome import joined
+    t, rc, disc = m[:, 1], m[:, 2], joined(m)
+    connected = joined(m, len(METRICS_COLUMNS) + 1) if records.has_links(m) else disc  # the usable graph's components
     ok = (rc >= 0.95) & connected
     out: dict[str, Optional[float]] = dict.fromkeys(FIGURES)
     out['ends_ok'] = float(ok[-int(round(HELD_S / dt)):].all())

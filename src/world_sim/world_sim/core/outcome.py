@@ -1,6 +1,7 @@
 """How a run ended, judged the same way by the layout benchmark, the tests and the docs.
 
-Success: covered (mean R_c >= 95 %) and connected (lambda2 > 0 at every step) over the last 10 s.
+Success: covered (mean R_c >= 95 %) and connected (one component: lambda2 > 0, or a single MAP) at every step
+over the last 10 s.
 Where the MAPs ended is read geometrically, so every policy set is judged by one rule: a MAP serves the
 cluster whose 95 % disc (widened by the ground radius) holds it, else relays on the MST edge within r of
 it, else it is astray.
@@ -17,7 +18,7 @@ from . import layouts, vehicle
 from .records import METRICS_COLUMNS, TRAJECTORY_COLUMNS
 from .scenario import Scenario
 
-R_C, FIEDLER, T = (METRICS_COLUMNS.index(c) for c in ('coverage_ratio', 'fiedler', 't'))
+R_C, T, ALIVE, COMPONENTS = (METRICS_COLUMNS.index(c) for c in ('coverage_ratio', 't', 'alive', 'components'))
 COVERED = 0.95
 TAIL = 10.0  # s
 
@@ -25,19 +26,26 @@ TAIL = 10.0  # s
 @dataclass(frozen=True)
 class Outcome:
     success: bool
-    time_to_success: float            # first t with R_c >= 95 % and lambda2 > 0 (s), inf if never
+    time_to_success: float            # first t with R_c >= 95 % and one network (s), inf if never
     final_coverage: float             # mean R_c over the tail
-    connected_tail: bool              # lambda2 > 0 at every step of the tail
+    connected_tail: bool              # one network at every step of the tail
     per_cluster: tuple[int, ...]      # MAPs ending at each cluster
     per_edge: tuple[int, ...]         # MAPs ending on each MST edge of the layout's floor
     astray: int                       # MAPs ending elsewhere
     in_m0: int                        # MAPs whose last mode is M0
 
 
+def joined(metrics: np.ndarray, components: int = COMPONENTS) -> np.ndarray:
+    """Per step, whether the MAPs flying form one network: one component of at least one MAP. For two or more
+    that is lambda2 > 0; a single MAP, whose lambda2 is 0, is a network too. components: the column counted
+    (the disc graph's, or under a channel the usable graph's, hearing.LINK_COLUMNS)."""
+    return (metrics[:, components] == 1) & (metrics[:, ALIVE] >= 1)
+
+
 def time_to_success(metrics: np.ndarray) -> float:
-    """Time to success, the one definition every figure uses: the first t with R_c >= 95 % and lambda2 > 0
-    (s), inf if never."""
-    good = (metrics[:, R_C] >= COVERED) & (metrics[:, FIEDLER] > 0)
+    """Time to success, the one definition every figure uses: the first t with R_c >= 95 % and the MAPs one
+    network (joined: lambda2 > 0, or a single MAP) (s), inf if never."""
+    good = (metrics[:, R_C] >= COVERED) & joined(metrics)
     return float(metrics[np.argmax(good), T]) if good.any() else float('inf')
 
 
@@ -45,7 +53,7 @@ def judge(s: Scenario, metrics: np.ndarray, trajectory: np.ndarray) -> Outcome:
     t = metrics[:, T]
     tail = t >= t[-1] - TAIL + 1e-9
     cov = float(metrics[tail, R_C].mean())
-    connected = bool(np.all(metrics[tail, FIEDLER] > 0))
+    connected = bool(np.all(joined(metrics)[tail]))
     first = time_to_success(metrics)
     step = trajectory[:, TRAJECTORY_COLUMNS.index('step')]
     last = trajectory[step == step.max()]
