@@ -207,9 +207,9 @@ def test_under_a_channel_connected_is_the_usable_graph_and_disc_the_disc_graph()
     from world_sim.core.hearing import LINK_COLUMNS
     from world_sim.core.records import METRICS_COLUMNS
     m = np.zeros((200, len(METRICS_COLUMNS) + len(LINK_COLUMNS)))
-    m[:, 1], m[:, 2], m[:, 3], m[:, 5] = np.arange(200) * 0.1, 0.97, 0.4, 1
-    m[:, len(METRICS_COLUMNS)] = 0.2
-    m[60:80, len(METRICS_COLUMNS)] = 0.0  # 2 s of the usable graph split, the disc graph whole
+    m[:, 1], m[:, 2], m[:, 3], m[:, 4], m[:, 5] = np.arange(200) * 0.1, 0.97, 0.4, 10, 1
+    m[:, len(METRICS_COLUMNS):len(METRICS_COLUMNS) + 2] = 0.2, 1  # the usable graph's lambda2 and components
+    m[60:80, len(METRICS_COLUMNS):len(METRICS_COLUMNS) + 2] = 0.0, 2  # 2 s of it split, the disc graph whole
     f = figures(m, 0.1, None)
     assert f['connected'] == pytest.approx(0.9) and f['disc'] == 1.0 and f['outage'] == pytest.approx(2.0)
     assert f['ends_ok'] == 1.0 and f['converged'] == 0.0
