@@ -11,7 +11,7 @@ matplotlib.rcParams['agg.path.chunksize'] = 10000  # links_within's one path of 
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from world_sim.core import records  # noqa: E402
-from world_sim.core.physics import label_centroids  # noqa: E402
+from world_sim.core.physics import label_centroids, neighbour_pairs  # noqa: E402
 
 # The MSDs (xy, cluster id) at a time, for runs whose users move.
 # An event to mark on a time axis: a time (a failure) or (time, what happened).
@@ -135,8 +135,8 @@ def mode_counts(t: np.ndarray, counts: np.ndarray, title: str, path: Path) -> Pa
 
 def links_within(q: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
     """The links within r, each once, as one polyline (x, y; NaN between links): 5000 MAPs packed took 40 s a path a link."""
-    from scipy.spatial import cKDTree
-    pairs = cKDTree(np.reshape(q, (-1, 2))).query_pairs(r, output_type='ndarray')
+    pairs = neighbour_pairs(np.reshape(q, (-1, 2)), r)
+    pairs = pairs[pairs[:, 0] < pairs[:, 1]]  # each link once
     line = np.stack([q[pairs[:, 0]], q[pairs[:, 1]], np.full((len(pairs), 2), np.nan)], axis=1)
     return line[:, :, 0].ravel(), line[:, :, 1].ravel()
 

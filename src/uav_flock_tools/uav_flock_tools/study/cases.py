@@ -12,6 +12,7 @@ from uav_agent.core.clusters import mst_edges
 from uav_agent.core.state import M1
 from world_sim.core import layouts
 from world_sim.core import records
+from world_sim.core.outcome import joined
 from world_sim.core.records import METRICS_COLUMNS
 from world_sim.core.scenario import Cluster, Scenario
 
@@ -147,7 +148,6 @@ def figures(m: np.ndarray, dt: float, event: Optional[float]) -> dict[str, Optio
     """FIGURES of one run from its metrics rows (world_sim.core.records.METRICS_COLUMNS, then under a channel
     hearing.LINK_COLUMNS, whose first is the usable graph's lambda2); None where a run that never converged, or
     has no event, has none."""
-    from world_sim.core.outcome import joined
     t, rc, disc = m[:, 1], m[:, 2], joined(m)
     connected = joined(m, len(METRICS_COLUMNS) + 1) if records.has_links(m) else disc  # the usable graph's components
     ok = (rc >= 0.95) & connected
