@@ -212,8 +212,29 @@ def test_under_a_channel_connected_is_the_usable_graph_and_disc_the_disc_graph()
     m[60:80, len(METRICS_COLUMNS):len(METRICS_COLUMNS) + 2] = 0.0, 2  # 2 s of it split, the disc graph whole
     f = figures(m, 0.1, None)
     assert f['connected'] == pytest.approx(0.9) and f['disc'] == 1.0 and f['outage'] == pytest.approx(2.0)
-    assert f['ends_ok'] == 1.0 and f['converged'] == 0.0
+    assert f['ends_ok'] == 1.0 and f['converged'] == 0.0 and f['splits'] == 1.0
     assert figures(m[:, :len(METRICS_COLUMNS)], 0.1, None)['connected'] == 1.0, 'the paper\'s channel: the disc graph'
+
+
+def test_splits_count_each_fall_apart_after_convergence_and_the_summary_the_runs_never_split() -> None:
+    """A network that falls apart twice after convergence splits twice, however long each lasts; one split
+    before convergence is no split; the summary counts the converged runs that never split."""
+    from uav_flock_tools.study.cases import figures
+    from uav_flock_tools.study.summary import cells
+    from world_sim.core.records import METRICS_COLUMNS
+    m = np.zeros((300, len(METRICS_COLUMNS)))
+    m[:, 1], m[:, 2], m[:, 3], m[:, 4], m[:, 5] = np.arange(300) * 0.1, 0.97, 0.4, 10, 1
+    m[:50, 3], m[:50, 5] = 0.0, 2  # split before it first converges (t = 5 s)
+    m[100:101, 3], m[100:101, 5] = 0.0, 2  # one step apart
+    m[200:260, 3], m[200:260, 5] = 0.0, 3  # 6 s apart, in three pieces
+    f = figures(m, 0.1, None)
+    assert f['converged'] == pytest.approx(5.0) and f['splits'] == 2.0 and f['outage'] == pytest.approx(6.0)
+    whole = figures(np.delete(m, np.r_[100, 200:260], axis=0), 0.1, None)
+    assert whole['splits'] == 0.0
+    grid = {'kind': 'static', 'variant': 'a', 'seed': 0, 'error': None}
+    rows = [{**grid, 'layout': 0, **f}, {**grid, 'layout': 1, **whole}, {**grid, 'layout': 2, **figures(m[:40], 0.1, None)}]
+    assert rows[2]['converged'] is None
+    assert cells(rows)[0]['unsplit'] == 1 and cells(rows)[0]['converged'] == 2
 
 
 def test_a_variant_flies_with_the_rules_it_switches_off_and_only_that_run(tmp_path: Path) -> None:

@@ -27,13 +27,13 @@ DRAW = {'drift1': 0, 'drift2': 1, 'drift3': 2, 'crossing': 3, 'loss': 4, 'wipeou
 IN_FLIGHT = 7
 HELD_S = 10.0  # a run "ends covered and connected" when it is so over its last HELD_S
 # The figures of one run (figures()): its first step covered (R_c >= 95 %) and connected, the share of time
-# connected after it, the longest outage after it, mean R_c after it, time from the event to covered and
-# connected again, whether it ends covered and connected over HELD_S, and R_c and components at the end; and
-# the share of time after it that the disc graph is connected. Connected is lambda2 > 0 of the usable graph:
-# the disc graph under the paper's channel; under a `links:` channel the links that deliver half of what is
-# sent over them (docs/links.md), of which the disc graph is the share `disc`.
-FIGURES = ('converged', 'connected', 'outage', 'rc', 'recovery', 'ends_ok', 'end_rc', 'end_components', 'disc',
-           *('t_star', 'least_distance', 'top_speed', 'top_accel', 'power', 'energy', 'relaxed', 'held'))
+# connected after it, how many times the network fell apart after it (splits), the longest outage after it, mean
+# R_c after it, time from the event to covered and connected again, whether it ends covered and connected over
+# HELD_S, and R_c and components at the end; and the share of time after it that the disc graph is connected.
+# Connected is lambda2 > 0 of the usable graph: the disc graph under the paper's channel; under a `links:` channel
+# the links that deliver half of what is sent over them (docs/links.md), of which the disc graph is the share `disc`.
+FIGURES = ('converged', 'connected', 'splits', 'outage', 'rc', 'recovery', 'ends_ok', 'end_rc', 'end_components',
+           'disc', *('t_star', 'least_distance', 'top_speed', 'top_accel', 'power', 'energy', 'relaxed', 'held'))
 # A multirotor's (docs/vehicle.md; None on the ideal vehicle): T* (s), the least distance between two MAPs (m),
 # the top speed (m/s) and acceleration (m/s^2) over the ground read from the trajectory, the formation's mean
 # power per MAP after convergence (W; over the whole run if it never converged), the energy it drew (J), and the
@@ -159,6 +159,8 @@ def figures(m: np.ndarray, dt: float, event: Optional[float]) -> dict[str, Optio
         out['recovery'] = float(t[after[0]] - event) if len(after) else None
     if ok.any():
         first = int(np.argmax(ok))
-        out.update(converged=float(t[first]), connected=float(connected[first:].mean()),
-                   outage=outage_s(~connected[first:], dt), rc=float(rc[first:].mean()), disc=float(disc[first:].mean()))
+        whole = connected[first:]
+        out.update(converged=float(t[first]), connected=float(whole.mean()),
+                   splits=float(np.count_nonzero(whole[:-1] & ~whole[1:])),
+                   outage=outage_s(~whole, dt), rc=float(rc[first:].mean()), disc=float(disc[first:].mean()))
     return out

@@ -39,7 +39,8 @@ def cells(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             v = np.array([_value(r) for r in cell])
             lo, hi = interval(v)
             line = {'kind': kind, 'variant': variant, 'runs': len(cell), 'errors': sum(r['error'] is not None for r in cell),
-                    'converged': sum(r['converged'] is not None for r in cell), 'mean': v.mean(), 'low': lo, 'high': hi,
+                    'converged': sum(r['converged'] is not None for r in cell), 'unsplit': _unsplit(cell),
+                    'mean': v.mean(), 'low': lo, 'high': hi,
                     'p10': float(np.percentile(v, 10)), 'worst': float(v.min()),
                     'ends_ok': int(sum(r['ends_ok'] or 0 for r in cell)), 'disc': _disc(cell),
                     'change': None, 'change_low': None, 'change_high': None}
@@ -51,6 +52,14 @@ def cells(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                     line['change'], (line['change_low'], line['change_high']) = float(d.mean()), interval(d)
             out.append(line)
     return out
+
+
+def _unsplit(cell: list[dict[str, Any]]) -> Any:
+    """The runs that converged and never split after it (the issue's "never splits it"); None for a table from
+    before the column."""
+    if any(r.get('splits') is None and r.get('converged') is not None for r in cell):
+        return None
+    return sum(r['converged'] is not None and r['splits'] == 0 for r in cell)
 
 
 def _disc(cell: list[dict[str, Any]]) -> Any:
@@ -66,11 +75,12 @@ def _pct(x: Any) -> str:
 
 
 def markdown(lines: list[dict[str, Any]], base: str) -> str:
-    head = ('| kind | variant | runs | converged | connected after convergence: mean [95 %] | 10th pct | worst | '
-            f'ends covered and connected | disc graph connected: mean | change against {base}, paired [95 %] |\n'
-            '|---|---|---|---|---|---|---|---|---|---|')
+    head = ('| kind | variant | runs | converged | never split after it | connected after convergence: mean [95 %] | '
+            f'10th pct | worst | ends covered and connected | disc graph connected: mean | change against {base}, paired '
+            '[95 %] |\n' + '|---' * 11 + '|')
     body = [f"| {c['kind']} | {c['variant']} | {c['runs']}{' (' + str(c['errors']) + ' errors)' if c['errors'] else ''} | "
-            f"{c['converged']}/{c['runs']} | {_pct(c['mean'])} [{_pct(c['low'])}, {_pct(c['high'])}] | {_pct(c['p10'])} | "
+            f"{c['converged']}/{c['runs']} | {'—' if c['unsplit'] is None else c['unsplit']} | "
+            f"{_pct(c['mean'])} [{_pct(c['low'])}, {_pct(c['high'])}] | {_pct(c['p10'])} | "
             f"{_pct(c['worst'])} | {c['ends_ok']}/{c['runs']} | {_pct(c['disc'])} | "
             + ('' if c['change'] is None else f"{100 * c['change']:+.2f} [{100 * c['change_low']:+.2f}, {100 * c['change_high']:+.2f}]")
             + ' |' for c in lines]
