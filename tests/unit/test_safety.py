@@ -1,5 +1,5 @@
 """The safety filter (rule 'filter', uav_agent/core/safety.py): separation and the envelope as constraints on each
-MAP's command, flown through the multirotor's own lag (world_sim/core/vehicle.Flight)."""
+MAP's command, flown through the multirotor's own lag (world_sim/core/airframes/multirotor.py)."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from uav_agent.core import safety
 from uav_agent.core.params import FlockParams
 from world_sim.core import vehicle
+from world_sim.core.airframes.multirotor import Multirotor
 
 CALM = replace(vehicle.MULTIROTOR, wind=vehicle.Wind(0.0, 0.0, 0.0, 5.0), gnss=vehicle.Gnss(0.0, 60.0, 0.0))
 FP = replace(FlockParams(), **CALM.envelope())
@@ -27,7 +28,7 @@ def fly(q: np.ndarray, p: np.ndarray, nominal: np.ndarray, seconds: float, v: ve
         filter_on: bool = True) -> float:
     """The MAPs flown from q, p, each commanding the filtered nominal (a fixed acceleration each) through the
     vehicle's lag and limits: the least distance between two of them."""
-    f = vehicle.Flight(v, len(q), 0.1, np.random.default_rng(0))
+    f = Multirotor(v, len(q), 0.1, np.random.default_rng(0))
     rows, least = np.arange(len(q)), np.inf
     for _ in range(int(round(seconds / 0.1))):
         owner, dq, dv = pairs(q, p)
@@ -129,7 +130,7 @@ def test_a_protected_link_holds_against_nominals_pulling_apart_at_a_max() -> Non
     """Two MAPs 20 m apart, each nominal at a_max away from the other, through the vehicle's lag: the link stays
     within r for 20 s; unprotected, it breaks."""
     def widest(links: bool) -> float:
-        f = vehicle.Flight(CALM, 2, 0.1, np.random.default_rng(0))
+        f = Multirotor(CALM, 2, 0.1, np.random.default_rng(0))
         q, p = np.array([[0.0, 0.0, 20.0], [20.0, 0.0, 20.0]]), np.zeros((2, 3))
         nominal, most = np.array([[-4.0, 0.0, 0.0], [4.0, 0.0, 0.0]]), 0.0
         for _ in range(200):

@@ -12,9 +12,12 @@ import pytest
 from scipy.spatial import cKDTree
 
 from uav_agent.core.links import Links
+from uav_agent.core.params import FlockParams
 from uav_flock_tools.batch import BatchSimulator
 from uav_flock_tools.layouts import draw, policy_sets
 from world_sim.core import layouts, outcome, records, vehicle
+from world_sim.core import airframes
+from world_sim.core.airframes.multirotor import Multirotor
 from world_sim.core.scenario import Scenario, ScenarioError, load, parse, to_doc
 
 
@@ -44,6 +47,56 @@ def test_the_ideal_vehicle_flies_the_runs_of_before_to_the_bit(paper_scenario_pa
     assert paper.vehicle.ideal
     got = {name: digest(s) for name, s in ideal_runs(paper).items()}
     assert got == IDEAL_DIGESTS
+
+
+class Offset:
+    """An airframe of this test's: the paper's double integrator whose receiver reads 2 m east of the truth."""
+
+    exact = False
+
+    def __init__(self, v: vehicle.Vehicle, n: int, dt: float, rng: np.random.Generator) -> None:
+        self.dt = dt
+
+    def release(self, q: np.ndarray, p: np.ndarray, centre: tuple[float, float], half_width: float,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        return q, p
+
+    def estimate(self, rows: np.ndarray, q: np.ndarray) -> np.ndarray:
+        return q + np.array([2.0, 0.0, 0.0])
+
+    def power(self, rows: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return np.full(len(rows), 100.0)
+
+    def traffic(self, truth: np.ndarray, told: np.ndarray, p: np.ndarray, fp: object) -> None:
+        return None
+
+    def step(self, rows: np.ndarray, q: np.ndarray, p: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return q + p * self.dt, p + u * self.dt
+
+
+def test_a_new_airframe_is_a_class_and_one_registry_line(paper_scenario_path: str,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """What world_sim flies is the airframe the scenario names, through airframes.Airframe alone: registered by
+    name, a class of this test's flies a run whose records hold its truth, its estimates and its power."""
+    monkeypatch.setitem(airframes.AIRFRAMES, 'offset', f'{__name__}:Offset')
+    s = replace(load(paper_scenario_path), vehicle=vehicle.parse({'model': 'offset'}), duration=2.0)
+    assert s.vehicle.model == 'offset' and vehicle.by_name('offset').model == 'offset'
+    r = BatchSimulator(s).run()
+    truth, told = r.trajectory[:, 3:6], r.trajectory[:, 12:15]
+    assert np.allclose(told - truth, [2.0, 0.0, 0.0]), 'the world records what its receiver reads beside the truth'
+    assert np.allclose(records.vehicle_column(r.metrics, 'power'), 100.0)
+    with pytest.raises(ValueError, match='vehicle.model: must be one of ideal, multirotor, offset'):
+        vehicle.parse({'model': 'x'})
+
+
+@pytest.mark.parametrize('model', sorted(airframes.AIRFRAMES))
+def test_each_shipped_airframe_is_what_its_name_starts(model: str) -> None:
+    frame = airframes.start(vehicle.by_name(model), 3, 0.1, np.random.default_rng(0))
+    assert frame.exact == (model == 'ideal')
+    q, p, rows = np.array([[0.0, 0, 30], [30, 0, 30], [0, 30, 30]]), np.zeros((3, 3)), np.arange(3)
+    q1, p1 = frame.step(rows, q, p, np.tile([1.0, 0.0, 0.0], (3, 1)))
+    assert np.all(p1[:, 0] > 0) and np.all(q1[:, 0] > q[:, 0]), 'it flies the way it is commanded'
+    assert (frame.traffic(q, q, p, FlockParams()) is None) == (model == 'ideal')
 
 
 @pytest.fixture(scope='module')
@@ -116,7 +169,7 @@ def test_the_release_keeps_maps_apart_and_within_v_max() -> None:
 
 def test_the_autopilot_follows_a_command_with_its_lag() -> None:
     v = replace(vehicle.MULTIROTOR, wind=vehicle.Wind(0.0, 0.0, 0.0, 5.0), gnss=vehicle.Gnss(0.0, 60.0, 0.0))
-    f = vehicle.Flight(v, 1, 0.1, np.random.default_rng(0))
+    f = Multirotor(v, 1, 0.1, np.random.default_rng(0))
     q, p = np.zeros((1, 3)), np.zeros((1, 3))
     rows = np.array([0])
     speeds = []
@@ -134,7 +187,7 @@ def test_gnss_error_and_gusts_have_their_sigma_and_correlation() -> None:
     v = replace(vehicle.MULTIROTOR, gnss=vehicle.Gnss(sigma=2.0, time=10.0, own=1.2),
                 wind=vehicle.Wind(speed=0.0, gust=1.5, gust_time=5.0))
     n, steps, dt = 400, 600, 0.1
-    f = vehicle.Flight(v, n, dt, np.random.default_rng(3))
+    f = Multirotor(v, n, dt, np.random.default_rng(3))
     own, gust = [], []
     rows, zero = np.arange(n), np.zeros((n, 3))
     for _ in range(steps):
@@ -243,7 +296,7 @@ def closest_pass(speed: float, lateral: float) -> float:
     from uav_agent.core.params import FlockParams
     v = replace(vehicle.MULTIROTOR, wind=vehicle.Wind(0.0, 0.0, 0.0, 5.0), gnss=vehicle.Gnss(0.0, 60.0, 0.0))
     fp = replace(FlockParams(), v_max=v.v_max, a_max=v.a_max, tau=v.tau, keep=v.envelope()['keep'])
-    f = vehicle.Flight(v, 2, 0.1, np.random.default_rng(0))
+    f = Multirotor(v, 2, 0.1, np.random.default_rng(0))
     q = np.array([[0.0, 0.0, 20.0], [24.0, lateral, 20.0]])
     p = np.array([[speed, 0.0, 0.0], [-speed, 0.0, 0.0]])
     owner, other = np.array([0, 1]), np.array([1, 0])
@@ -299,7 +352,7 @@ def test_a_traffic_receiver_keeps_two_maps_at_full_speed_apart(traffic: bool) ->
     v = replace(vehicle.MULTIROTOR, wind=vehicle.Wind(0.0, 0.0, 0.0, 5.0), gnss=vehicle.Gnss(0.0, 60.0, 0.0),
                 traffic=vehicle.MULTIROTOR.traffic if traffic else 0.0)
     fp = replace(FlockParams(), **v.envelope())
-    f = vehicle.Flight(v, 2, 0.1, np.random.default_rng(0))
+    f = Multirotor(v, 2, 0.1, np.random.default_rng(0))
     q = np.array([[0.0, 0.0, 20.0], [150.0, 0.0, 20.0]])
     p = np.array([[v.v_max, 0.0, 0.0], [-v.v_max, 0.0, 0.0]])
     goal, least = q[::-1].copy(), np.inf  # each bound for where the other set out from

@@ -10,6 +10,7 @@ SUMMARY = 'draw random cluster layouts as scenario files, with the MAP floor of 
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from world_sim.core.airframes import AIRFRAMES
     p.add_argument('--count', type=positive_int, default=10, help='layouts to draw (default: 10)')
     p.add_argument('--clusters', type=count_range, default=(3, 6), help='clusters per layout, N or LOW-HIGH '
                                                                           '(default: 3-6)')
@@ -19,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--duration', type=positive_float, default=90.0, help='simulated time in s (default: 90)')
     p.add_argument('--scenario', default='paper', help='scenario the layouts take everything else from '
                                                        '(default: paper; its policies are left out)')
-    p.add_argument('--vehicle', choices=('ideal', 'multirotor'), default='multirotor',
+    p.add_argument('--vehicle', choices=tuple(AIRFRAMES), default='multirotor',
                    help='what the layouts fly (docs/vehicle.md; default: multirotor, the shipped profile; ideal: '
                         "the paper's double integrator)")
     p.add_argument('--out', help='a new folder for the scenario files (default: runs/layouts-<time>)')

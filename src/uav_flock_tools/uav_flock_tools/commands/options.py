@@ -231,7 +231,8 @@ def add_scenario_options(p: argparse.ArgumentParser, grid: bool, failures: bool 
         p.add_argument('--maps', type=positive_int, help='MAP count, e.g. 90 (default: scenario)')
         p.add_argument('--seed', type=non_negative_int, help='seed, e.g. 3 (default: scenario)')
     p.add_argument('--duration', type=positive_float, help='simulated time in s (default: scenario)')
-    p.add_argument('--vehicle', choices=('ideal', 'multirotor'), default=vehicle,
+    from world_sim.core.airframes import AIRFRAMES
+    p.add_argument('--vehicle', choices=tuple(AIRFRAMES), default=vehicle,
                    help="what the MAPs fly: the paper's unbounded double integrator, or the shipped multirotor "
                         f"(docs/vehicle.md; default: {vehicle or 'the scenario' + chr(39) + 's own'})")
     if failures:

@@ -10,7 +10,7 @@ import numpy as np
 from uav_agent.core.clusters import NO_GOAL, ClusterMap
 from uav_agent.core.safety import HELD, RELAXED
 
-from . import physics, vehicle
+from . import airframes, physics
 from .records import Motion, metrics_columns
 from .crowd import Crowd
 from .hearing import LINK_COLUMNS, Hearing
@@ -86,12 +86,10 @@ class World:
         self._placed = -1
         self._motion: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
         self.q, self.p = physics.release(scenario, rng['release'])
-        craft = scenario.vehicle
-        self.flight = None if craft.ideal else vehicle.Flight(craft, scenario.maps, scenario.dt, rng['vehicle'])
-        if self.flight is not None:
-            self.q, self.p = vehicle.release(self.q, self.p, craft, scenario.release_center,
-                                             scenario.release_half_width, rng['vehicle'])
-        self.energy = 0.0  # J the formation has drawn so far (a multirotor's, vehicle.power)
+        self.flight = airframes.start(scenario.vehicle, scenario.maps, scenario.dt, rng['vehicle'])
+        self.q, self.p = self.flight.release(self.q, self.p, scenario.release_center, scenario.release_half_width,
+                                             rng['vehicle'])
+        self.energy = 0.0  # J the formation has drawn so far (an airframe that is not exact: Airframe.power)
         self.ids = np.arange(scenario.maps, dtype=np.intp)
         self.alive = np.ones(scenario.maps, dtype=bool)
         self.goal = np.full(scenario.maps, NO_GOAL, dtype=np.intp)  # each MAP's goal after its last step
@@ -173,11 +171,11 @@ class World:
         rows = self.ids[self.alive]
         q, p = self.q[rows], self.p[rows]
         assoc = physics.associate(self.users, q, fp.r, self.scenario.association)
-        told = q if self.flight is None else self.flight.estimate(rows, q)
+        told = self.flight.estimate(rows, q)
         return Sensed(self.k, rows, told, p, physics.user_counts(assoc, len(rows)),
                       physics.cluster_coverage(self.users, assoc), physics.neighbour_pairs(q, fp.r),
-                      physics.coverage_ratio(assoc), assoc=assoc, truth=None if self.flight is None else q,
-                      traffic=None if self.flight is None else vehicle.traffic(q, told, p, self.flight.v, fp))
+                      physics.coverage_ratio(assoc), assoc=assoc, truth=None if self.flight.exact else q,
+                      traffic=self.flight.traffic(q, told, p, fp))
 
     def advance(self, sensed: Sensed, u: np.ndarray, modes: np.ndarray, goals: np.ndarray,
                 integrate: bool = True, flags: Optional[np.ndarray] = None) -> np.ndarray:
@@ -197,7 +195,7 @@ class World:
             row = np.r_[row, self.hearing.row(self.k, rows, sensed.q, sensed.pairs)]
         q = sensed.q if sensed.truth is None else sensed.truth
         traj = [np.full(len(rows), self.k), np.full(len(rows), t), rows, q, sensed.p, modes, goals, sensed.n_users]
-        if self.flight is not None:  # a multirotor's (records.VEHICLE_COLUMNS, ESTIMATE_COLUMNS)
+        if not self.flight.exact:  # a multirotor's (records.VEHICLE_COLUMNS, ESTIMATE_COLUMNS)
             watts = self.flight.power(rows, sensed.p)
             did = np.zeros(len(rows), dtype=np.uint8) if flags is None else np.asarray(flags, dtype=np.uint8)
             row = np.r_[row, physics.least_distance(q, sensed.pairs), watts.mean() if len(rows) else 0.0, self.energy,
@@ -207,10 +205,7 @@ class World:
         self._metrics.append(row)
         self._traj.append(np.column_stack(traj))
         if integrate:
-            if self.flight is not None:
-                self.q[rows], self.p[rows] = self.flight.step(rows, q, sensed.p, u)
-            else:
-                self.q[rows], self.p[rows] = physics.integrate(sensed.q, sensed.p, u, self.scenario.dt)
+            self.q[rows], self.p[rows] = self.flight.step(rows, q, sensed.p, u)
             if self.crowd is not None:
                 self.crowd.walk()
             self.k += 1
@@ -218,7 +213,7 @@ class World:
 
     def result(self) -> RunResult:
         columns = metrics_columns(self.scenario)
-        width = 12 + (3 if self.flight is not None else 0)  # trajectory: TRAJECTORY_COLUMNS, ESTIMATE_COLUMNS
+        width = 12 + (0 if self.flight.exact else 3)  # trajectory: TRAJECTORY_COLUMNS, ESTIMATE_COLUMNS
         traj = np.concatenate(self._traj) if self._traj else np.zeros((0, width))
         motion = None
         if self._motion:

@@ -6,7 +6,7 @@ the MAP is told, and the power it draws (Zeng, Xu and Zhang 2019).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -18,11 +18,9 @@ from uav_agent.core.checks import number
 from uav_agent.core.envelope import braking_room, lengths, saturate
 from uav_agent.core.params import FlockParams
 
+from .airframes import AIRFRAMES
+
 F64 = NDArray[np.float64]
-MODELS = ('ideal', 'multirotor')
-# Horizontal drag per unit mass (1/s) through which a gust, the wind less the mean the autopilot's integrator
-# holds off, pushes the airframe: the linear drag of a 1-2 kg quadrotor (docs/vehicle.md).
-DRAG = 0.3
 GNSS_MARGIN = 3.0  # sigma of the difference of two MAPs' own GNSS errors that a MAP keeps beyond separation ...
 KEEP_SLACK = 1.0   # ... and this much more (m): what a step and the lag let a braking pair close further
 
@@ -106,10 +104,11 @@ MULTIROTOR = Vehicle()
 
 
 def by_name(model: str) -> Vehicle:
-    """The vehicle a model's name stands for on a command line: the ideal one, or the shipped profile."""
-    if model not in MODELS:
-        raise ValueError(f'vehicle: must be one of {", ".join(MODELS)}, got {model!r}')
-    return IDEAL if model == 'ideal' else MULTIROTOR
+    """The vehicle a model's name stands for on a command line: the ideal one, or the shipped profile flown on
+    that airframe."""
+    if model not in AIRFRAMES:
+        raise ValueError(f'vehicle: must be one of {", ".join(AIRFRAMES)}, got {model!r}')
+    return IDEAL if model == 'ideal' else MULTIROTOR if model == 'multirotor' else replace(MULTIROTOR, model=model)
 
 
 def parse(doc: Any, where: str = 'vehicle') -> Vehicle:
@@ -119,8 +118,8 @@ def parse(doc: Any, where: str = 'vehicle') -> Vehicle:
     if not isinstance(doc, dict):
         raise ValueError(f'{where}: expected a mapping')
     model = doc.get('model', 'multirotor')
-    if model not in MODELS:
-        raise ValueError(f'{where}.model: must be one of {", ".join(MODELS)}, got {model!r}')
+    if model not in AIRFRAMES:
+        raise ValueError(f'{where}.model: must be one of {", ".join(AIRFRAMES)}, got {model!r}')
     if model == 'ideal':
         refuse_unknown(doc, {'model'}, f'{where}.')
         return IDEAL
@@ -249,79 +248,6 @@ def roomy(maps: int, half_width: float, apart: float) -> float:
     return max(half_width, need)
 
 
-class Flight:
-    """A multirotor's state beyond q and p, for every MAP of a run: the acceleration its autopilot delivers,
-    its gust and its GNSS error. Each step draws for every MAP, flying or not, from the run's vehicle stream,
-    so a lost MAP never moves another's draws."""
-
-    def __init__(self, v: Vehicle, n: int, dt: float, rng: np.random.Generator) -> None:
-        self.v, self.dt, self.rng = v, dt, rng
-        self.lagged = np.zeros((n, 3))
-        self.gust = _stationary(rng, v.wind.gust, n)
-        self.shared_sigma = math.sqrt(max(v.gnss.sigma ** 2 - v.gnss.own ** 2, 0.0))
-        self.shared = _stationary(rng, self.shared_sigma, 1)  # one error every MAP's receiver has
-        self.own = _stationary(rng, v.gnss.own, n)
-        angle = math.radians(v.wind.direction)
-        self.mean_wind = v.wind.speed * np.array([math.cos(angle), math.sin(angle)])
-
-    def estimate(self, rows: NDArray[np.intp], q: F64) -> F64:
-        """Where the MAPs of these rows believe they are: the truth plus their GNSS error (horizontal)."""
-        out = q.copy()
-        out[:, :2] += self.shared + _of(self.own, rows)
-        return out
-
-    def power(self, rows: NDArray[np.intp], p: F64) -> F64:
-        """Each MAP's propulsion power (W) at its speed through the air: its ground velocity less the wind where
-        it is (power, from the airspeed's square)."""
-        air = p[:, :2] - self.mean_wind - _of(self.gust, rows)
-        return _eq12((air * air).sum(axis=1))
-
-    def step(self, rows: NDArray[np.intp], q: F64, p: F64, u: F64) -> tuple[F64, F64]:
-        """q and p one step on: the command u (m/s^2) followed with lag tau within a_max, the gust's drag
-        added and the sum held within a_max, the speed within v_max; held over the step as physics.integrate
-        holds u. Then every MAP's gust and GNSS error move on."""
-        v, dt = self.v, self.dt
-        follow = 1.0 - math.exp(-dt / v.tau) if v.tau > 0 else 1.0
-        lagged = _of(self.lagged, rows)
-        lagged += (saturate(u, v.a_max) - lagged) * follow
-        if lagged is not self.lagged:
-            self.lagged[rows] = lagged
-        a = lagged.copy()
-        a[:, :2] += DRAG * _of(self.gust, rows)
-        a = saturate(a, v.a_max)
-        p_next = saturate(p + a * dt, v.v_max)  # a projection: the step's acceleration only shrinks
-        a = (p_next - p) / dt
-        self.gust, self.shared, self.own = _markov(self.rng, dt, (self.gust, v.wind.gust, v.wind.gust_time),
-                                                   (self.shared, self.shared_sigma, v.gnss.time),
-                                                   (self.own, v.gnss.own, v.gnss.time))
-        return q + p * dt + 0.5 * a * dt * dt, p_next
-
-
-def _of(x: F64, rows: NDArray[np.intp]) -> F64:
-    """x's rows of these MAPs (sorted ids of those still flying): x itself while every MAP flies, not a copy."""
-    return x if len(rows) == len(x) else x[rows]
-
-
-def _stationary(rng: np.random.Generator, sigma: float, n: int) -> F64:
-    return rng.normal(0.0, sigma, size=(n, 2)) if sigma > 0 else np.zeros((n, 2))
-
-
-def _markov(rng: np.random.Generator, dt: float, *processes: tuple[F64, float, float]) -> list[F64]:
-    """First-order Gauss-Markov processes (x, stationary sigma, correlation time), each one step on (exact). Their
-    draws in one call, as many and in the order separate calls would draw them."""
-    size = sum(x.size for x, sigma, _ in processes if sigma > 0)
-    drawn = rng.normal(size=size) if size else np.zeros(0)  # none drawn where none was: a calm, exact receiver
-    out, at = [], 0
-    for x, sigma, time in processes:
-        if sigma <= 0:
-            out.append(x)
-            continue
-        keep = math.exp(-dt / time)
-        out.append(keep * x + sigma * math.sqrt(1.0 - keep * keep) * drawn[at:at + x.size].reshape(x.shape))
-        at += x.size
-    return out
-
-
 # Zeng, Xu and Zhang (IEEE TWC 2019), eq. 12 with their Table I: blade profile and induced power in hover (W), the
 # rotor's tip speed (m/s), the mean induced velocity in hover (m/s), fuselage drag ratio, air density (kg/m^3),
 # rotor solidity and disc area (m^2).
@@ -331,10 +257,10 @@ P0, PI, U_TIP, V0, D0, RHO, SOLIDITY, AREA = 79.86, 88.63, 120.0, 4.03, 0.6, 1.2
 def power(airspeed: F64) -> F64:
     """Propulsion power (W) of a rotary-wing UAV in level flight at this airspeed (m/s): eq. 12 of Zeng et al."""
     v = np.asarray(airspeed, dtype=float)
-    return _eq12(v * v)
+    return power_from_square(v * v)
 
 
-def _eq12(v2: F64) -> F64:
+def power_from_square(v2: F64) -> F64:
     """Eq. 12 of Zeng et al. from the airspeed's square (m^2/s^2): blade profile, induced and parasite power."""
     blade = P0 + (3.0 * P0 / U_TIP ** 2) * v2
     induced = PI * np.sqrt(np.sqrt(1.0 + v2 * v2 * (1.0 / (4.0 * V0 ** 4))) - v2 * (1.0 / (2.0 * V0 ** 2)))
