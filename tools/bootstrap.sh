@@ -10,7 +10,18 @@ VENV="$ROOT/.venv"
 WS="$ROOT/ros2_ws"
 REQ="$ROOT/requirements"
 QUIET="${UAV_FLOCK_QUIET:-0}"  # 1: no progress lines (errors still print)
-[ "${1:-}" = "--quiet" ] && QUIET=1
+EXTRAS=()  # --with NAME: requirements/NAME.txt too (an airframe's extra, docs/vehicle.md)
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --quiet) QUIET=1 ;;
+    --with)
+      [ $# -ge 2 ] && [ -f "$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)/requirements/$2.txt" ] \
+        || { printf 'uav-flock: error: bootstrap: --with takes an extra: x500\n' >&2; exit 2; }
+      EXTRAS+=("$2"); shift ;;
+    *) printf 'uav-flock: error: bootstrap: unknown option %s (--with x500, --quiet)\n' "$1" >&2; exit 2 ;;
+  esac
+  shift
+done
 START=$SECONDS
 DID=0  # a stage ran: say how long the set-up took
 
@@ -114,6 +125,18 @@ fi
 # ---------------------------------------------------------------- stage 2: colcon build
 # What colcon builds from: every file's contents but a package's Python modules, which --symlink-install serves
 # from src/ as they are (the package folder is a link), so an edit needs no build; their names still count.
+for extra in "${EXTRAS[@]}"; do
+  EXTRA_KEY="$(cat "$VENV_STAMP" "$REQ/$extra.txt" | sha)"
+  EXTRA_STAMP="$VENV/.uav-flock-$extra-stamp"
+  if [ ! -f "$EXTRA_STAMP" ] || [ "$(cat "$EXTRA_STAMP")" != "$EXTRA_KEY" ]; then
+    say "installing the $extra extra into .venv, about half a minute (log: .venv/pip.log)"
+    "$VENV/bin/python" -m pip install --disable-pip-version-check -r "$REQ/$extra.txt" -c "$REQ/constraints.txt" >>"$VENV/pip.log" 2>&1 \
+      || die "the $extra extra failed to install (see .venv/pip.log, last line: $(tail -n 1 "$VENV/pip.log")); check access to PyPI and run again"
+    echo "$EXTRA_KEY" >"$EXTRA_STAMP"
+    DID=1
+  fi
+done
+
 ws_inputs() {
   echo "$VENV_KEY"
   (cd "$ROOT" && find -L ros2_ws/src -type f ! -path '*/__pycache__/*' ! -name '*.pyc' \( ! -name '*.py' -o -name setup.py \) -print0 \

@@ -85,12 +85,13 @@ def test_a_new_airframe_is_a_class_and_one_registry_line(paper_scenario_path: st
     truth, told = r.trajectory[:, 3:6], r.trajectory[:, 12:15]
     assert np.allclose(told - truth, [2.0, 0.0, 0.0]), 'the world records what its receiver reads beside the truth'
     assert np.allclose(records.vehicle_column(r.metrics, 'power'), 100.0)
-    with pytest.raises(ValueError, match='vehicle.model: must be one of ideal, multirotor, offset'):
+    with pytest.raises(ValueError, match='vehicle.model: must be one of ideal, multirotor, .*offset'):
         vehicle.parse({'model': 'x'})
 
 
-@pytest.mark.parametrize('model', sorted(airframes.AIRFRAMES))
+@pytest.mark.parametrize('model', [m for m in sorted(airframes.AIRFRAMES) if not airframes.environment(m)])
 def test_each_shipped_airframe_is_what_its_name_starts(model: str) -> None:
+    """Those that fly in any process (the x500 needs one of its own: test_x500.py)."""
     frame = airframes.start(vehicle.by_name(model), 3, 0.1, np.random.default_rng(0))
     assert frame.exact == (model == 'ideal')
     q, p, rows = np.array([[0.0, 0, 30], [30, 0, 30], [0, 30, 30]]), np.zeros((3, 3)), np.arange(3)

@@ -1,6 +1,8 @@
 """Figures of a run: coverage and Fiedler over time, mode counts, formation snapshots and animation."""
 from __future__ import annotations
 
+import os
+import sys
 from pathlib import Path
 from typing import Callable, Sequence, Union
 
@@ -367,14 +369,12 @@ class Meanwhile:
     """A drawing done by a forked child while this process goes on: two cores draw two pictures at once.
 
     The child shares what this process holds at the fork (no pickling) and leaves by os._exit, as
-    multiprocessing's children do, so it tears nothing of ours down. Ctrl-C is this process's to act on.
-    """
+    multiprocessing's children do, so it tears nothing of ours down. Ctrl-C is this process's to act on."""
 
     def __init__(self, draw: Callable[[], object]) -> None:
         import multiprocessing
-        import os
         self.child = None
-        if (os.cpu_count() or 1) < 2:
+        if (os.cpu_count() or 1) < 2 or 'jax' in sys.modules:  # JAX's threads (airframe x500) are not forked
             draw()
             return
         self.child = multiprocessing.get_context('fork').Process(target=_quietly, args=(draw,), daemon=True)

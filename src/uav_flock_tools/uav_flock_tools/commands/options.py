@@ -272,6 +272,23 @@ def check_run_options(cmd: str, base: 'Scenario', args: argparse.Namespace) -> N
         raise UsageError(f'{cmd}: --fail-at {args.fail_at:g} s is not before the end of the run ({duration:g} s)')
 
 
+def own_process(cmd: str, base: 'Scenario') -> None:
+    """An airframe that needs its process set up before anything is imported (airframes.environment) flies in
+    this command started again with it set, as the same process id; one that needs a package not installed is a
+    one-line mistake."""
+    import os
+    from world_sim.core import airframes
+    model = base.vehicle.model
+    if (why := airframes.missing(model)) is not None:
+        raise UsageError(f'{cmd}: {why}')
+    need = airframes.environment(model)
+    if all(os.environ.get(k) == v for k, v in need.items()):
+        return
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execve(sys.executable, [sys.executable, *sys.orig_argv[1:]], {**os.environ, **need})
+
+
 def _free_memory() -> int:
     import psutil
     return int(psutil.virtual_memory().available)

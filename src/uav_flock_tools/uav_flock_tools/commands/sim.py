@@ -5,8 +5,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from .options import (EXIT_INTERRUPTED, add_scenario_options, check_run_options, default_out, floor_note, progress_bar,
-                      run_folder)
+from .options import (EXIT_INTERRUPTED, add_scenario_options, check_run_options, default_out, floor_note, own_process,
+                      progress_bar, run_folder)
 
 SUMMARY = 'run a scenario in-process for one or more MAP counts and seeds'
 
@@ -28,6 +28,7 @@ def handle(args: argparse.Namespace) -> int:
     cmd = args.command
     base = simrun.load_scenario(args.scenario).with_overrides(vehicle=args.vehicle)
     check_run_options(cmd, base, args)
+    own_process(cmd, base)
     maps = args.maps or [base.maps]
     seeds = args.seed or [base.seed]
     out = run_folder(Path(args.out) if args.out else default_out(cmd), f'{cmd}: --out', args.replace)

@@ -18,6 +18,7 @@ from uav_agent.core.checks import number
 from uav_agent.core.envelope import braking_room, lengths, saturate
 from uav_agent.core.params import FlockParams
 
+from . import airframes
 from .airframes import AIRFRAMES
 
 F64 = NDArray[np.float64]
@@ -85,7 +86,7 @@ class Vehicle:
         w, g = self.wind, self.gnss
         cruise = f', cruising at {self.envelope()["v_max"]:g}' if self.cruise else ''
         hears = f'traffic within {self.traffic:g} m' if self.traffic else 'no traffic receiver'
-        return (f'multirotor: {self.v_max:g} m/s{cruise}, {self.a_max:g} m/s^2, lag {self.tau:g} s, keeps '
+        return (f'{self.model}: {self.v_max:g} m/s{cruise}, {self.a_max:g} m/s^2, lag {self.tau:g} s, keeps '
                 f'{self.envelope()["keep"]:.1f} m (separation {self.separation:g} m, {hears}); wind {w.speed:g} m/s towards '
                 f'{w.direction:g} deg, gusts {w.gust:g} m/s over {w.gust_time:g} s; GNSS error {g.sigma:g} m '
                 f'({g.own:g} m its own) over {g.time:g} s')
@@ -108,7 +109,9 @@ def by_name(model: str) -> Vehicle:
     that airframe."""
     if model not in AIRFRAMES:
         raise ValueError(f'vehicle: must be one of {", ".join(AIRFRAMES)}, got {model!r}')
-    return IDEAL if model == 'ideal' else MULTIROTOR if model == 'multirotor' else replace(MULTIROTOR, model=model)
+    if model in ('ideal', 'multirotor'):
+        return IDEAL if model == 'ideal' else MULTIROTOR
+    return replace(MULTIROTOR, model=model, **airframes.profile(model))
 
 
 def parse(doc: Any, where: str = 'vehicle') -> Vehicle:
@@ -124,7 +127,7 @@ def parse(doc: Any, where: str = 'vehicle') -> Vehicle:
         refuse_unknown(doc, {'model'}, f'{where}.')
         return IDEAL
     refuse_unknown(doc, {f.name for f in fields(Vehicle)}, f'{where}.')
-    values: dict[str, Any] = {'model': model}
+    values: dict[str, Any] = {'model': model, **({} if model == 'multirotor' else airframes.profile(model))}
     for name, low_open in (('v_max', True), ('a_max', True), ('tau', False), ('separation', False), ('cruise', False),
                            ('traffic', False)):
         if name in doc:

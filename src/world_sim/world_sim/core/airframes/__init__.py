@@ -7,6 +7,7 @@ brings with it (a physics engine, its settings) never reaches a process that doe
 from __future__ import annotations
 
 from importlib import import_module
+from importlib.util import find_spec
 from typing import TYPE_CHECKING, Optional, Protocol
 
 import numpy as np
@@ -20,7 +21,8 @@ if TYPE_CHECKING:
 F64 = NDArray[np.float64]
 
 # name: the module that holds it, and its class
-AIRFRAMES = {'ideal': f'{__name__}.ideal:Ideal', 'multirotor': f'{__name__}.multirotor:Multirotor'}
+AIRFRAMES = {'ideal': f'{__name__}.ideal:Ideal', 'multirotor': f'{__name__}.multirotor:Multirotor',
+             'x500': f'{__name__}.x500:X500'}
 
 
 class Airframe(Protocol):
@@ -49,7 +51,33 @@ class Airframe(Protocol):
         """q and p (truth) one step on under the commanded accelerations u."""
 
 
+def _class(model: str) -> type:
+    module, name = AIRFRAMES[model].split(':')
+    return getattr(import_module(module), name)
+
+
 def start(v: Vehicle, n: int, dt: float, rng: np.random.Generator) -> Airframe:
     """The airframe v names, for n MAPs stepped every dt s, drawing from the run's vehicle stream."""
-    module, name = AIRFRAMES[v.model].split(':')
-    return getattr(import_module(module), name)(v, n, dt, rng)
+    return _class(v.model)(v, n, dt, rng)
+
+
+# What an airframe class may say of itself beyond Airframe, each read without building it:
+# PROFILE, the values of its `vehicle:` profile measured on it (vehicle.Vehicle's fields; the rest the shipped
+# multirotor's); ENVIRONMENT, what its process must have set before anything is imported; NEEDS, the module it
+# flies on, and INSTALL, how to install it.
+def profile(model: str) -> dict[str, float]:
+    return dict(getattr(_class(model), 'PROFILE', {}))
+
+
+def environment(model: str) -> dict[str, str]:
+    return dict(getattr(_class(model), 'ENVIRONMENT', {}))
+
+
+def missing(model: str) -> Optional[str]:
+    """One line that says what to install to fly `model`, or None when nothing is missing."""
+    cls = _class(model)
+    needs = getattr(cls, 'NEEDS', None)
+    if needs is None or find_spec(needs) is not None:
+        return None
+    install = getattr(cls, 'INSTALL', f'pip install {needs}')
+    return f'vehicle {model} flies on {needs}, which is not installed here: {install}'

@@ -73,10 +73,15 @@ class Multirotor:
         a = saturate(a, v.a_max)
         p_next = saturate(p + a * dt, v.v_max)  # a projection: the step's acceleration only shrinks
         a = (p_next - p) / dt
-        self.gust, self.shared, self.own = _markov(self.rng, dt, (self.gust, v.wind.gust, v.wind.gust_time),
+        self.drift()
+        return q + p * dt + 0.5 * a * dt * dt, p_next
+
+    def drift(self) -> None:
+        """Every MAP's gust and GNSS error one step on."""
+        v = self.v
+        self.gust, self.shared, self.own = _markov(self.rng, self.dt, (self.gust, v.wind.gust, v.wind.gust_time),
                                                    (self.shared, self.shared_sigma, v.gnss.time),
                                                    (self.own, v.gnss.own, v.gnss.time))
-        return q + p * dt + 0.5 * a * dt * dt, p_next
 
 
 def _of(x: F64, rows: NDArray[np.intp]) -> F64:
