@@ -18,10 +18,10 @@ pytestmark = pytest.mark.slow  # every test starts a process that builds crazyfl
 NEEDS = 'the x500 extra (crazyflow), which `./uav-flock test` installs: ./uav-flock bootstrap --with x500'
 
 
-def cli(*args: str, code: str = '') -> subprocess.CompletedProcess[str]:
+def cli(*args: str, code: str = '', cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
     """The command line in a process of its own; `code` runs first in it (before the command is parsed)."""
     run = f'{code}\nimport sys\nfrom uav_flock_tools.cli import main\nsys.exit(main({list(args)!r}))'
-    return subprocess.run([sys.executable, '-c', run], capture_output=True, text=True, timeout=600)
+    return subprocess.run([sys.executable, '-c', run], capture_output=True, text=True, timeout=600, cwd=cwd)
 
 
 @pytest.fixture(scope='module')
@@ -29,8 +29,8 @@ def flown(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, subproc
     assert airframes.missing('x500') is None, NEEDS
     out = tmp_path_factory.mktemp('x500')
     args = ('sim', '--scenario', 'drift', '--vehicle', 'x500', '--maps', '24', '--duration', '8')
-    first = cli(*args, '--out', str(out / 'a'))
-    again = cli(*args, '--out', str(out / 'b'))
+    first = cli(*args, '--out', str(out / 'a'), cwd=out)
+    again = cli(*args, '--out', str(out / 'b'), cwd=out)
     assert first.returncode == 0 and again.returncode == 0, first.stderr[-2000:] + again.stderr[-2000:]
     return out / 'a', out / 'b', first
 
@@ -39,6 +39,8 @@ def test_sim_flies_the_x500_and_names_it_first(flown: tuple) -> None:
     a, _, proc = flown
     assert proc.stdout.splitlines()[0].startswith('vehicle: x500: 15 m/s, 4 m/s^2, lag 0.25 s'), proc.stdout
     assert 'least distance' in proc.stdout and 'Traceback' not in proc.stderr
+    assert len(proc.stdout.splitlines()) == 4, 'the report alone on stdout: ' + proc.stdout
+    assert not (a.parent / 'MUJOCO_LOG.TXT').exists(), 'MuJoCo\'s warnings leave no file where the run started'
     t = read_trajectory(a)
     assert np.all(np.abs(t['z'] - t['z'][0]) < 1.0), 'its altitude hold keeps the formation flat'
     m = read_csv(a / 'metrics.csv')
