@@ -44,18 +44,19 @@ def test_lockstep_equals_the_batch_simulator_over_a_lossy_late_channel(tmp_path:
         'the channel changes the run'
 
 
-@pytest.mark.parametrize('safety', ['rules', 'filter'])
+@pytest.mark.parametrize('model, safety', [('multirotor', 'rules'), ('multirotor', 'filter'), ('x500', 'rules')])
 def test_lockstep_equals_the_batch_simulator_on_a_multirotor(tmp_path: Path, ros_env: dict[str, str],
-                                                            safety: str) -> None:
+                                                            model: str, safety: str) -> None:
     """The world owns the vehicle (lag, limits, gusts, GNSS error): the MAPs decide from the estimate it tells
     them, as the batch simulator's do, to the bit; the records keep the truth and the estimate apart. Under
-    today's rules and under the safety filter, whose QP each MAP's node solves for itself."""
+    today's rules and under the safety filter, whose QP each MAP's node solves for itself; and on crazyflow's
+    X500, whose world node is a process set up for it."""
     drawn = cli('layouts', '--count', '1', '--clusters', '3', '--seed', '4', '--out', str(tmp_path / 'layouts'))
     assert drawn.returncode == 0, drawn.stderr
     doc = yaml.safe_load((tmp_path / 'layouts' / 'layout-000.yaml').read_text())
     # A separation wide enough that the MAPs brake on the broadcasts of their traffic receivers within the 8 s
     # (rule 'traffic': the run differs with it off), which the world tells each MAP in its sensing.
-    doc['vehicle'] = {'model': 'multirotor', 'separation': 15.0, 'wind': {'speed': 6.0, 'gust': 2.0},
+    doc['vehicle'] = {'model': model, 'separation': 15.0, 'wind': {'speed': 6.0, 'gust': 2.0},
                       'gnss': {'sigma': 2.0, 'own': 0.8}}
     doc.setdefault('policies', {})['safety'] = safety
     (tmp_path / 'multirotor.yaml').write_text(yaml.safe_dump(doc))
@@ -72,7 +73,7 @@ def test_lockstep_equals_the_batch_simulator_on_a_multirotor(tmp_path: Path, ros
     assert held > 0 if safety == 'filter' else held == 0, held
     flown = [yaml.safe_load((tmp_path / run / 'scenario.yaml').read_text()) for run in ('up', 'sim')]
     assert flown[0] == flown[1] and flown[0]['policies']['safety'] == safety, 'each folder says what it flew'
-    assert 'vehicle: multirotor: 15 m/s' in distributed.stdout and 'vehicle: multirotor: 15 m/s' in batch.stdout
+    assert f'vehicle: {model}: 15 m/s' in distributed.stdout and f'vehicle: {model}: 15 m/s' in batch.stdout
     flight = [line.split('least distance')[1] for line in distributed.stdout.splitlines() if 'least distance' in line]
     assert flight and flight == [line.split('least distance')[1] for line in batch.stdout.splitlines()
                                  if 'least distance' in line], distributed.stdout + batch.stdout

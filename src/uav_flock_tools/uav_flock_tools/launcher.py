@@ -2,8 +2,7 @@
 
 `up` goes through five stages, top-down: plan (its domain, discovery and processes: `domains`), files,
 start (`spawn`: children that die with their parent, agents forked from a template), supervise, and stop
-(every process ended, `cleanup` of what they left in shared memory), whatever happens on the way.
-"""
+(every process ended, `cleanup` of what they left in shared memory), whatever happens on the way."""
 from __future__ import annotations
 
 import json
@@ -18,6 +17,7 @@ from typing import Optional
 
 from uav_agent.core.links import describe
 from uav_flock_ros.processes import CRASH_DIR, LINKS_LOG_DIR, TEARDOWN_SIGNAL, write_params
+from world_sim.core import airframes
 from world_sim.core.scenario import Scenario
 
 from . import bag, secure, viewer
@@ -107,8 +107,7 @@ class Run:
     """Stages 2 to 5 of `up`: write the run's files, start its processes, supervise, stop them all.
 
     A Ctrl-C (or SIGTERM) while a process is being started waits until that process is in hand, so that
-    nothing escapes the stop; at any other time it ends supervision at once.
-    """
+    nothing escapes the stop; at any other time it ends supervision at once."""
 
     def __init__(self, p: Plan) -> None:
         self.p = p
@@ -212,7 +211,8 @@ class Run:
         world_args += ['-p', f'fail_at:={float(s.fail_at)}', '-p', f'fail_fraction:={float(s.fail_fraction)}'] \
             if s.fail_at is not None else []
         world_args += ['-p', f'run_info:={p.run / "join.json"}'] if p.remote else []
-        self.world = subprocess.Popen(world_args, env=p.env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        world_env = {**p.env, **airframes.environment(s.vehicle.model)}  # what its airframe's process needs
+        self.world = subprocess.Popen(world_args, env=world_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                       text=True, start_new_session=True, preexec_fn=dies_with_parent(signal.SIGINT))
         self.world_log = relay_log(self.world.stderr, p.logs / 'world.log')  # type: ignore[arg-type]
         self.info['world_pid'] = self.world.pid  # for run_has_ended

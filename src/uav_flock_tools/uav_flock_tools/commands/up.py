@@ -46,6 +46,8 @@ def handle(args: argparse.Namespace) -> int:
     """world_sim and the MAPs' agent processes (K MAPs a process), in lockstep or in real time."""
     from world_sim.shipped import resolve
 
+    from world_sim.core import airframes
+
     from .. import domains, launcher, provenance, simrun
     cmd = args.command
     path = resolve(args.scenario)
@@ -53,6 +55,8 @@ def handle(args: argparse.Namespace) -> int:
     check_run_options(cmd, base, args)
     s = base.with_overrides(maps=args.maps, seed=args.seed, duration=args.duration, fail_at=args.fail_at,
                             fail_fraction=args.fail_fraction, vehicle=args.vehicle)
+    if (why := airframes.missing(s.vehicle.model)) is not None:
+        raise UsageError(f'{cmd}: {why}')
     if args.rate != 1.0 and args.sync != 'realtime':
         raise UsageError(f'{cmd}: --rate sets the pace of --sync realtime; lockstep runs as fast as it can')
     if args.listen is not None:
