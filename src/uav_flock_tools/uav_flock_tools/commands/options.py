@@ -9,7 +9,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NoReturn, Optional
+from typing import TYPE_CHECKING, Any, Iterable, NoReturn, Optional
 
 if TYPE_CHECKING:
     from world_sim.core.scenario import Scenario
@@ -272,16 +272,17 @@ def check_run_options(cmd: str, base: 'Scenario', args: argparse.Namespace) -> N
         raise UsageError(f'{cmd}: --fail-at {args.fail_at:g} s is not before the end of the run ({duration:g} s)')
 
 
-def own_process(cmd: str, base: 'Scenario') -> None:
-    """An airframe that needs its process set up before anything is imported (airframes.environment) flies in
-    this command started again with it set, as the same process id; one that needs a package not installed is a
-    one-line mistake."""
+def own_process(cmd: str, models: Iterable[str]) -> None:
+    """Airframes that need their process set up before anything is imported (airframes.environment) fly in this
+    command started again with it set, as the same process id (a study's local workers, its children, inherit
+    it); one that needs a package not installed is a one-line mistake."""
     import os
     from world_sim.core import airframes
-    model = base.vehicle.model
-    if (why := airframes.missing(model)) is not None:
-        raise UsageError(f'{cmd}: {why}')
-    need = airframes.environment(model)
+    need: dict[str, str] = {}
+    for model in sorted(set(models)):
+        if (why := airframes.missing(model)) is not None:
+            raise UsageError(f'{cmd}: {why}')
+        need.update(airframes.environment(model))
     if all(os.environ.get(k) == v for k, v in need.items()):
         return
     sys.stdout.flush()

@@ -28,7 +28,7 @@ def handle(args: argparse.Namespace) -> int:
     cmd = args.command
     base = simrun.load_scenario(args.scenario).with_overrides(vehicle=args.vehicle)
     check_run_options(cmd, base, args)
-    own_process(cmd, base)
+    own_process(cmd, [base.vehicle.model])
     maps = args.maps or [base.maps]
     seeds = args.seed or [base.seed]
     out = run_folder(Path(args.out) if args.out else default_out(cmd), f'{cmd}: --out', args.replace)

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .options import EXIT_INTERRUPTED, UsageError, positive_int
+from .options import EXIT_INTERRUPTED, UsageError, own_process, positive_int
 
 SUMMARY = 'many runs of a grid, on Dask (a local cluster or a scheduler\'s workers), into results.parquet'
 
@@ -51,6 +51,8 @@ def handle(args: argparse.Namespace) -> int:
         raise UsageError(f'study: {args.spec}: {exc}') from None
     if args.scheduler:
         _reach(args.scheduler)
+    else:  # the airframes the variants fly, each set up in the local workers (airframes.environment)
+        own_process('study', [next(r for r in grid if r.variant == v).scenario().vehicle.model for v in spec.variants])
     try:
         engine.claim(args.out, Path(args.spec), {r.key for r in grid})
     except engine.StudyError as exc:
