@@ -57,7 +57,8 @@ def test_an_x500_run_flies_again_to_the_bit(flown: tuple) -> None:
 
 def test_a_step_response_of_the_x500_is_within_its_profile() -> None:
     """A command of a_max along x from hover: the airframe follows it with the lag its profile states (63 % of it
-    within tau and a step), no faster than a_max beyond what its controller adds, and holds its height."""
+    within tau and a step), overshoots it by at most half while its controller catches up with the setpoints
+    (docs/vehicle.md, "The X500"), then delivers it, and holds its height."""
     assert airframes.missing('x500') is None, NEEDS
     code = '''
 import numpy as np
@@ -81,7 +82,8 @@ print(repr(out))
     tau, a_max = vehicle.by_name('x500').tau, vehicle.by_name('x500').a_max
     first = int(np.argmax(accel >= 0.63 * a_max))
     assert accel[first] >= 0.63 * a_max and (first + 1) * 0.1 <= tau + 0.1 + 1e-9, accel[:6]
-    assert accel.max() <= 1.1 * a_max and speed[-1] > 0.6 * a_max * 4.0, (accel.max(), speed[-1])
+    assert accel.max() <= 1.5 * a_max, accel.max()
+    assert abs(accel[10:30].mean() - a_max) < 0.1 * a_max, accel[10:30]
     assert np.all(np.abs(z - 20.0) < 0.5), z.min()
 
 

@@ -1,10 +1,12 @@
 """A multirotor no one here modelled (`vehicle: {model: x500}`, docs/vehicle.md): crazyflow's Holybro X500
 (`hb_x500`, its fitted attitude dynamics with rotor drag) flown by crazyflow's Mellinger position controller.
 
-Each step the MAP's commanded horizontal acceleration, the velocity it leads to within v_max and the position it
-implies are the controller's setpoints, at the height the MAP was released at: the formation is flat (eq. 9 never
-commands a climb on the first-order multirotor), and the autopilot's altitude hold keeps it so. The airframe's
-state after the step's physics (100 Hz) is the truth. The wind
+Each step the MAP's commanded horizontal acceleration is flown on into the controller's setpoints (the velocity it
+leads to within v_max and the position that implies), from where the setpoints were, but never more than
+LEAD_DISTANCE and LEAD_SPEED ahead of the truth: the controller's own feedback then holds off a steady wind, as
+an autopilot's integrator does, and a command the airframe cannot follow winds up no further. The height is the
+one the MAP was released at: the formation is flat (eq. 9 never commands a climb on the first-order multirotor),
+and the altitude hold keeps it so. The airframe's state after the step's physics (100 Hz) is the truth. The wind
 of the profile pushes it through its drag, and its GNSS error and power are the first-order multirotor's
 (Multirotor's draws, from the same stream). Every MAP is a world of its own: crazyflow builds a thousand worlds
 of one drone in seconds and one world of a thousand drones in a minute, and the MAPs keep their distance
@@ -33,6 +35,7 @@ from .multirotor import DRAG, Multirotor
 
 F64 = NDArray[np.float64]
 PHYSICS_HZ = 100  # crazyflow's physics and its position controller, per second
+LEAD_DISTANCE, LEAD_SPEED = 3.0, 2.0  # m, m/s: how far the setpoints may lead the truth (the autopilot's windup)
 
 
 class X500:
@@ -84,6 +87,8 @@ class X500:
         """The multirotor's release (no two nearer than they keep, none faster than v_max), placed in the worlds."""
         q, p = self.noise.release(q, p, centre, half_width, rng)
         self.altitude = np.array(q[:, 2], dtype=np.float64)  # the height its altitude hold keeps
+        # The horizontal setpoints: the commands flown on from where they led, within LEAD of the truth.
+        self.ref_q, self.ref_p = np.array(q[:, :2], dtype=np.float64), np.array(p[:, :2], dtype=np.float64)
         self._place(q, p)
         return q, p
 
@@ -106,10 +111,14 @@ class X500:
         cmd = np.zeros((self.n, 1, 16))
         cmd[:, 0, 0:3] = pos
         cmd[:, 0, 12] = 1.0  # level, facing +x
-        want = saturate(p[:, :2] + a[:, :2] * dt, v.v_max)
-        cmd[rows, 0, 0:2] = q[:, :2] + 0.5 * (p[:, :2] + want) * dt
+        ref_p = saturate(self.ref_p[rows] + a[:, :2] * dt, v.v_max)
+        ref_q = self.ref_q[rows] + 0.5 * (self.ref_p[rows] + ref_p) * dt
+        ref_p = p[:, :2] + saturate(ref_p - p[:, :2], LEAD_SPEED)  # no further ahead of the truth than LEAD_*
+        ref_q = q[:, :2] + p[:, :2] * dt + saturate(ref_q - q[:, :2] - p[:, :2] * dt, LEAD_DISTANCE)
+        self.ref_q[rows], self.ref_p[rows] = ref_q, ref_p
+        cmd[rows, 0, 0:2] = ref_q
         cmd[rows, 0, 2] = self.altitude[rows]
-        cmd[rows, 0, 3:5] = want
+        cmd[rows, 0, 3:5] = ref_p
         cmd[rows, 0, 6:8] = a[:, :2]
         self.sim.state_control(self.jnp.asarray(cmd))  # a fresh array each step: one changed in place is not safe
         self.sim.step(self.ticks)
