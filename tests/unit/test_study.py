@@ -160,7 +160,7 @@ def test_an_interrupted_study_keeps_its_rows_and_the_next_call_computes_only_the
     ({'layouts': {'count': 1, 'seed': 'x'}}, "layouts.seed: expected a non-negative integer, got 'x'"),
     ({'layouts': {'count': 1, 'clusters': '4-3'}}, "layouts.clusters: expected [LO, HI]"),
     ({'layouts': {'count': 1, 'cluster': 3}}, 'layouts.cluster: unknown key; did you mean clusters?'),
-    ({'layouts': {'count': 1, 'vehicle': 'jet'}}, "layouts.vehicle: must be one of ideal, multirotor, got 'jet'"),
+    ({'layouts': {'count': 1, 'vehicle': 'jet'}}, "layouts.vehicle: must be one of ideal, multirotor, x500, got 'jet'"),
     ({'seeds': 1}, 'layouts: missing: give layouts'),
     ({'layouts': {'count': 1}, 'variants': {'a': {'flock': {'cl': 0.4}}}}, 'flock.cl: unknown key; did you mean c1?'),
     ({'layouts': {'count': 1}, 'kinds': ['drift:fast']}, 'must be a number'),
