@@ -19,7 +19,6 @@ from uav_agent.core.envelope import braking_room, lengths, saturate
 from uav_agent.core.params import FlockParams
 
 from . import airframes
-from .airframes import AIRFRAMES
 
 F64 = NDArray[np.float64]
 GNSS_MARGIN = 3.0  # sigma of the difference of two MAPs' own GNSS errors that a MAP keeps beyond separation ...
@@ -107,11 +106,9 @@ MULTIROTOR = Vehicle()
 def by_name(model: str) -> Vehicle:
     """The vehicle a model's name stands for on a command line: the ideal one, or the shipped profile flown on
     that airframe."""
-    if model not in AIRFRAMES:
-        raise ValueError(f'vehicle: must be one of {", ".join(AIRFRAMES)}, got {model!r}')
-    if model in ('ideal', 'multirotor'):
-        return IDEAL if model == 'ideal' else MULTIROTOR
-    return replace(MULTIROTOR, model=model, **airframes.profile(model))
+    if model not in airframes.AIRFRAMES:
+        raise ValueError(f'vehicle: must be one of {", ".join(airframes.AIRFRAMES)}, got {model!r}')
+    return IDEAL if model == 'ideal' else replace(MULTIROTOR, model=model, **airframes.profile(model))
 
 
 def parse(doc: Any, where: str = 'vehicle') -> Vehicle:
@@ -121,13 +118,13 @@ def parse(doc: Any, where: str = 'vehicle') -> Vehicle:
     if not isinstance(doc, dict):
         raise ValueError(f'{where}: expected a mapping')
     model = doc.get('model', 'multirotor')
-    if model not in AIRFRAMES:
-        raise ValueError(f'{where}.model: must be one of {", ".join(AIRFRAMES)}, got {model!r}')
+    if model not in airframes.AIRFRAMES:
+        raise ValueError(f'{where}.model: must be one of {", ".join(airframes.AIRFRAMES)}, got {model!r}')
     if model == 'ideal':
         refuse_unknown(doc, {'model'}, f'{where}.')
         return IDEAL
     refuse_unknown(doc, {f.name for f in fields(Vehicle)}, f'{where}.')
-    values: dict[str, Any] = {'model': model, **({} if model == 'multirotor' else airframes.profile(model))}
+    values: dict[str, Any] = {'model': model, **airframes.profile(model)}
     for name, low_open in (('v_max', True), ('a_max', True), ('tau', False), ('separation', False), ('cruise', False),
                            ('traffic', False)):
         if name in doc:

@@ -106,7 +106,7 @@ class X500:
         A MAP no longer flying holds where it is."""
         v, dt = self.v, self.dt
         states = self.sim.data.states
-        pos, vel = np.asarray(states.pos, dtype=np.float64)[:, 0, :], np.asarray(states.vel, dtype=np.float64)[:, 0, :]
+        pos = np.asarray(states.pos, dtype=np.float64)[:, 0, :]  # where a MAP no longer flying holds
         a = saturate(np.asarray(u, dtype=np.float64), v.a_max)
         cmd = np.zeros((self.n, 1, 16))
         cmd[:, 0, 0:3] = pos
