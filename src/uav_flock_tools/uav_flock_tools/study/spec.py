@@ -106,7 +106,7 @@ def _cluster_range(value: Any) -> tuple[int, int]:
 
 def _layouts(doc: dict[str, Any]) -> tuple[Scenario, ...]:
     from ..layouts import VEHICLE, draw, policy_sets
-    from world_sim.core.airframes import AIRFRAMES
+    from world_sim.core import airframes
     from ..simrun import load_scenario
     if 'layouts' in doc and 'scenario' in doc:
         raise SpecError('layouts: give either layouts (the random-layout generator) or scenario, not both')
@@ -118,8 +118,10 @@ def _layouts(doc: dict[str, Any]) -> tuple[Scenario, ...]:
     if not isinstance(gen, dict) or 'count' not in gen:
         raise SpecError('layouts: expected {count: N, clusters: [LO, HI], seed: S}')
     refuse_unknown(gen, {'count', 'clusters', 'seed', 'vehicle'}, 'layouts.')  # ScenarioError: load() names the path
-    if gen.get('vehicle', VEHICLE) not in AIRFRAMES:
-        raise SpecError(f'layouts.vehicle: must be one of {", ".join(AIRFRAMES)}, got {gen["vehicle"]!r}')
+    try:
+        airframes.known(gen.get('vehicle', VEHICLE), 'layouts.vehicle')
+    except ValueError as e:
+        raise SpecError(str(e)) from None
     drawn = draw('paper', _whole('layouts.count', gen['count'], 1), _cluster_range(gen.get('clusters', [3, 6])),
                  _whole('layouts.seed', gen.get('seed', 0), 0), gen.get('vehicle', VEHICLE))
     flock = policy_sets(load_scenario('paper'))['default']

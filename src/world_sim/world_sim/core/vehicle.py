@@ -106,8 +106,7 @@ MULTIROTOR = Vehicle()
 def by_name(model: str) -> Vehicle:
     """The vehicle a model's name stands for on a command line: the ideal one, or the shipped profile flown on
     that airframe."""
-    if model not in airframes.AIRFRAMES:
-        raise ValueError(f'vehicle: must be one of {", ".join(airframes.AIRFRAMES)}, got {model!r}')
+    airframes.known(model, 'vehicle')
     return IDEAL if model == 'ideal' else replace(MULTIROTOR, model=model, **airframes.profile(model))
 
 
@@ -117,9 +116,7 @@ def parse(doc: Any, where: str = 'vehicle') -> Vehicle:
     from .scenario import refuse_unknown
     if not isinstance(doc, dict):
         raise ValueError(f'{where}: expected a mapping')
-    model = doc.get('model', 'multirotor')
-    if model not in airframes.AIRFRAMES:
-        raise ValueError(f'{where}.model: must be one of {", ".join(airframes.AIRFRAMES)}, got {model!r}')
+    model = airframes.known(doc.get('model', 'multirotor'), f'{where}.model')
     if model == 'ideal':
         refuse_unknown(doc, {'model'}, f'{where}.')
         return IDEAL

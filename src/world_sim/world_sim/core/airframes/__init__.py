@@ -51,6 +51,13 @@ class Airframe(Protocol):
         """q and p (truth) one step on under the commanded accelerations u."""
 
 
+def known(model: object, key: str) -> str:
+    """model, when it names an airframe; ValueError naming the key and the airframes there are, when not."""
+    if not isinstance(model, str) or model not in AIRFRAMES:
+        raise ValueError(f'{key}: must be one of {", ".join(AIRFRAMES)}, got {model!r}')
+    return str(model)
+
+
 def _class(model: str) -> type:
     module, name = AIRFRAMES[model].split(':')
     return getattr(import_module(module), name)
