@@ -132,6 +132,7 @@ def test_a_run_whose_maps_all_fail_goes_on_to_its_end(tmp_path: Path, ros_env: d
     assert m['t'][-1] == 2.0 and m['alive'][-1] == 0
 
 
+@pytest.mark.shm_alone
 def test_killed_agents_are_dropped_and_the_run_completes(tmp_path: Path, ros_env: dict[str, str]) -> None:
     run = tmp_path / 'up'
     shm_before = shm_entries()
@@ -191,6 +192,7 @@ def test_kill_of_one_packed_map_ends_its_node_alone(tmp_path: Path, ros_env: dic
     assert after.returncode == 2 and 'has ended' in after.stderr, after.stdout + after.stderr
 
 
+@pytest.mark.shm_alone
 def test_a_live_run_seen_by_echo_and_topics_then_a_kill_and_ctrl_c(tmp_path: Path, ros_env: dict[str, str]) -> None:
     """One live run read three ways, as a user would in one sitting: echo and topics show it; echo on a MAP just
     killed ends at once and says so; Ctrl-C then ends every process and keeps the records.
@@ -321,6 +323,7 @@ def test_a_sigkilled_up_takes_its_whole_run_with_it(tmp_path: Path, ros_env: dic
             proc.wait()
 
 
+@pytest.mark.shm_alone
 def test_ctrl_c_twice_during_start_up_still_ends_cleanly(tmp_path: Path, ros_env: dict[str, str]) -> None:
     """An impatient user: Ctrl-C while the MAPs are still discovering each other, and again while `up` stops them."""
     run = tmp_path / 'up'
