@@ -1,19 +1,10 @@
 """Shared fixtures: every test that touches DDS gets its own ROS_DOMAIN_ID, so runs never cross-talk."""
 from __future__ import annotations
 
-import fcntl
 import os
-import tempfile
-from pathlib import Path
 from typing import Iterator
 
 import pytest
-
-# `make test` runs two test files at once (uav-flock test). A test that counts Fast DDS's files in /dev/shm
-# (marked shm_alone) would count the other worker's too, so it holds this lock alone while every other test that
-# starts processes holds it shared: it runs while no other such test does.
-SHM_LOCK = Path(tempfile.gettempdir()) / 'uav-flock-tests-shm.lock'
-
 
 @pytest.fixture
 def ros_env(monkeypatch: pytest.MonkeyPatch) -> Iterator[dict[str, str]]:
@@ -36,18 +27,6 @@ def ros_env(monkeypatch: pytest.MonkeyPatch) -> Iterator[dict[str, str]]:
             pass  # dated now: the test's processes may have left endpoints behind
     except DomainInUse:
         pass  # something of the test still holds it; its own release dates it
-
-
-@pytest.fixture(autouse=True)
-def _shm_share(request: pytest.FixtureRequest) -> Iterator[None]:
-    """SHM_LOCK, alone for a test marked shm_alone, shared for one marked slow, none for the rest."""
-    alone = request.node.get_closest_marker('shm_alone') is not None
-    if not alone and request.node.get_closest_marker('slow') is None:
-        yield
-        return
-    with open(SHM_LOCK, 'a') as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
-        yield
 
 
 @pytest.fixture
