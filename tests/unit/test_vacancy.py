@@ -143,6 +143,26 @@ def test_a_chain_is_taut_when_its_links_outgrow_what_holds_or_it_no_longer_reach
     assert not is_taut(relay._replace(hold=(150.0,)), chain_heard((130.0, 1))), 'a silence it takes for lost states'
 
 
+def test_a_lagged_vehicle_finds_a_taut_chain_short_only_after_patient_steps() -> None:
+    """Behind a multirotor's envelope a chain is taut while its relays fly in: it is found one MAP short after
+    PATIENT_STEPS of it (rule 'patient'), not TAUT_STEPS; without the rule, after TAUT_STEPS as on the paper's."""
+    multirotor = dataclasses.replace(P, v_max=15.0, a_max=4.0, tau=0.3)
+    assert PATIENT_STEPS > TAUT_STEPS
+
+    def first_found(fp: FlockParams) -> int:
+        mem = relay_of_edge_12()
+        for step in range(1, 2 * PATIENT_STEPS):
+            mem = tally(mem, True, ROLES, fp)
+            if dict(mem.short).get(code((1, 2)), 0):
+                return step
+        raise AssertionError('never found short')
+
+    assert first_found(P) == TAUT_STEPS
+    assert first_found(multirotor) == PATIENT_STEPS
+    with switched_off(['patient']):
+        assert first_found(multirotor) == TAUT_STEPS
+
+
 def test_a_chain_found_taut_is_found_short_and_its_share_grown() -> None:
     """Each TAUT_STEPS of tautness find edge (1, 2) one MAP short, up to its demand; every MAP that hears of it
     grows the edge's share by that many MAPs' worth, and only MAPs that join the chain change role."""
@@ -151,11 +171,11 @@ def test_a_chain_found_taut_is_found_short_and_its_share_grown() -> None:
     mem = relay_of_edge_12()
     found = []
     for _ in range(TAUT_STEPS * (cap + 2)):
-        mem = tally(mem, True, ROLES)
+        mem = tally(mem, True, ROLES, P)
         found.append(dict(mem.short).get(code((1, 2)), 0))
     assert found[TAUT_STEPS - 2] == 0 and found[TAUT_STEPS - 1] == 1 and found[2 * TAUT_STEPS - 1] == 2
     assert found[-1] == cap, 'never more than the edge\'s demand'
-    assert tally(mem, False, ROLES) == mem, 'a step with the chain slack counts nothing'
+    assert tally(mem, False, ROLES, P) == mem, 'a step with the chain slack counts nothing'
     grown = view(ROLES, (), mem.short)
     demand = sum(ROLES.demand)
     assert math.isclose(grown.share[edge], (ROLES.demand[edge] + cap) / (demand + cap), rel_tol=1e-9)

@@ -62,8 +62,9 @@ VEHICLE_RULES = {
     'priority': "that braking is served first from a_max, eq. 9's terms from what is left (envelope.command)",
     'links': 'the safety filter (policies: {safety: filter}) also keeps each link of the relative-neighbourhood graph of what a MAP hears shorter than r '
              'less a margin, with a slack priced below separation (safety.protected, safety.link_budget)',
-    'patient': 'a role is declared lost after PATIENT_STEPS unheard of, not VACANT_STEPS: a multirotor takes that long to '
-               'cross to it, under the demand allocation (vacancy.vacant_steps)',
+    'patient': 'a role is declared lost after PATIENT_STEPS unheard of, not VACANT_STEPS, and a chain short after '
+               'PATIENT_STEPS found taut, not TAUT_STEPS: a multirotor takes that long to cross to it, under the demand '
+               'allocation (vacancy.vacant_steps, chain.taut_steps)',
     'nearest': "a new edge or cluster takes its share first from the clusters nearest it on the tree, down to their "
                'floor, not from the roles most above their share wherever they are, under the demand allocation '
                '(layout.roles, vacancy.nearest)',

@@ -74,7 +74,7 @@ def demand_switch(mem: Mine, agent_id: int, r_g: float, q: np.ndarray, clusters:
     if mem.settled and not mem.transit and mem.swing is None:
         chain = chain_of(q, edge, near.q, near.told, clusters, fp)
         mem = hushed(mem, chain, step, fp)
-        mem = tally(mem, taut(mem, chain, fp), roles)
+        mem = tally(mem, taut(mem, chain, fp), roles, fp)
         ends = tuple(float(x) for x in chain.ends) if chain.ends.below_hops or chain.ends.above_hops else ()
     return mem if mem.ends == ends else mem._replace(ends=ends)
 
