@@ -21,6 +21,7 @@ from world_sim.core import layouts
 from world_sim.core.scenario import load
 
 P = FlockParams()
+MULTIROTOR = dataclasses.replace(P, v_max=15.0, a_max=4.0, tau=0.3)  # a lagged vehicle (envelope.limited)
 # Three clusters in a row, 100 m apart: roles 0, 1, 2 (servers) and the edges (0, 1), (1, 2) (relays).
 ROW = ClusterMap(np.array([[0.0, 0.0], [100.0, 0.0], [200.0, 0.0]]), P.height, radii=np.array([25.0, 25.0, 25.0]))
 ROLES = layout.roles(ROW, P.d)
@@ -70,15 +71,14 @@ def test_a_role_emptied_by_failures_is_restaffed_from_the_survivors() -> None:
 def test_on_a_multirotor_a_role_goes_unheard_for_patient_steps_before_it_is_declared() -> None:
     """Rule 'patient': a multirotor's MAPs take 10-20 s to cross to a role, so a role silent for longer than
     VACANT_STEPS but not PATIENT_STEPS is still on its way; the paper's vehicle declares it lost."""
-    multirotor = dataclasses.replace(P, v_max=15.0, a_max=4.0, tau=0.3)
     assert PATIENT_STEPS > VACANT_STEPS
     quiet = {r: NOW for r in ALL} | {2: NOW - VACANT_STEPS - 1}
     assert vacate(relay_of_edge_12(seen=heard(quiet)), NOW, near_cluster_2(), ROW, P).lost != ()
-    assert vacate(relay_of_edge_12(seen=heard(quiet)), NOW, near_cluster_2(), ROW, multirotor).lost == ()
+    assert vacate(relay_of_edge_12(seen=heard(quiet)), NOW, near_cluster_2(), ROW, MULTIROTOR).lost == ()
     with switched_off(['patient']):
-        assert vacate(relay_of_edge_12(seen=heard(quiet)), NOW, near_cluster_2(), ROW, multirotor).lost != ()
+        assert vacate(relay_of_edge_12(seen=heard(quiet)), NOW, near_cluster_2(), ROW, MULTIROTOR).lost != ()
     silent = {r: NOW for r in ALL} | {2: NOW - PATIENT_STEPS - 1}
-    mem = vacate(relay_of_edge_12(seen=heard(silent)), NOW, near_cluster_2(), ROW, multirotor)
+    mem = vacate(relay_of_edge_12(seen=heard(silent)), NOW, near_cluster_2(), ROW, MULTIROTOR)
     assert mem.lost != () and dict(mem.seen)[2] == NOW + PATIENT_STEPS
 
 
@@ -146,7 +146,6 @@ def test_a_chain_is_taut_when_its_links_outgrow_what_holds_or_it_no_longer_reach
 def test_a_lagged_vehicle_finds_a_taut_chain_short_only_after_patient_steps() -> None:
     """Behind a multirotor's envelope a chain is taut while its relays fly in: it is found one MAP short after
     PATIENT_STEPS of it (rule 'patient'), not TAUT_STEPS; without the rule, after TAUT_STEPS as on the paper's."""
-    multirotor = dataclasses.replace(P, v_max=15.0, a_max=4.0, tau=0.3)
     assert PATIENT_STEPS > TAUT_STEPS
 
     def first_found(fp: FlockParams) -> int:
@@ -158,9 +157,9 @@ def test_a_lagged_vehicle_finds_a_taut_chain_short_only_after_patient_steps() ->
         raise AssertionError('never found short')
 
     assert first_found(P) == TAUT_STEPS
-    assert first_found(multirotor) == PATIENT_STEPS
+    assert first_found(MULTIROTOR) == PATIENT_STEPS
     with switched_off(['patient']):
-        assert first_found(multirotor) == TAUT_STEPS
+        assert first_found(MULTIROTOR) == TAUT_STEPS
 
 
 def test_a_chain_found_taut_is_found_short_and_its_share_grown() -> None:

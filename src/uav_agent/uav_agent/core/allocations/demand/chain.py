@@ -16,7 +16,7 @@ from ...state import M1, Near, Told
 from . import keys
 from .layout import Roles
 from .memory import Mine, gossip_of
-from .vacancy import PATIENT_STEPS, code, role_of
+from .vacancy import PATIENT_STEPS, code, patient, role_of
 
 if TYPE_CHECKING:
     from ...params import FlockParams
@@ -278,7 +278,7 @@ def taut_steps(fp: FlockParams) -> int:
     'patient', as for a role's keys declared lost). Behind a multirotor's envelope a chain is found taut, one
     side silent, while its relays are still flying in, and every MAP asked for crosses the formation: found short after 10 s, still layouts were connected 91.2 % of the time after
     convergence, after 30 s 96.1 %, at a cost after a loss (80.1 % to 73.4 %; docs/notes/vehicle.md)."""
-    return PATIENT_STEPS if envelope.limited(fp) and on('patient') else TAUT_STEPS
+    return PATIENT_STEPS if patient(fp) else TAUT_STEPS
 
 
 def reach_of(fp: FlockParams) -> float:

@@ -54,7 +54,13 @@ def vacant_steps(fp: FlockParams) -> int:
     a server at the edge's end that had heard of them through gossip declared their keys lost while they flew in:
     squeezed out of the key line, the lost keys moved every MAP's key and sent a dozen MAPs across the formation
     in a still layout (docs/notes/vehicle.md)."""
-    return PATIENT_STEPS if envelope.limited(fp) and on('patient') else VACANT_STEPS
+    return PATIENT_STEPS if patient(fp) else VACANT_STEPS
+
+
+def patient(fp: FlockParams) -> bool:
+    """Whether rule 'patient' acts: on a lagged vehicle, whose MAPs take PATIENT_STEPS to fly in, neither a role's
+    keys are declared lost (vacant_steps) nor a chain found short (chain.taut_steps) sooner."""
+    return envelope.limited(fp) and on('patient')
 
 
 def code(role: keys.RoleId) -> int:
