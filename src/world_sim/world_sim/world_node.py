@@ -45,6 +45,7 @@ from .shipped import DEFAULT, load_scenario
 
 START_REPORT_S = 5.0
 FINISHED_ACK_S = 2.0  # at most this long for every agent to acknowledge /events/finished before exit
+FLUSH_S = 1.0  # at exit, how long the last steps' samples may take to be acknowledged by every reader
 # realtime: a pace below this fraction of the one asked for, over the last SLOW_WINDOW_S of simulated time (the
 # start-up's first steps left out: their discovery is no measure of the run's pace), is reported once.
 SLOW_AFTER_S = 2.0
@@ -369,6 +370,17 @@ class WorldNode(Watch, Node):
             records.write_users(self.out / records.USERS_FILE, result.users, result.motion)
             records.write_failures(self.out / records.FAILURES_FILE, result.failed, result.fail_step, result.events)
 
+    def flush(self) -> None:
+        """Wait, within FLUSH_S, until every reader holds what the world published last.
+
+        An interrupted run ends up to RECORDER_MAX_LAG_STEPS ahead of the recorder: a writer deleted with those
+        samples unacknowledged takes them with it, and the bag would miss steps that metrics.csv holds.
+        """
+        deadline = time.monotonic() + FLUSH_S
+        for pub in (self.metrics_pub, self.failure_pub, self.assoc_pub, *self.sensing_pubs):
+            if not pub.wait_for_all_acked(Duration(seconds=max(deadline - time.monotonic(), 0.0))):
+                return
+
 
 def main(argv: Optional[list[str]] = None) -> int:
     if checked_ros_args('world_sim_node', sys.argv if argv is None else argv) is None:
@@ -385,6 +397,7 @@ def main(argv: Optional[list[str]] = None) -> int:
             node.finish(ok=False)  # keep what was simulated
         elif node.ok:  # the agents learn of the end before the writer is gone
             node.finished_pub.wait_for_all_acked(Duration(seconds=FINISHED_ACK_S))
+        node.flush()
     finally:
         code = 0 if getattr(node, 'ok', False) else 1
         leave_after(code, 'world_sim')  # the records are written: nothing is lost past here
