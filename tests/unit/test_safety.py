@@ -183,3 +183,24 @@ def test_the_filter_says_when_a_link_held_a_map_back_and_when_it_gave_way() -> N
         assert flags.tolist() == [want, want], (p[0, 0], flags)
     unprotected = safety.filtered(apart, np.zeros((2, 3)), owner[:0], dq[:0], dv[:0], FP).flags
     assert unprotected.tolist() == [0, 0]
+
+
+def test_when_a_protected_link_and_separation_conflict_the_link_gives_way() -> None:
+    """MAP 0 at rest, MAP 1 closing on it from behind at 6 m/s 10 m off, MAP 0's protected link to MAP 2 at its
+    bound beyond MAP 1, opening: separation asks MAP 0 to flee, the link to stay. Separation is kept to the letter
+    and the link's slack gives way (RELAXED): the same command as without the link (separation's slack is priced
+    above a link's, safety.SLACK_COST and LINK_COST)."""
+    q = np.array([[0.0, 0.0, 20.0], [-10.0, 0.0, 20.0], [-(FP.r - safety.LINK_MARGIN), 0.0, 20.0]])
+    p = np.array([[0.0, 0.0, 0.0], [6.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+    sep_dq, sep_dv = q[1:2] - q[0], p[1:2] - p[0]
+    budget = safety.budget(sep_dq, sep_dv, FP)[0]
+    assert budget < -1.0, 'separation asks for no flight: the case tests nothing'
+    link = (np.zeros(1, dtype=np.intp), q[2:3] - q[0], p[2:3] - p[0])
+    nominal = np.zeros((1, 3))
+    owner = np.zeros(1, dtype=np.intp)
+    with_link = safety.filtered(nominal, p[:1], owner, sep_dq, sep_dv, FP, link)
+    alone = safety.filtered(nominal, p[:1], owner, sep_dq, sep_dv, FP)
+    n = sep_dq[0, :2] / np.linalg.norm(sep_dq[0, :2])
+    assert n @ with_link.u[0, :2] <= budget + 1e-6, (with_link.u, budget)
+    assert with_link.flags[0] & safety.RELAXED
+    assert np.allclose(with_link.u, alone.u, atol=1e-3), (with_link.u, alone.u)
