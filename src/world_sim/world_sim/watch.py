@@ -4,7 +4,7 @@
 A MAP whose process is gone (or that `uav-flock kill` ended inside one) is dropped within one liveness check;
 a step that stalls while every process lives has its sensing sent again; a scheduled failure SIGKILLs the
 processes whose MAPs have all failed. The recorder paces a lockstep run (RECORDER_MAX_LAG_STEPS) until it
-stops answering.
+stops answering, and at exit what the world published last reaches every reader before its writers go.
 """
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
+from rclpy.duration import Duration
 from std_msgs.msg import Int64
 
 from uav_flock_ros import convert
@@ -27,6 +28,7 @@ from .core.scenario import Scenario
 
 LIVENESS_PERIOD_S = 0.2  # how often the processes of MAPs we wait for are checked
 RECORDER_TIMEOUT_S = 10.0  # a recorder that writes nothing new this long while we wait for it is given up on
+FLUSH_S = 1.0  # at exit, how long the last steps' samples may take to be acknowledged by every reader
 SHOWN_WAITING = 12  # MAP ids a stall's log line names (a city's first step waits for hundreds)
 # A step stalled this long (every process alive) has its sensing sent again, then after twice as long, and
 # so on: step 0 of 90 processes spends ten seconds or more in discovery, and every repeat makes each MAP
@@ -47,7 +49,10 @@ class Watch:
     recorder_moved: float
     held: bool
     commands: dict[int, Any]
-    sensing_pubs: dict[int, Any]
+    sensing_pubs: list[Any]
+    metrics_pub: Any
+    assoc_pub: Any
+    failure_pub: Any
     pid_table: Optional[Path]
     step_started: float
     step_resends: int
@@ -74,6 +79,17 @@ class Watch:
         self.get_logger().error(f'the recorder wrote nothing new for {RECORDER_TIMEOUT_S:g} s: going on without it')
         self.record = False
         return True
+
+    def flush(self) -> None:
+        """Wait, within FLUSH_S, until every reader holds what the world published last.
+
+        An interrupted run ends up to RECORDER_MAX_LAG_STEPS ahead of the recorder: a writer deleted with those
+        samples unacknowledged takes them with it, and the bag would miss steps that metrics.csv holds.
+        """
+        deadline = time.monotonic() + FLUSH_S
+        for pub in (self.metrics_pub, self.failure_pub, self.assoc_pub, *self.sensing_pubs):
+            if not pub.wait_for_all_acked(Duration(seconds=max(deadline - time.monotonic(), 0.0))):
+                return
 
     def drop(self, ids: np.ndarray, cause: str) -> None:
         ids = np.asarray(sorted(int(i) for i in ids), dtype=np.intp)

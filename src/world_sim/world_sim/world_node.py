@@ -45,7 +45,6 @@ from .shipped import DEFAULT, load_scenario
 
 START_REPORT_S = 5.0
 FINISHED_ACK_S = 2.0  # at most this long for every agent to acknowledge /events/finished before exit
-FLUSH_S = 1.0  # at exit, how long the last steps' samples may take to be acknowledged by every reader
 # realtime: a pace below this fraction of the one asked for, over the last SLOW_WINDOW_S of simulated time (the
 # start-up's first steps left out: their discovery is no measure of the run's pace), is reported once.
 SLOW_AFTER_S = 2.0
@@ -369,17 +368,6 @@ class WorldNode(Watch, Node):
             records.write_trajectory(self.out / 'trajectory.csv', result.trajectory)
             records.write_users(self.out / records.USERS_FILE, result.users, result.motion)
             records.write_failures(self.out / records.FAILURES_FILE, result.failed, result.fail_step, result.events)
-
-    def flush(self) -> None:
-        """Wait, within FLUSH_S, until every reader holds what the world published last.
-
-        An interrupted run ends up to RECORDER_MAX_LAG_STEPS ahead of the recorder: a writer deleted with those
-        samples unacknowledged takes them with it, and the bag would miss steps that metrics.csv holds.
-        """
-        deadline = time.monotonic() + FLUSH_S
-        for pub in (self.metrics_pub, self.failure_pub, self.assoc_pub, *self.sensing_pubs):
-            if not pub.wait_for_all_acked(Duration(seconds=max(deadline - time.monotonic(), 0.0))):
-                return
 
 
 def main(argv: Optional[list[str]] = None) -> int:
