@@ -276,8 +276,9 @@ def tally(mem: Mine, taut_now: bool, roles: Roles, fp: FlockParams) -> Mine:
 def taut_steps(fp: FlockParams) -> int:
     """Steps of a taut chain that find it one MAP short: TAUT_STEPS, or on a lagged vehicle PATIENT_STEPS (rule
     'patient', as for a role's keys declared lost). Behind a multirotor's envelope a chain is found taut, one
-    side silent, while its relays are still flying in, and every MAP asked for crosses the formation: found short after 10 s, still layouts were connected 91.2 % of the time after
-    convergence, after 30 s 96.1 %, at a cost after a loss (80.1 % to 73.4 %; docs/notes/vehicle.md)."""
+    side silent, while its relays are still flying in, and every MAP asked for crosses the formation: found
+    short after 10 s, still layouts were connected 91.2 % of the time after convergence, after 30 s 96.1 %, at
+    a cost after a loss (80.1 % to 73.4 %; docs/notes/vehicle.md)."""
     return PATIENT_STEPS if patient(fp) else TAUT_STEPS
 
 
