@@ -191,6 +191,21 @@ def test_on_a_lagged_vehicle_a_relay_and_its_servers_only_repel() -> None:
         assert demand.link(relay, server, lagged) == RELATED and demand.link(relay, fellow, lagged) == RELATED
 
 
+def test_the_links_the_filter_keeps_are_a_chains_between_maps_settled_at_their_roles() -> None:
+    """Allocation.needed (rule 'links'): fellow relays of one edge and a relay with a server of its edge's clusters,
+    both settled; never two servers of one cluster, a MAP not yet at its role, one in transit, or another chain's."""
+    from uav_agent.core.policies import ALLOCATIONS
+    demand = ALLOCATIONS['demand']
+    at = Gossip(settled=True)
+    relay, fellow, server = Told(M1, 0, (0, 1), at), Told(M1, 0, (0, 1), at), Told(M2, 1, None, at)
+    assert demand.needed(relay, fellow) and demand.needed(relay, server) and demand.needed(server, relay)
+    assert not demand.needed(server, Told(M2, 1, None, at)), "a cluster's lattice"
+    assert not demand.needed(relay, Told(M1, 0, (0, 1), Gossip())), 'a relay still on its way to the chain'
+    assert not demand.needed(relay, Told(M2, 1, None, Gossip(transit=True, settled=True))), 'a server in transit'
+    assert not demand.needed(relay, Told(M1, 1, (1, 2), at)) and not demand.needed(relay, Told(M2, 2, None, at))
+    assert not ALLOCATIONS['algorithm2'].needed(relay, fellow)
+
+
 def test_fellow_relays_on_a_lagged_vehicle_space_themselves_along_their_edge_only() -> None:
     """Rule 'inline': two fellow relays side by side across their edge's line (closer than d across it, level
     along it) push each other neither aside nor along; one closer than d along the edge is pushed along it, and

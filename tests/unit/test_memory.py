@@ -26,7 +26,7 @@ def test_the_allocations_record_round_trips_through_the_common_memory(mine: Mine
     mem = mine.memory()
     assert isinstance(mem.own, Own) and Mine.of(mem) == mine
     assert Told.of(mem) == mine.told(), 'what the MAP says is what its rules hold'
-    assert Told.of(mem).block == Gossip(mine.transit, mine.seen, mine.lost, mine.short)
+    assert Told.of(mem).block == Gossip(mine.transit, mine.seen, mine.lost, mine.short, mine.ends, mine.settled)
 
 
 def test_a_neighbour_that_said_nothing_of_its_own_counts_as_silent() -> None:

@@ -53,13 +53,14 @@ class RoleGossipData(NamedTuple):
     lost: tuple[tuple[float, float], ...] = ()  # key spans [lo, hi) known lost
     short: tuple[tuple[int, int], ...] = ()     # (role code, MAPs it was found short of)
     ends: tuple[float, ...] = ()                # a relay's chain ends: hops and place below, hops and place above
+    settled: bool = False                       # it has reached its role's place once
 
     def to_msg(self) -> RoleGossip:
         return RoleGossip(in_transit=bool(self.transit), roles_heard=[int(c) for c, _ in self.seen],
                           roles_heard_step=[int(k) for _, k in self.seen],
                           lost_keys=[float(x) for span in self.lost for x in span],
                           roles_short=[int(c) for c, _ in self.short], roles_short_by=[int(n) for _, n in self.short],
-                          chain_ends=[float(x) for x in self.ends])
+                          chain_ends=[float(x) for x in self.ends], settled=bool(self.settled))
 
     @classmethod
     def from_msg(cls, msg: Any) -> 'RoleGossipData':
@@ -67,7 +68,7 @@ class RoleGossipData(NamedTuple):
         return cls(bool(msg.in_transit), tuple((int(c), int(k)) for c, k in zip(msg.roles_heard, msg.roles_heard_step)),
                    tuple(zip(lost[::2], lost[1::2])),
                    tuple((int(c), int(n)) for c, n in zip(msg.roles_short, msg.roles_short_by)),
-                   tuple(float(x) for x in msg.chain_ends))
+                   tuple(float(x) for x in msg.chain_ends), bool(msg.settled))
 
 
 class PassedData(NamedTuple):

@@ -48,19 +48,21 @@ class BatchSimulator:
         rows = sensed.ids
         said = [Said.of(self.memory[i]) for i in rows]  # what each MAP's state message of step k carries
         hoods, owner, nbr = self.hear(sensed, said)
-        refs, apart = [], []
+        refs, apart, needed = [], [], []
         for n, i in enumerate(rows.tolist()):
-            self.memory[i], ref, kinds = plan(self.memory[i], i, sensed.q[n], int(sensed.n_users[n]),
+            self.memory[i], ref, kinds, keep = plan(self.memory[i], i, sensed.q[n], int(sensed.n_users[n]),
                                               sensed.cluster_coverage, hoods[n], w.clusters, fp, sensed.k)
             refs.append(ref)
             apart += kinds
+            needed += keep
         target, qa, qb = (np.array([ref[c] for ref in refs]).reshape(-1, 3) for c in range(3))
         mode = np.array([ref.mode for ref in refs], dtype=np.intp)
         ref_vel = np.array([ref.velocity for ref in refs]).reshape(-1, 3, 3)
         seen = None if sensed.traffic is None else (sensed.traffic[:, 0], sensed.q[sensed.traffic[:, 1]],
                                                    sensed.p[sensed.traffic[:, 1]])
         u, flags = control_input(sensed.q, sensed.p, sensed.n_users.astype(float), mode, target, qa, qb, owner, nbr.q,
-                                 nbr.p, nbr.n_users, fp, np.array(apart, dtype=np.intp), ref_vel, seen)
+                                 nbr.p, nbr.n_users, fp, np.array(apart, dtype=np.intp), ref_vel, seen,
+                                 np.array(needed, dtype=bool))
         modes = np.array([self.memory[i].mode for i in rows], dtype=np.intp)
         goals = np.array([self.memory[i].goal for i in rows], dtype=np.intp)
         w.advance(sensed, u, modes, goals, integrate, flags)

@@ -14,7 +14,7 @@ import numpy as np
 from .clusters import ClusterMap
 from .control import control_input
 from .params import FlockParams
-from .policies import decide, links, reference
+from .policies import decide, links, needed, reference
 from .state import Memory, Near, Reference, Told
 
 
@@ -53,12 +53,14 @@ class Neighbourhood:
 
 
 class Plan(NamedTuple):
-    """One MAP's decision of step k: its memory after it, what eq. 9's goal term aims at, and what each
-    neighbour's link is to the flocking terms (state.RELATED, APART, PASSING or INLINE), rows as the neighbours'."""
+    """One MAP's decision of step k: its memory after it, what eq. 9's goal term aims at, what each
+    neighbour's link is to the flocking terms (state.RELATED, APART, PASSING or INLINE) and whether the network
+    needs it kept (the safety filter's rule 'links'), rows as the neighbours'."""
 
     memory: Memory
     reference: Reference
     links: list[int]
+    needed: list[bool]
 
 
 def plan(mem: Memory, agent_id: int, q: np.ndarray, n_users: int, cluster_coverage: np.ndarray, nbrs: Neighbourhood,
@@ -67,7 +69,7 @@ def plan(mem: Memory, agent_id: int, q: np.ndarray, n_users: int, cluster_covera
     mem = decide(mem, agent_id, n_users, cluster_coverage, q, nbrs.achieved, clusters, params, step,
                  Near(nbrs.q, nbrs.told))
     ref = reference(mem, agent_id, q, nbrs.q, nbrs.told, clusters, params)
-    return Plan(mem, ref, links(mem, nbrs.told, params))
+    return Plan(mem, ref, links(mem, nbrs.told, params), needed(mem, nbrs.told, params))
 
 
 def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_users: int, cluster_coverage: np.ndarray,
@@ -76,11 +78,11 @@ def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_u
     """Algorithm 1 lines 3-6 for one MAP at step k: its plan, then its control input (eq. 9), and what the safety
     filter did to it (safety.RELAXED, HELD bits). traffic: the positions and velocities its traffic receiver took
     in (vehicle.traffic), None without one."""
-    mem, ref, links = plan(mem, agent_id, q, n_users, cluster_coverage, nbrs, clusters, params, step)
+    mem, ref, links, keep = plan(mem, agent_id, q, n_users, cluster_coverage, nbrs, clusters, params, step)
     owner = np.zeros(len(nbrs.q), dtype=np.intp)
     seen = None if traffic is None else (np.zeros(len(traffic[0]), dtype=np.intp), *traffic)
     u, flags = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([ref.mode]),
                       ref.target[None, :], ref.q1[None, :], ref.q2[None, :], owner, nbrs.q, nbrs.p,
                       np.asarray(nbrs.n_users, dtype=float), params, np.array(links, dtype=np.intp),
-                      ref.velocity[None], seen)
+                      ref.velocity[None], seen, np.array(keep, dtype=bool))
     return u[0], mem, int(flags[0])

@@ -41,6 +41,11 @@ class Allocation(Protocol):
         of eq. 10), APART (repulsion within d only), PASSING (repulsion within d/2 only) or INLINE (all of
         eq. 10 along the own MAP's edge only); fp says what they fly (envelope.limited)."""
 
+    def needed(self, a: Told, b: Told) -> bool:
+        """Whether the link between two MAPs that stated a and b is one the network needs kept: the safety
+        filter's rule 'links' protects such links only (control.control_input). One that does not say keeps
+        none (policies.needed)."""
+
 
 ALLOCATIONS: dict[str, Allocation] = {
     'demand': Demand(),
@@ -77,6 +82,14 @@ def links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[int]:
     """For each neighbour heard, what its link to this MAP (as decided this step) is to the flocking terms."""
     own, allocation = Told.of(mem), ALLOCATIONS[fp.allocation]
     return [allocation.link(own, t, fp) for t in heard]
+
+
+def needed(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[bool]:
+    """For each neighbour heard, whether its link to this MAP is one the network needs kept (Allocation.needed)."""
+    own, allocation = Told.of(mem), ALLOCATIONS[fp.allocation]
+    if not hasattr(allocation, 'needed'):
+        return [False] * len(heard)
+    return [allocation.needed(own, t) for t in heard]
 
 
 def hearsay(fp: FlockParams) -> bool:

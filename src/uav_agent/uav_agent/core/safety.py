@@ -98,12 +98,12 @@ def link_budget(dq: F64, dv: F64, fp: FlockParams, share: F64 | float = 0.5) -> 
 
 
 def protected(owner: NDArray[np.intp], dq: F64, m: int, asked: NDArray[np.bool_]) -> NDArray[np.bool_]:
-    """Per link (owner, j at dq from it; the MAPs its radio hears, grouped by owner) of those asked, whether the
-    owner protects it:
-    the links of the relative-neighbourhood graph, those no third neighbour k witnesses, max(d_ik, d_jk) < d_ij.
+    """Per link (owner, j at dq from it; the links the network needs that its radio hears, grouped by owner, as
+    the allocation names them: Allocation.needed) of those asked, whether the owner protects it: the links of their
+    relative-neighbourhood graph, those no third neighbour k witnesses, max(d_ik, d_jk) < d_ij.
 
     The graph contains the minimum spanning tree of the links (Toussaint 1980), so over all MAPs the protected links
-    span every connected part of the radio graph; both ends decide alike from the same broadcasts (a witness lies
+    span every connected part of the graph of the links given; both ends decide alike from the same broadcasts (a witness lies
     within r of both), and a link stops being protected only once a witness joins its ends through two shorter
     links, themselves protected or witnessed in turn by shorter ones: make before break."""
     out = asked.copy()

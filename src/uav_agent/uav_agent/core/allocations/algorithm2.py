@@ -91,3 +91,7 @@ class Algorithm2:
     def link(self, a: Told, b: Told, fp: FlockParams) -> int:
         """Every neighbour alike: the paper's flocking terms take them all."""
         return RELATED
+
+    def needed(self, a: Told, b: Told) -> bool:
+        """None: Algorithm 2 names no chains, so the safety filter keeps no link under it."""
+        return False

@@ -14,13 +14,15 @@ from .keys import Span
 
 class Gossip(NamedTuple):
     """What a MAP under the demand allocation tells its neighbours besides its role, O(roles) numbers: whether it
-    is on its way to a new role, and what it gossips of the roles (vacancy.py)."""
+    is on its way to a new role, what it gossips of the roles (vacancy.py), and whether it has reached its role's
+    place (settled: the links the safety filter keeps join settled MAPs only, Demand.needed)."""
 
     transit: bool = False
     seen: tuple[tuple[int, int], ...] = ()   # (role code, last step a member was heard of)
     lost: tuple[Span, ...] = ()              # spans of keys known lost
     short: tuple[tuple[int, int], ...] = ()  # (role code, MAPs it was found short of)
     ends: tuple[float, ...] = ()             # a relay's chain ends: hops and place below, hops and place above (chain.Ends)
+    settled: bool = False                    # it has reached its role's place once (Own.settled)
 
 
 SILENT = Gossip()  # what a neighbour that said nothing of its own (step 0, or another allocation) counts as
@@ -60,7 +62,7 @@ class Own(NamedTuple):
 
     def said(self) -> Gossip:
         """What the MAP's state message carries of it (Told.block)."""
-        return Gossip(self.transit, self.seen, self.lost, self.short, self.ends)
+        return Gossip(self.transit, self.seen, self.lost, self.short, self.ends, self.settled)
 
 
 COMMON = ('mode', 'goal', 'achieved', 'bridge')  # Memory's fields every allocation has
@@ -85,4 +87,4 @@ class Mine(_Joined):
 
     def told(self) -> Told:
         """What its state message says of its role."""
-        return Told(self.mode, self.goal, self.bridge, Gossip(self.transit, self.seen, self.lost, self.short, self.ends))
+        return Told(self.mode, self.goal, self.bridge, Gossip(self.transit, self.seen, self.lost, self.short, self.ends, self.settled))
