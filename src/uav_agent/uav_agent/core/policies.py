@@ -85,10 +85,12 @@ def links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[int]:
 
 
 def needed(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[bool]:
-    """For each neighbour heard, whether its link to this MAP is one the network needs kept (Allocation.needed)."""
-    own, allocation = Told.of(mem), ALLOCATIONS[fp.allocation]
-    if not hasattr(allocation, 'needed'):
+    """For each neighbour heard, whether its link to this MAP is one the network needs kept (Allocation.needed);
+    none without the safety filter, which alone keeps them."""
+    allocation = ALLOCATIONS[fp.allocation]
+    if fp.safety != 'filter' or not hasattr(allocation, 'needed'):
         return [False] * len(heard)
+    own = Told.of(mem)
     return [allocation.needed(own, t) for t in heard]
 
 

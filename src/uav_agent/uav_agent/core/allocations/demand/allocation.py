@@ -49,7 +49,8 @@ def demand_switch(mem: Mine, agent_id: int, r_g: float, q: np.ndarray, clusters:
     if role < clusters.count:
         if mem.goal != role or mem.mode == M1:
             old = mem.bridge if mem.mode == M1 else None
-            straight = on('straight') and old is not None and role in old and old not in roles.edges and clusters.ends_live(old)
+            straight = (on('straight') and not envelope.limited(fp) and old is not None and role in old
+                        and old not in roles.edges and clusters.ends_live(old))
             mem = _anew(mem, mode=M0, goal=role, transit=mem.settled, straight=straight)
             r_g = 0.0
         arrived = float(np.hypot(*(np.asarray(q, dtype=float)[:2] - clusters.xy[role]))) <= clusters.radii[role]
