@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import collections
+from dataclasses import replace
 import math
 from typing import Any
 
@@ -18,6 +19,7 @@ from uav_agent.core.clusters import NO_GOAL, ClusterMap, key_of
 from uav_agent.core.params import FlockParams
 from uav_agent.core.state import M1
 from helpers.roles import role_ids
+from world_sim.core import vehicle
 
 
 def test_when_a_cluster_leaves_only_its_own_maps_change_role() -> None:
@@ -216,3 +218,10 @@ def test_an_edge_that_leaves_the_tree_keeps_its_chain_while_the_new_one_is_staff
         assert mem.goal == last[i] and mem.transit and mem.straight
         assert en_route(mem, q, maps[-1], fp) == NO_GOAL
         assert en_route(mem._replace(straight=False), q, maps[-1], fp) != NO_GOAL, 'the tree would go round'
+    # On a multirotor a released relay flies the tree like any MAP in transit: straight along its chain it was cut off
+    # (rule 'straight', docs/vehicle.md).
+    multirotor = replace(fp, **vehicle.MULTIROTOR.envelope())
+    with switched_off(['nearest', 'cascade']):  # the multirotor's rules of the shares, which the tree here does not need
+        released = [demand_switch(Mine(mode=M1, goal=0, bridge=(0, 1), settled=True), i, 0.0, q, maps[-1], multirotor)
+                    for i in relays]
+    assert any(m.mode != M1 and m.transit for m in released) and not any(m.straight for m in released)
