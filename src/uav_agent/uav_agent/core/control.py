@@ -164,10 +164,10 @@ def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer]
         links = None
         if on('links') and needed is not None and needed.any():  # the links it protects, of those the network needs
             ask = np.flatnonzero(needed)
-            l_dq, l_dv = nbr_q[ask] - own_q[owner[ask]], nbr_p[ask] - own_p[owner[ask]]
+            l_owner, l_dq, l_dv = owner[ask], nbr_q[ask] - own_q[owner[ask]], nbr_p[ask] - own_p[owner[ask]]
             near = safety.link_budget(l_dq, l_dv, fp) < fp.a_max  # the rows a command within a_max can reach
-            chosen = np.flatnonzero(safety.protected(owner[ask], l_dq, len(own_q), near))
-            links = owner[ask][chosen], l_dq[chosen], l_dv[chosen]
+            chosen = np.flatnonzero(safety.protected(l_owner, l_dq, len(own_q), near))
+            links = l_owner[chosen], l_dq[chosen], l_dv[chosen]
         return Control(*safety.filtered(u + h, own_p, by[rows], dq[rows], dv[rows], fp, links))
     brake = envelope.keep_apart(own_q, own_p, *seen, fp) + envelope.governor(own_p, fp)
     return Control(envelope.command(u + h, brake, fp), none)

@@ -103,9 +103,9 @@ def protected(owner: NDArray[np.intp], dq: F64, m: int, asked: NDArray[np.bool_]
     relative-neighbourhood graph, those no third neighbour k witnesses, max(d_ik, d_jk) < d_ij.
 
     The graph contains the minimum spanning tree of the links (Toussaint 1980), so over all MAPs the protected links
-    span every connected part of the graph of the links given; both ends decide alike from the same broadcasts (a witness lies
-    within r of both), and a link stops being protected only once a witness joins its ends through two shorter
-    links, themselves protected or witnessed in turn by shorter ones: make before break."""
+    span every connected part of the graph of the links given; both ends decide alike from the same broadcasts (a
+    witness lies within r of both), and a link stops being protected only once a witness joins its ends through two
+    shorter links, themselves protected or witnessed in turn by shorter ones: make before break."""
     out = asked.copy()
     first = np.searchsorted(owner, np.arange(m + 1))
     for i in np.unique(owner[asked]):

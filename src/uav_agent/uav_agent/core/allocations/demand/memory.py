@@ -87,4 +87,4 @@ class Mine(_Joined):
 
     def told(self) -> Told:
         """What its state message says of its role."""
-        return Told(self.mode, self.goal, self.bridge, Gossip(self.transit, self.seen, self.lost, self.short, self.ends, self.settled))
+        return Told(self.mode, self.goal, self.bridge, Own(*self[len(COMMON):]).said())
