@@ -323,6 +323,8 @@ def test_a_run_folder_says_what_ran_and_flies_it_again_to_the_bit(tmp_path: Path
     assert said['command'] == ['uav-flock', 'sim', *args, '--out', str(tmp_path / 'a')]
     assert (said['seed'], said['maps'], said['vehicle'], said['duration']) == (3, 40, 'multirotor', 6.0)
     assert said['uav_flock'] == '0.1.0' and re.fullmatch(r'[0-9a-f]{40}(\+dirty)?', said['commit']), said
+    from uav_flock_tools import provenance
+    assert re.fullmatch(r'[0-9a-f]{16}', said['code']) and said['code'] == provenance.code(), said
     again = sim('--scenario', str(tmp_path / 'a' / 'scenario.yaml'), '--out', str(tmp_path / 'b'))
     assert again.returncode == 0, again.stderr
     for name in ('metrics.csv', 'trajectory.csv', 'failures.json'):

@@ -339,3 +339,35 @@ def test_a_study_folder_keeps_its_spec_and_refuses_the_runs_of_another(local: Pa
     proc = study(str(other), '--out', str(run))
     assert proc.returncode == 2 and 'not a study folder' in proc.stderr, proc.stderr
     assert sorted(p.name for p in run.iterdir()) == ['metrics.csv']
+
+
+def test_a_study_folder_flown_by_other_code_is_refused_and_names_the_code_of_each_run(tmp_path: Path) -> None:
+    """A run's key hashes its scenario, not the code: resumed by changed code, one table would hold two versions'
+    figures under one spec. Each row names the digest of the code that flew it (provenance.code), the folder the
+    command that flew into it, and a copy of the agent's code changed by one line on PYTHONPATH is refused in one
+    line, exit 2, the rows untouched."""
+    import json
+    import shutil
+
+    import uav_agent
+    from uav_flock_tools import provenance
+    (tmp_path / 's.yaml').write_text('layouts: {count: 1, clusters: [3, 3]}\nkinds: [static]\nduration: 3\n')
+    out = tmp_path / 'out'
+    proc = study(str(tmp_path / 's.yaml'), '--out', str(out), '--workers', '1')
+    assert proc.returncode == 0, proc.stderr
+    row, = rows(out)
+    assert row['code'] == provenance.code() and row['error'] is None, row
+    said = json.loads((out / 'provenance.json').read_text())
+    assert said['code'] == provenance.code() and said['command'][:2] == ['uav-flock', 'study'], said
+    copy = tmp_path / 'copy' / 'uav_agent'
+    shutil.copytree(Path(uav_agent.__file__).parent, copy, ignore=shutil.ignore_patterns('__pycache__'))
+    with (copy / 'core' / 'safety.py').open('a') as f:
+        f.write('\nMARGIN_OF_ANOTHER_VERSION = 2.0\n')
+    env = {**os.environ, 'PYTHONPATH': f'{copy.parent}{os.pathsep}{os.environ.get("PYTHONPATH", "")}'}
+    other = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'study', str(tmp_path / 's.yaml'), '--out',
+                            str(out), '--workers', '1'], capture_output=True, text=True, timeout=300, env=env)
+    assert other.returncode == 2 and other.stderr.count('\n') == 1, other.stderr
+    assert 'flown by other code' in other.stderr and row['code'] in other.stderr, other.stderr
+    assert rows(out) == [row] and parts(out) == 0
+    again = study(str(tmp_path / 's.yaml'), '--out', str(out), '--workers', '1')
+    assert again.returncode == 0 and '1 runs (0 computed now)' in again.stdout, again.stdout + again.stderr

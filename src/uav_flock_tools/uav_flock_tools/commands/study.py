@@ -3,6 +3,7 @@ table; `--summary` says what it holds (docs/studies.md)."""
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -53,10 +54,13 @@ def handle(args: argparse.Namespace) -> int:
         _reach(args.scheduler)
     else:  # the airframes the variants fly, each set up in the local workers (airframes.environment)
         own_process('study', [next(r for r in grid if r.variant == v).scenario().vehicle.model for v in spec.variants])
+    from .. import provenance
     try:
-        engine.claim(args.out, Path(args.spec), {r.key for r in grid})
+        engine.claim(args.out, Path(args.spec), {r.key for r in grid}, provenance.code())
     except engine.StudyError as exc:
         raise UsageError(f'study: {exc}') from None
+    # the last command that flew into the folder; each row also names the code that flew it (`code`)
+    (args.out / provenance.PROVENANCE_FILE).write_text(json.dumps(provenance.said(provenance.argv_of(args)), indent=1) + '\n')
     print(f'study: {len(grid)} run{"s" if len(grid) != 1 else ""} into {args.out / engine.RESULTS}'
           f' on {args.scheduler or "a local cluster"}', file=sys.stderr, flush=True)
     try:
@@ -73,7 +77,8 @@ def handle(args: argparse.Namespace) -> int:
         return 1
     print(f'{args.out / engine.RESULTS}: {total} runs ({done} computed now)')
     keys = {r.key for r in grid}
-    failed = engine.raised([r for r in engine.finished(args.out) if r['key'] in keys])
+    held = [r for r in engine.finished(args.out) if r['key'] in keys]
+    failed = engine.raised(held) or engine.other_code(held, provenance.code())  # the latter: a scheduler's workers
     if failed:
         print(f'uav-flock: error: study: {failed}', file=sys.stderr)
         return 1

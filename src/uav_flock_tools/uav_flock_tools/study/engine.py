@@ -27,7 +27,8 @@ RESULTS = 'results.parquet'
 PARTS = 'parts'
 SERIES = 'series'  # with --keep: series/<key>.parquet, a run's metrics (a column each, a row a step)
 GRID = ('key', 'layout', 'seed', 'kind', 'variant', 'maps', 'duration')
-COLUMNS = (*GRID, *FIGURES, 'error', 'wall_s', 'host')  # wall_s and host: where and how long, not what
+# code: the digest of the code that flew the run (provenance.code); wall_s and host: where and how long, not what
+COLUMNS = (*GRID, *FIGURES, 'error', 'code', 'wall_s', 'host')
 
 
 def execute(run: Run, keep: bool = False) -> dict[str, Any]:
@@ -35,6 +36,7 @@ def execute(run: Run, keep: bool = False) -> dict[str, Any]:
     row also carries the run's metrics series (SERIES, records.metrics_columns) under '_series'."""
     from uav_agent.core import ablation
 
+    from .. import provenance
     from ..batch import BatchSimulator
     from .cases import figures, flight_figures
     t0 = time.perf_counter()
@@ -58,7 +60,7 @@ def execute(run: Run, keep: bool = False) -> dict[str, Any]:
         row.update(flight_figures(s, result.metrics, result.trajectory, result.users.centroids, row['converged']))
     except Exception as exc:  # noqa: BLE001 -- the row carries it
         row['error'] = f'{type(exc).__name__}: {exc} | {traceback.format_exc(limit=-1).strip().splitlines()[-2].strip()}'
-    row.update(wall_s=time.perf_counter() - t0, host=socket.gethostname())
+    row.update(code=provenance.code(), wall_s=time.perf_counter() - t0, host=socket.gethostname())
     return row
 
 
@@ -70,17 +72,20 @@ def _table(rows: list[dict[str, Any]]):  # -> pyarrow.Table
 def schema():  # -> pyarrow.Schema
     import pyarrow as pa
     types = {'key': pa.string(), 'layout': pa.int64(), 'seed': pa.int64(), 'kind': pa.string(),
-             'variant': pa.string(), 'maps': pa.int64(), 'error': pa.string(), 'host': pa.string()}
+             'variant': pa.string(), 'maps': pa.int64(), 'error': pa.string(), 'code': pa.string(),
+             'host': pa.string()}
     return pa.schema([(c, types.get(c, pa.float64())) for c in COLUMNS])
 
 
 SPEC_COPY = 'spec.yaml'  # the spec a study folder holds the runs of, as it was given
 
 
-def claim(out: Path, spec_path: Path, keys: set[str]) -> None:
-    """Make `out` the folder of this spec's study, or say in one line (StudyError) why it is not: it holds the runs
-    of another spec (by its copy of the spec, or, in a folder from before the copy, by a row no run of this spec
-    has), or it is not a study folder at all (a run folder, say). Then the folder keeps a copy of the spec."""
+def claim(out: Path, spec_path: Path, keys: set[str], code: str) -> None:
+    """Make `out` the folder of this spec's study, flown by this code (provenance.code), or say in one line
+    (StudyError) why it is not: it holds the runs of another spec (by its copy of the spec, or, in a folder from
+    before the copy, by a row no run of this spec has), runs that other code flew (resumed, the table would mix
+    two versions' figures under one key), or it is not a study folder at all (a run folder, say). Then the folder
+    keeps a copy of the spec."""
     from world_sim.core.scenario import read_yaml
     copy = out / SPEC_COPY
     if copy.exists():
@@ -93,6 +98,9 @@ def claim(out: Path, spec_path: Path, keys: set[str]) -> None:
         alien = sorted({r['key'] for r in finished(out)} - keys)
         if alien:
             raise StudyError(f'{out} holds {len(alien)} runs of another spec: give another --out, or that spec')
+    stale = other_code(finished(out), code)
+    if stale:
+        raise StudyError(stale + ': give another --out, or fly it with that code')
     out.mkdir(parents=True, exist_ok=True)
     if not copy.exists():
         copy.write_text(spec_path.read_text())
@@ -108,6 +116,15 @@ def finished(out: Path) -> list[dict[str, Any]]:
     for part in sorted((out / PARTS).glob('*.parquet')) if (out / PARTS).exists() else []:
         rows.update((r['key'], r) for r in pq.read_table(part).to_pylist())
     return list(rows.values())
+
+
+def other_code(rows: list[dict[str, Any]], code: str) -> Optional[str]:
+    """One line on the rows that code other than `code` flew (a row from before runs recorded it counts), or None."""
+    other = [r for r in rows if r.get('code') != code]
+    if not other:
+        return None
+    return (f'{len(other)} of {len(rows)} runs were flown by other code than this ({code}): the first, layout '
+            f'{other[0]["layout"]} seed {other[0]["seed"]}, by {other[0].get("code") or "code that did not record itself"}')
 
 
 def raised(rows: list[dict[str, Any]]) -> Optional[str]:
