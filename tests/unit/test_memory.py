@@ -9,12 +9,14 @@ from uav_agent.core.allocations.demand.memory import SILENT, Gossip, Mine, Own, 
 from uav_agent.core.state import M1, Memory, Told
 
 PAIRS = st.lists(st.tuples(st.integers(0, 4095), st.integers(0, 10**6)), max_size=5).map(lambda v: tuple(sorted(v)))
-MINE = st.builds(Mine, st.integers(0, 2), st.integers(-1, 9), st.integers(0, 511),
-                 st.one_of(st.none(), st.tuples(st.integers(0, 4), st.integers(5, 9))), st.floats(0, 1),
-                 st.integers(0, 99), st.booleans(), st.booleans(),
-                 st.one_of(st.none(), st.tuples(st.integers(0, 9), st.floats(0, 1))), PAIRS,
-                 st.lists(st.tuples(st.floats(0, 0.5), st.floats(0.5, 1)), max_size=3).map(tuple), PAIRS,
-                 st.integers(-1, 999), st.integers(0, 999), st.booleans())
+MINE = st.builds(  # each field drawn as its type says (Own's annotations)
+    Mine, mode=st.integers(0, 2), goal=st.integers(-1, 9), achieved=st.integers(0, 511),
+    bridge=st.one_of(st.none(), st.tuples(st.integers(0, 4), st.integers(5, 9))), settled=st.booleans(),
+    transit=st.booleans(), swing=st.one_of(st.none(), st.tuples(st.integers(0, 9), st.floats(0, 1))), seen=PAIRS,
+    lost=st.lists(st.tuples(st.floats(0, 0.5), st.floats(0.5, 1)), max_size=3).map(tuple), short=PAIRS,
+    since=st.integers(-1, 999), taut=st.integers(0, 999), straight=st.booleans(), whole=st.integers(-1, 999),
+    hold=st.one_of(st.none(), st.lists(st.floats(-50, 50), min_size=1, max_size=2).map(tuple)),
+    ends=st.one_of(st.just(()), st.lists(st.floats(0, 99), min_size=4, max_size=4).map(tuple)))
 
 
 def test_the_common_memory_holds_five_fields() -> None:
