@@ -60,7 +60,8 @@ def handle(args: argparse.Namespace) -> int:
     except engine.StudyError as exc:
         raise UsageError(f'study: {exc}') from None
     # the last command that flew into the folder; each row also names the code that flew it (`code`)
-    (args.out / provenance.PROVENANCE_FILE).write_text(json.dumps(provenance.said(provenance.argv_of(args)), indent=1) + '\n')
+    said = provenance.said(provenance.argv_of(args))
+    (args.out / provenance.PROVENANCE_FILE).write_text(json.dumps(said, indent=1) + '\n')
     print(f'study: {len(grid)} run{"s" if len(grid) != 1 else ""} into {args.out / engine.RESULTS}'
           f' on {args.scheduler or "a local cluster"}', file=sys.stderr, flush=True)
     try:

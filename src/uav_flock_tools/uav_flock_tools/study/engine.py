@@ -123,8 +123,9 @@ def other_code(rows: list[dict[str, Any]], code: str) -> Optional[str]:
     other = [r for r in rows if r.get('code') != code]
     if not other:
         return None
+    first = other[0]
     return (f'{len(other)} of {len(rows)} runs were flown by other code than this ({code}): the first, layout '
-            f'{other[0]["layout"]} seed {other[0]["seed"]}, by {other[0].get("code") or "code that did not record itself"}')
+            f'{first["layout"]} seed {first["seed"]}, by {first.get("code") or "code that did not record itself"}')
 
 
 def raised(rows: list[dict[str, Any]]) -> Optional[str]:
