@@ -60,9 +60,9 @@ def test_lockstep_equals_the_batch_simulator_on_a_multirotor(tmp_path: Path, ros
                       'gnss': {'sigma': 2.0, 'own': 0.8}}
     doc.setdefault('policies', {})['safety'] = safety
     (tmp_path / 'multirotor.yaml').write_text(yaml.safe_dump(doc))
-    # The filter keeps a chain's links once its relays have settled and come to rest: here from about 22 s.
+    # The filter keeps a chain's links once its relays have settled: here from about 18 s.
     args = ('--scenario', str(tmp_path / 'multirotor.yaml'), '--maps', '24', '--duration',
-            '23' if safety == 'filter' else '8', '--fail-at', '4', '--fail-fraction', '0.2')
+            '20' if safety == 'filter' else '8', '--fail-at', '4', '--fail-fraction', '0.2')
     distributed = cli('up', *args, '--agents-per-process', '6', '--out', str(tmp_path / 'up'), env=ros_env)
     assert distributed.returncode == 0, distributed.stdout + distributed.stderr
     batch = cli('sim', *args, '--out', str(tmp_path / 'sim'))

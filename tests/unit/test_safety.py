@@ -204,23 +204,3 @@ def test_when_a_protected_link_and_separation_conflict_the_link_gives_way() -> N
     assert n @ with_link.u[0, :2] <= budget + 1e-6, (with_link.u, budget)
     assert with_link.flags[0] & safety.RELAXED
     assert np.allclose(with_link.u, alone.u, atol=1e-3), (with_link.u, alone.u)
-
-
-def test_a_link_the_network_needs_is_protected_once_both_its_ends_are_at_rest() -> None:
-    """Two settled relays 22 m apart, each sent 100 m away from the other (the allocation names their link as
-    needed): at rest, the link holds both back. One of them still flying at 8 m/s, as a relay that reached its
-    place at speed and overshoots it, the link is not made yet and holds neither (safety.made, AT_REST)."""
-    from uav_agent.core.control import control_input
-    from uav_agent.core.state import M2
-    fp = replace(FP, safety='filter')
-    q = np.array([[0.0, 0.0, 20.0], [22.0, 0.0, 20.0]])
-    target = q + np.array([[-100.0, 0.0, 0.0], [100.0, 0.0, 0.0]])
-    owner, needed = np.array([0, 1]), np.ones(2, dtype=bool)
-
-    def flags(p: np.ndarray) -> list[int]:
-        return control_input(q, p, np.zeros(2), np.array([M2, M2]), target, q, q, owner, q[::-1], p[::-1],
-                             np.zeros(2), fp, needed=needed).flags.tolist()
-    assert flags(np.zeros((2, 3))) == [safety.HELD, safety.HELD]
-    overshooting = np.array([[0.0, 0.0, 0.0], [safety.AT_REST + 3.0, 0.0, 0.0]])
-    assert flags(overshooting) == [0, 0]
-    assert safety.made(needed, overshooting[owner], overshooting[::-1]).tolist() == [False, False]

@@ -162,9 +162,8 @@ def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer]
         dq, dv = at - own_q[by], vel - own_p[by]
         rows = np.flatnonzero(safety.binding(dq, dv, fp))
         links = None
-        made = None if needed is None else safety.made(needed, own_p[owner], nbr_p)
-        if on('links') and made is not None and made.any():  # the links it protects, of those the network needs
-            ask = np.flatnonzero(made)
+        if on('links') and needed is not None and needed.any():  # the links it protects, of those the network needs
+            ask = np.flatnonzero(needed)
             l_owner, l_dq, l_dv = owner[ask], nbr_q[ask] - own_q[owner[ask]], nbr_p[ask] - own_p[owner[ask]]
             near = safety.link_budget(l_dq, l_dv, fp) < fp.a_max  # the rows a command within a_max can reach
             chosen = np.flatnonzero(safety.protected(l_owner, l_dq, len(own_q), near))

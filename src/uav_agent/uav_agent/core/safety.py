@@ -40,7 +40,6 @@ SLACK_WEIGHT = 1e-6  # the slacks' quadratic weight, only to keep the QP's Hessi
 SHARE_FLOOR = 0.5   # m/s: what each end of a protected link counts as its opening speed at least (opening_share)
 FLAG_TOL = 1e-6     # m/s^2: how far past a link's row a command must be for the flags to count it
 LINK_MARGIN = 1.0   # m: a protected link is kept this much shorter than r, where the chains are laid taut
-AT_REST = 5.0       # m/s: a link the network needs is made, and protected, once both its ends fly slower (made)
 # What the filter did to a MAP's command at a step (Filtered.flags, bits; Command.msg's filter): a protected link
 # whose row it could not keep (its slack gave way), and a protected link that stopped the nominal, which would
 # have opened it faster than its barrier allows (the MAP held back from where eq. 9 sends it).
@@ -96,14 +95,6 @@ def link_budget(dq: F64, dv: F64, fp: FlockParams, share: F64 | float = 0.5) -> 
     that keeps the link's barrier h = v_safe(r - LINK_MARGIN - d) - o (o the speed at which the link opens):
     -n . a_i <= link_budget. The sideways speed w opens a link at w^2 / d and counts against it."""
     return _barrier(dq, dv, fp, 1.0, share)
-
-
-def made(needed: NDArray[np.bool_], own_p: F64, nbr_p: F64) -> NDArray[np.bool_]:
-    """Per link (own MAP's velocity, neighbour's), of those the network needs, whether it is made: both ends fly
-    slower than AT_REST over the ground. A relay reaches its place on a chain at 10-15 m/s and overshoots it by
-    20-40 m; a link protected from its arrival on held it there, off the chain's line, with the fellow it was
-    linked to (docs/notes/vehicle.md). Both ends see the same two broadcast velocities, so they agree."""
-    return needed & (np.hypot(own_p[:, 0], own_p[:, 1]) < AT_REST) & (np.hypot(nbr_p[:, 0], nbr_p[:, 1]) < AT_REST)
 
 
 def protected(owner: NDArray[np.intp], dq: F64, m: int, asked: NDArray[np.bool_]) -> NDArray[np.bool_]:
