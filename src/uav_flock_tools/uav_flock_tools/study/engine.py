@@ -87,7 +87,7 @@ def claim(out: Path, spec_path: Path, keys: set[str], code: str) -> None:
     two versions' figures under one key), or it is not a study folder at all (a run folder, say). Then the folder
     keeps a copy of the spec."""
     from world_sim.core.scenario import read_yaml
-    copy = out / SPEC_COPY
+    copy, held = out / SPEC_COPY, finished(out)
     if copy.exists():
         if read_yaml(copy, 'spec') != read_yaml(spec_path, 'spec'):
             raise StudyError(f'{out} holds the study of another spec (its copy: {copy}): give another --out, or '
@@ -95,10 +95,10 @@ def claim(out: Path, spec_path: Path, keys: set[str], code: str) -> None:
     elif out.exists() and any(out.iterdir()):
         if not ((out / RESULTS).exists() or (out / PARTS).exists()):
             raise StudyError(f'{out} is not a study folder (no {RESULTS}): give a new or empty --out')
-        alien = sorted({r['key'] for r in finished(out)} - keys)
+        alien = sorted({r['key'] for r in held} - keys)
         if alien:
             raise StudyError(f'{out} holds {len(alien)} runs of another spec: give another --out, or that spec')
-    stale = other_code(finished(out), code)
+    stale = other_code(held, code)
     if stale:
         raise StudyError(stale + ': give another --out, or fly it with that code')
     out.mkdir(parents=True, exist_ok=True)
