@@ -216,6 +216,32 @@ def test_under_a_channel_connected_is_the_usable_graph_and_disc_the_disc_graph()
     assert figures(m[:, :len(METRICS_COLUMNS)], 0.1, None)['connected'] == 1.0, 'the paper\'s channel: the disc graph'
 
 
+def test_a_formation_counts_as_formed_once_every_map_is_slower_than_the_bound_and_connected_counts_on_from_there() -> None:
+    """A multirotor's formation first converges while MAPs still fly to their roles: `formed` is the first step
+    covered and connected with every MAP slower than FORMED_SPEED, and `connected_formed` the share connected from
+    it on, so a split while one MAP was still on its way counts in `connected` and not there; a step the trajectory
+    did not record is not one at rest, and a formation never at rest has neither figure."""
+    from uav_flock_tools.study.cases import FORMED_SPEED, figures, formation
+    from world_sim.core.records import METRICS_COLUMNS, TRAJECTORY_COLUMNS
+    m = np.zeros((300, len(METRICS_COLUMNS)))
+    m[:, 0], m[:, 1], m[:, 2], m[:, 3], m[:, 4], m[:, 5] = np.arange(300), np.arange(300) * 0.1, 0.97, 0.4, 2, 1
+    m[:50, 5] = 2  # converges at 5 s
+    m[60:70, 5] = 2  # split 1 s while MAP 1 is on its way
+    m[250:260, 5] = 2  # and 1 s after the formation is at rest
+    steps = np.repeat(np.arange(300), 2)
+    traj = np.zeros((600, len(TRAJECTORY_COLUMNS)))
+    col = TRAJECTORY_COLUMNS.index
+    traj[:, col('step')], traj[:, col('id')] = steps, np.tile([0, 1], 300)
+    traj[:, col('vx')] = np.where((traj[:, col('id')] == 1) & (steps < 100), FORMED_SPEED + 5.0, 0.5)
+    f, g = figures(m, 0.1, None), formation(m, traj)
+    assert f['converged'] == pytest.approx(5.0) and f['connected'] == pytest.approx(230 / 250)
+    assert g['formed'] == pytest.approx(10.0) and g['connected_formed'] == pytest.approx(190 / 200)
+    unrecorded = traj[traj[:, col('step')] != 100]
+    assert formation(m, unrecorded)['formed'] == pytest.approx(10.1)
+    traj[:, col('vy')] = FORMED_SPEED
+    assert formation(m, traj) == {}
+
+
 def test_splits_count_each_fall_apart_after_convergence_and_the_summary_the_runs_never_split() -> None:
     """A network that falls apart twice after convergence splits twice, however long each lasts; one split
     before convergence is no split; the summary counts the converged runs that never split."""

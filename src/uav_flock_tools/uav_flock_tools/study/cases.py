@@ -33,12 +33,17 @@ HELD_S = 10.0  # a run "ends covered and connected" when it is so over its last 
 # Connected is lambda2 > 0 of the usable graph: the disc graph under the paper's channel; under a `links:` channel
 # the links that deliver half of what is sent over them (docs/links.md), of which the disc graph is the share `disc`.
 FIGURES = ('converged', 'connected', 'splits', 'outage', 'rc', 'recovery', 'ends_ok', 'end_rc', 'end_components',
-           'disc', *('t_star', 'least_distance', 'top_speed', 'top_accel', 'power', 'energy', 'relaxed', 'held'))
+           'disc', *('t_star', 'least_distance', 'top_speed', 'top_accel', 'power', 'energy', 'relaxed', 'held',
+                     'formed', 'connected_formed'))
 # A multirotor's (docs/vehicle.md; None on the ideal vehicle): T* (s), the least distance between two MAPs (m),
 # the top speed (m/s) and acceleration (m/s^2) over the ground read from the trajectory, the formation's mean
-# power per MAP after convergence (W; over the whole run if it never converged), the energy it drew (J), and the
+# power per MAP after convergence (W; over the whole run if it never converged), the energy it drew (J), the
 # shares of MAP-steps whose safety filter relaxed a protected link and that a protected link held back (0 under
-# the rules).
+# the rules), and the first step the formation is formed (covered, connected and every MAP slower than
+# FORMED_SPEED) with the share of time connected after it (None if it never formed). A multirotor's formation
+# first counts as converged while MAPs still fly to their roles at up to v_max, joined at that step by some of
+# them only passing by; `connected` counts from that step, `connected_formed` from the formation at rest.
+FORMED_SPEED = 3.0  # m/s over the ground: a formation is formed once every MAP flies slower (hovering in gusts: < 1)
 
 
 def lb_along(s: Scenario, until: float) -> int:
@@ -141,7 +146,35 @@ def flight_figures(s: Scenario, m: np.ndarray, trajectory: np.ndarray, centroids
     return {'t_star': outcome.t_star(s, centroids), 'least_distance': float(np.nanmin(records.vehicle_column(m, 'min_distance'))),
             'top_speed': speed, 'top_accel': accel, 'power': float(records.vehicle_column(m, 'power')[after].mean()),
             'energy': float(records.vehicle_column(m, 'energy')[-1]),
-            **{name: float(records.vehicle_column(m, name).sum() / max(m[:, 4].sum(), 1.0)) for name in ('relaxed', 'held')}}
+            **{name: float(records.vehicle_column(m, name).sum() / max(m[:, 4].sum(), 1.0)) for name in ('relaxed', 'held')},
+            **formation(m, trajectory)}
+
+
+def usable(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per metrics row, whether the run is covered (R_c >= 95 %) and connected, and whether it is connected: the
+    usable graph's components, which are the disc graph's under the paper's channel."""
+    connected = joined(m, len(METRICS_COLUMNS) + 1) if records.has_links(m) else joined(m)
+    return (m[:, 2] >= 0.95) & connected, connected
+
+
+def formation(m: np.ndarray, trajectory: np.ndarray) -> dict[str, float]:
+    """'formed', the first step covered, connected and with every MAP slower than FORMED_SPEED (s), and
+    'connected_formed', the share of time connected from it on; neither if the formation never formed."""
+    ok, connected = usable(m)
+    at = np.flatnonzero(ok & (top_speeds(m, trajectory) < FORMED_SPEED))
+    return {'formed': float(m[at[0], 1]), 'connected_formed': float(connected[at[0]:].mean())} if len(at) else {}
+
+
+def top_speeds(m: np.ndarray, trajectory: np.ndarray) -> np.ndarray:
+    """Per metrics row, the fastest MAP's speed over the ground (m/s) at that step; inf at a step the trajectory
+    did not record."""
+    col = records.TRAJECTORY_COLUMNS.index
+    step = trajectory[:, col('step')].astype(np.intp)
+    speed = np.linalg.norm(trajectory[:, col('vx'):col('vz') + 1], axis=1)
+    top = np.full(int(max(step.max(initial=0), m[:, 0].max(initial=0))) + 1, -np.inf)
+    np.maximum.at(top, step, speed)
+    top[top == -np.inf] = np.inf
+    return top[m[:, 0].astype(np.intp)]
 
 
 def figures(m: np.ndarray, dt: float, event: Optional[float]) -> dict[str, Optional[float]]:
@@ -149,8 +182,7 @@ def figures(m: np.ndarray, dt: float, event: Optional[float]) -> dict[str, Optio
     hearing.LINK_COLUMNS, whose first is the usable graph's lambda2); None where a run that never converged, or
     has no event, has none."""
     t, rc, disc = m[:, 1], m[:, 2], joined(m)
-    connected = joined(m, len(METRICS_COLUMNS) + 1) if records.has_links(m) else disc  # the usable graph's components
-    ok = (rc >= 0.95) & connected
+    ok, connected = usable(m)
     out: dict[str, Optional[float]] = dict.fromkeys(FIGURES)
     out['ends_ok'] = float(ok[-int(round(HELD_S / dt)):].all())
     out['end_rc'], out['end_components'] = float(rc[-1]), float(m[-1, 5])

@@ -95,7 +95,7 @@ def flight(rows: list[dict[str, Any]]) -> str:
     from world_sim.core.vehicle import HOVER
     out = ['| kind | variant | converged / T*: median | worst | least distance (m) | top speed (m/s) | '
            'top acceleration (m/s²) | power after convergence / hover: mean | worst | MAP-steps a protected link '
-           'gave way, held back (filter) |', '|---' * 10 + '|']
+           'gave way, held back (filter) | connected once formed: mean, worst (runs formed) |', '|---' * 11 + '|']
     for kind in dict.fromkeys(r['kind'] for r in rows):
         for variant in dict.fromkeys(r['variant'] for r in rows):
             cell = [r for r in rows if r['kind'] == kind and r['variant'] == variant and r.get('t_star') is not None]
@@ -106,8 +106,17 @@ def flight(rows: list[dict[str, Any]]) -> str:
             out.append(f"| {kind} | {variant} | {np.median(ratio):.2f} | {ratio.max():.2f} | "
                        f"{min(r['least_distance'] for r in cell):.2f} | {max(r['top_speed'] for r in cell):.2f} | "
                        f"{max(r['top_accel'] for r in cell):.2f} | {power.mean():.3f} | {power.max():.3f} | "
-                       f"{_shares(cell)} |")
+                       f"{_shares(cell)} | {_formed(cell)} |")
     return '\n## Flight (multirotor)\n\n' + '\n'.join(out) + '\n'
+
+
+def _formed(cell: list[dict[str, Any]]) -> str:
+    """The share of time connected once the formation was formed (cases.FORMED_SPEED), over a cell's runs that
+    formed ('' for runs flown before it was counted)."""
+    if any('connected_formed' not in r for r in cell):
+        return ''
+    shares = [x for x in (r['connected_formed'] for r in cell) if x is not None and np.isfinite(x)]
+    return f"{_pct(np.mean(shares))}, {_pct(min(shares))} ({len(shares)})" if shares else '— (0)'
 
 
 def _shares(cell: list[dict[str, Any]]) -> str:
