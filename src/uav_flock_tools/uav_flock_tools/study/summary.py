@@ -116,7 +116,7 @@ def _formed(cell: list[dict[str, Any]]) -> str:
     if any('connected_formed' not in r for r in cell):
         return ''
     shares = [x for x in (r['connected_formed'] for r in cell) if x is not None and np.isfinite(x)]
-    return f"{_pct(np.mean(shares))}, {_pct(min(shares))} ({len(shares)})" if shares else '— (0)'
+    return f'{_pct(np.mean(shares))} %, {_pct(min(shares))} % ({len(shares)})' if shares else '— (0)'
 
 
 def _shares(cell: list[dict[str, Any]]) -> str:
