@@ -12,7 +12,7 @@ from uav_agent.core.clusters import mst_edges
 from uav_agent.core.state import M1
 from world_sim.core import layouts
 from world_sim.core import records
-from world_sim.core.outcome import joined
+from world_sim.core.outcome import COVERED, R_C, joined
 from world_sim.core.records import METRICS_COLUMNS
 from world_sim.core.scenario import Cluster, Scenario
 
@@ -154,7 +154,7 @@ def usable(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per metrics row, whether the run is covered (R_c >= 95 %) and connected, and whether it is connected: the
     usable graph's components, which are the disc graph's under the paper's channel."""
     connected = joined(m, len(METRICS_COLUMNS) + 1) if records.has_links(m) else joined(m)
-    return (m[:, 2] >= 0.95) & connected, connected
+    return (m[:, R_C] >= COVERED) & connected, connected
 
 
 def formation(m: np.ndarray, trajectory: np.ndarray) -> dict[str, float]:
