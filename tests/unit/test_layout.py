@@ -171,6 +171,39 @@ def test_rule_cascade_passes_an_arrivals_keys_hop_by_hop(size: float) -> None:
     assert all(abs(counts[()][r] - counts[('cascade',)][r]) <= 1 for r in counts[()] | counts[('cascade',)]), counts
 
 
+def test_rule_cascade_passes_a_new_edges_keys_hop_by_hop_when_a_drifting_cluster_changes_the_tree() -> None:
+    """Rule 'cascade' beyond arrivals: cluster 1 drifts until the tree swaps edge (0, 1) for (2, 3), which stands
+    while the new edge takes its share from the clusters nearest it (rule 'nearest'). The servers of 2 and 3 go
+    down to their floors, and what the edge lacks comes from clusters 0 and 1, two hops from it: with the rule 2
+    and 3 give their own and take 0's and 1's, so each MAP that changes role crosses one hop; without it, servers
+    of 0 and 1 fly to the new edge across their neighbours' lattices. The shares are the same."""
+    fp, n = FlockParams(), 160
+    radii = np.full(4, 30.0)
+    xy = np.array([[0.0, 0.0], [160.0, 0.0], [0.0, 150.0], [170.0, 150.0]])
+    moved = xy.copy()
+    moved[1] = [175.0, 0.0]
+    tree = {(0, 2), (1, 3), (2, 3)}
+
+    def one_hop(b: Any, a: Any) -> bool:
+        if not isinstance(b, int):
+            return True  # a relay's keys move as they did
+        return tuple(sorted((a, b))) in tree if isinstance(a, int) else b in a
+
+    far, counts = {}, {}
+    for rule_off in ((), ('cascade',)):
+        with switched_off(rule_off):
+            first = ClusterMap(xy, fp.height, radii)
+            before = role_ids(first, n, fp, True)
+            swapped = ClusterMap(moved, fp.height, radii, previous=first)
+            after = role_ids(swapped, n, fp, True)
+        assert swapped.mst(swapped.live) == tuple(sorted(tree)), 'the tree swapped (0, 1) for (2, 3)'
+        far[rule_off] = sum(b != a and not one_hop(b, a) for b, a in zip(before, after))
+        counts[rule_off] = collections.Counter(map(str, after))
+    assert far[('cascade',)] >= 3, f'the case has no keys from two hops away to pass: {far}'
+    assert far[()] == 0, f'with the rule, MAPs from two hops away: {far[()]}'
+    assert counts[()] == counts[('cascade',)], counts
+
+
 def test_an_edge_that_leaves_the_tree_keeps_its_chain_while_the_new_one_is_staffed_from_the_surplus() -> None:
     """Cluster 1 drifts until the tree swaps edge (0, 1) for (2, 3), which shares no cluster with it: no
     relay can swing. The old chain stands for STANDING surveys while servers with keys to spare staff the new

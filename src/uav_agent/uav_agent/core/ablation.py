@@ -71,9 +71,9 @@ VEHICLE_RULES = {
     'nearest': "a new edge or cluster takes its share first from the clusters nearest it on the tree, down to their "
                'floor, not from the roles most above their share wherever they are, under the demand allocation '
                '(layout.roles, vacancy.nearest)',
-    'cascade': 'the keys an arriving cluster, or an edge to it, takes from a cluster more than one hop away pass hop by '
-               'hop: each cluster on the way gives its own to the one before it, so no MAP crosses two hops, under rule '
-               'nearest (layout.cascaded)',
+    'cascade': 'the keys a role of the tree (an arriving cluster first, or an edge to it) takes from a cluster more than '
+               'one hop away pass hop by hop: each cluster on the way gives its own to the one before it, so no MAP '
+               'crosses two hops, under rule nearest (layout.cascaded)',
 }
 RULES.update(CHANNEL_RULES)
 RULES.update(VEHICLE_RULES)

@@ -73,8 +73,8 @@ def _laid_out(now: ClusterMap, d: float, near: bool) -> 'Roles':
         share = kept(share, ids, held, SLACK if on('kept') else 1e-9, lenders)
         pieces = keys.carry(before, dict(zip(ids, share))) if on('carry') else \
             keys.fresh(keys.end_to_end(dict(zip(ids, share))))
-        if arrived and on('cascade'):
-            pieces = cascaded(before, pieces, now, arrived)
+        if near and on('cascade'):
+            pieces = cascaded(before, pieces, now, arrived, ids)
     else:
         pieces = keys.fresh(zip(ids, starts.tolist(), bounds.tolist()))
     return Roles(edges, tuple(demand), share, pieces, stand)
@@ -99,17 +99,22 @@ def standing(was: 'Roles', tree: tuple[Edge, ...], now: ClusterMap) -> tuple[tup
 
 
 def cascaded(old: tuple[keys.Piece, ...], new: tuple[keys.Piece, ...], now: ClusterMap,
-             arrived: list[int]) -> tuple[keys.Piece, ...]:
-    """Rule 'cascade': the keys an arriving cluster, or an edge to it, takes from a cluster more than one hop away
-    on the tree pass hop by hop instead: each cluster on the way gives as many of its own to the one before it
-    and takes the farther one's, so every MAP that changes role crosses one hop, and all cross at once.
+             arrived: list[int], ids: Sequence[keys.RoleId] = ()) -> tuple[keys.Piece, ...]:
+    """Rule 'cascade': the keys a role of the tree takes from a cluster more than one hop away on it pass hop by hop
+    instead: each cluster on the way gives as many of its own to the one before it and takes the farther one's, so
+    every MAP that changes role crosses one hop, and all cross at once. An arriving cluster and its edges first,
+    then the other roles of ids in order (a standing edge, out of the tree, keeps what it holds).
 
     Laid out as `kept` lends, an arrival's servers came from its neighbour down to its floor and from the cluster
     beyond: those flew 200-250 m, crawling through their own lattice first, and the arrival was covered 25-37 s
-    after it came (docs/notes/vehicle.md, "Where an arrival's time goes"). Shares stay as `kept` laid them out.
+    after it came (docs/notes/vehicle.md, "Where an arrival's time goes"). So did the relays of an edge that joined
+    the tree as a cluster drifted: its chain was still not laid when the edge it replaced was let go, 20 s later,
+    and the formation split (notes, "Rule `cascade` for every role"). Shares stay as `kept` laid them out.
     """
     pieces = new
-    for role in [*arrived, *(e for e in now.mst(now.live) if set(e) & set(arrived))]:
+    tree = now.mst(now.live)
+    first = [*arrived, *(e for e in tree if set(e) & set(arrived))]
+    for role in [*first, *(r for r in ids if r not in first and (isinstance(r, int) or r in tree))]:
         for source, amount in sorted(keys.came_from(old, pieces, role).items(), key=lambda kv: str(kv[0])):
             if not isinstance(source, int) or source == role or not now.live >> source & 1:
                 continue  # a relay's keys move as they did; so do a role's own, and an ended cluster's
