@@ -267,9 +267,9 @@ def test_every_envelope_rule_acts_on_a_multirotor_run() -> None:
     for rule in VEHICLE_RULES:
         s = replace(paper, vehicle=vehicle.MULTIROTOR, duration=later.get(rule, 5.0), flock=policy_sets(paper)['default'])
         if rule == 'patient':  # a role silent for 10-30 s, not on the paper's layout: random layout 21 of the studies,
-            s = draw('paper', 22, (3, 6), 0)[21]  # 30 % of its MAPs lost at 30 s, their roles unheard of from then
-            s = replace(s, maps=math.ceil(1.5 * layouts.floor(s).total), duration=45.0, seed=0, survey='online',
-                        flock=policy_sets(s)['default'], fail_at=30.0, fail_fraction=0.3)
+            s = draw('paper', 22, (3, 6), 0)[21]  # 30 % of its MAPs lost at 15 s, their roles unheard of from then
+            s = replace(s, maps=math.ceil(1.5 * layouts.floor(s).total), duration=27.0, seed=0, survey='online',
+                        flock=policy_sets(s)['default'], fail_at=15.0, fail_fraction=0.3)
         if rule in ('nearest', 'cascade'):  # a new role, which the paper's layout has not: 300 users arriving at 3 s
             doc = to_doc(s)
             doc['users'] = {**doc['users'], 'survey': 'online', 'clusters': [
