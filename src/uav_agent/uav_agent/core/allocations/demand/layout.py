@@ -99,7 +99,7 @@ def standing(was: 'Roles', tree: tuple[Edge, ...], now: ClusterMap) -> tuple[tup
 
 
 def cascaded(old: tuple[keys.Piece, ...], new: tuple[keys.Piece, ...], now: ClusterMap,
-             arrived: list[int], ids: Sequence[keys.RoleId] = ()) -> tuple[keys.Piece, ...]:
+             arrived: list[int], ids: Sequence[keys.RoleId]) -> tuple[keys.Piece, ...]:
     """Rule 'cascade': the keys a role of the tree takes from a cluster more than one hop away on it pass hop by hop
     instead: each cluster on the way gives as many of its own to the one before it and takes the farther one's, so
     every MAP that changes role crosses one hop, and all cross at once. An arriving cluster and its edges first,
@@ -107,9 +107,10 @@ def cascaded(old: tuple[keys.Piece, ...], new: tuple[keys.Piece, ...], now: Clus
 
     Laid out as `kept` lends, an arrival's servers came from its neighbour down to its floor and from the cluster
     beyond: those flew 200-250 m, crawling through their own lattice first, and the arrival was covered 25-37 s
-    after it came (docs/notes/vehicle.md, "Where an arrival's time goes"). So did the relays of an edge that joined
-    the tree as a cluster drifted: its chain was still not laid when the edge it replaced was let go, 20 s later,
-    and the formation split (notes, "Rule `cascade` for every role"). Shares stay as `kept` laid them out.
+    after it came (docs/notes/vehicle.md, "Where an arrival's time goes"). An edge that joined the tree as a cluster
+    drifted was staffed alike from two and three hops off: its chain was still not laid when the edge it replaced
+    was let go, 20 s later, and the formation split (notes, "Rule `cascade` for every role"). Shares stay as `kept`
+    laid them out.
     """
     pieces = new
     tree = now.mst(now.live)
