@@ -67,10 +67,13 @@ VEHICLE_RULES = {
              'safety.link_budget)',
     'patient': 'a role is declared lost after PATIENT_STEPS unheard of, not VACANT_STEPS, and a chain short after '
                'PATIENT_STEPS found taut, not TAUT_STEPS: a multirotor takes that long to cross to it, under the demand '
-               'allocation (vacancy.vacant_steps, chain.taut_steps)',
+               'allocation (vacancy.vacant_steps, chain.taut_steps); but a relay seen to fail (heard well within r, then '
+               'nowhere near where it was, under the paper\'s channel) finds its chain one MAP short at once '
+               '(vacancy.witness)',
     'nearest': "a new edge or cluster takes its share first from the clusters nearest it on the tree, down to their "
-               'floor, not from the roles most above their share wherever they are, under the demand allocation '
-               '(layout.roles, vacancy.nearest)',
+               'floor, not from the roles most above their share wherever they are, and an edge found short is lent '
+               'its MAPs by its own two clusters, under the demand allocation (layout.roles, vacancy.nearest, '
+               'vacancy.view)',
     'cascade': 'the keys a role of the tree (an arriving cluster first, or an edge to it) takes from a cluster more than '
                'one hop away pass hop by hop: each cluster on the way gives its own to the one before it, so no MAP '
                'crosses two hops, under rule nearest (layout.cascaded)',

@@ -45,7 +45,9 @@ class Own(NamedTuple):
     its cluster) and, while they have been broken no longer than the channel's losses last, the place it holds
     (hold: a relay's place along its edge, a server's offset from its cluster's centre; demand.hushed,
     demand.anchored). A settled relay on a lagged vehicle keeps and tells its chain's ends as it last heard them
-    (ends: chain.Ends as four numbers, or none; rule 'ends')."""
+    (ends: chain.Ends as four numbers, or none; rule 'ends'). On a lagged vehicle under the paper's channel it keeps
+    the relays it heard at its last step well within r, each as (x, y, role code), to see which of them failed
+    (around: vacancy.witness); it never tells them."""
 
     settled: bool = False
     transit: bool = False
@@ -59,6 +61,7 @@ class Own(NamedTuple):
     whole: int = -1
     hold: Optional[tuple[float, ...]] = None
     ends: tuple[float, ...] = ()
+    around: tuple[tuple[float, float, int], ...] = ()
 
     def said(self) -> Gossip:
         """What the MAP's state message carries of it (Told.block)."""

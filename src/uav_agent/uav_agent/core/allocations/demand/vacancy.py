@@ -25,7 +25,7 @@ import numpy as np
 
 from ... import envelope
 from ...clusters import NO_GOAL, ClusterMap, key_of
-from ...state import M1, Told
+from ...state import M1, Near, Told
 from . import keys
 from ...ablation import on
 from . import layout
@@ -38,6 +38,15 @@ if TYPE_CHECKING:
 VACANT_STEPS = 100  # 10 s at Δt = 0.1 s: longer than the outages of a formation that merely moves
 PATIENT_STEPS = 300  # 30 s on a lagged vehicle (rule 'patient'): a multirotor's MAPs take 10-20 s to cross to a
                      # role, and a chain's relays reach its ends one by one
+
+STEP_S = 0.1  # a step (s): the steps above count at this Δt
+# Rule 'patient''s witness (witness): a relay heard this far inside r cannot leave r by the next step (two MAPs
+# open at most 2 v_max Δt, 3 m at 15 m/s, and their own GNSS errors, σ 0.5 m each, differ by well under 2 m), and one
+# heard again is within v_max Δt of where it was (its GNSS error drifts over a minute; separation keeps others 3 m off).
+WITNESS_MARGIN_S = 2 * STEP_S   # times v_max, plus WITNESS_GNSS
+WITNESS_GNSS = 2.0              # m
+WITNESS_MATCH_S = STEP_S        # times v_max, plus WITNESS_MATCH_GNSS
+WITNESS_MATCH_GNSS = 0.5        # m
 
 EDGE_CODE = 64      # role codes: cluster k is k (< 63 ids a run may use), edge (a, b) is 64 + 64 a + b
 
@@ -61,6 +70,51 @@ def patient(fp: FlockParams) -> bool:
     """Whether rule 'patient' acts: on a lagged vehicle, whose MAPs take PATIENT_STEPS to fly in, neither a role's
     keys are declared lost (vacant_steps) nor a chain found short (chain.taut_steps) sooner."""
     return envelope.limited(fp) and on('patient')
+
+
+def witnessing(fp: FlockParams) -> bool:
+    """Whether a MAP looks for relays that failed (witness): under rule 'patient', and under the paper's channel only,
+    where a neighbour within r is heard at every step (under a lossy one, silence is most often lost states)."""
+    return patient(fp) and fp.hush <= 0
+
+
+def witness(mem: Mine, q: np.ndarray, near: Near, fp: FlockParams) -> Mine:
+    """Rule 'patient''s witness: each relay heard at the last step well within r and heard nowhere near where it was
+    now has failed, and its chain is found one MAP short at once, for each such relay (Mine.short; merged by the
+    larger count, so two MAPs that saw the same failure ask for one MAP, not two).
+
+    Patience waits out a silence because a silent role may still be on its way (vacant_steps, chain.taut_steps). A
+    relay that vanishes from well within range is no such silence: nothing flies out of range in one step. Waiting
+    30 s per MAP to find a broken chain short, still layouts after a loss of 30 % stayed split for the rest of the
+    run in 3 runs of 60 (docs/notes/vehicle.md, "A failure seen is a chain short")."""
+    if not witnessing(fp):
+        return mem
+    now = np.asarray(near.q, dtype=float)[:, :2] if len(near.told) else np.zeros((0, 2))
+    gone: dict[int, int] = {}
+    if mem.around:
+        was = np.asarray(mem.around, dtype=float)
+        match = fp.v_max * WITNESS_MATCH_S + WITNESS_MATCH_GNSS
+        if len(now):
+            seen = (np.hypot(was[:, None, 0] - now[None, :, 0], was[:, None, 1] - now[None, :, 1]) <= match).any(axis=1)
+        else:
+            seen = np.zeros(len(was), dtype=bool)
+        for c in was[~seen, 2].astype(int).tolist():
+            gone[c] = gone.get(c, 0) + 1
+    within = fp.r - fp.v_max * WITNESS_MARGIN_S - WITNESS_GNSS
+    xy = np.asarray(q, dtype=float)[:2]
+    relays = [i for i, t in enumerate(near.told) if t.mode == M1 and t.bridge is not None]
+    around: tuple[tuple[float, float, int], ...] = ()
+    if relays:
+        at = now[relays]
+        close = np.hypot(at[:, 0] - xy[0], at[:, 1] - xy[1]) <= within
+        around = tuple((float(x), float(y), code(near.told[i].bridge))  # type: ignore[arg-type]
+                       for (x, y), i, ok in zip(at.tolist(), relays, close.tolist()) if ok)
+    if not gone:
+        return mem if around == mem.around else mem._replace(around=around)
+    short = dict(mem.short)
+    for c, n in gone.items():
+        short[c] = short.get(c, 0) + n
+    return mem._replace(around=around, short=tuple(sorted(short.items())))
 
 
 def code(role: keys.RoleId) -> int:
@@ -104,31 +158,58 @@ def gossip(mem: Mine, step: int, heard_seen: Iterable[Seen], heard_lost: Iterabl
     return mem._replace(seen=tuple(sorted(seen.items())), lost=lost, short=short)
 
 
-def view(roles: Roles, lost: tuple[keys.Span, ...], short: tuple[tuple[int, int], ...] = ()) -> Roles:
+def view(roles: Roles, lost: tuple[keys.Span, ...], short: tuple[tuple[int, int], ...] = (),
+         near: bool = False) -> Roles:
     """The roles with the lost keys squeezed out and the short roles' shares grown: each role's share laid
-    over the survivors' keys."""
+    over the survivors' keys. near: what a short edge grows by is lent by its own two clusters (rule 'nearest')."""
     if not (lost or short) or sum(roles.share) <= 0:
         return roles  # no hashing on the usual path
-    return _squeezed_view(roles, lost, short)
+    return _squeezed_view(roles, lost, short, near)
 
 
 def role_of(agent_id: int, lost: tuple[keys.Span, ...], clusters: ClusterMap, fp: FlockParams,
             short: tuple[tuple[int, int], ...] = ()) -> tuple[Roles, float]:
     """The roles as this MAP lays them out, and where its key lies among the survivors' keys."""
-    return view(layout.roles(clusters, fp.d, nearest(fp)), lost, short), keys.squeeze(key_of(agent_id), lost)
+    near = nearest(fp)
+    return view(layout.roles(clusters, fp.d, near), lost, short, near), keys.squeeze(key_of(agent_id), lost)
 
 
 @lru_cache(maxsize=256)
-def _squeezed_view(roles: Roles, lost: tuple[keys.Span, ...], short: tuple[tuple[int, int], ...]) -> Roles:
-    ids = roles.ids
-    share = roles.share
-    if short:  # a role found short of n MAPs (demand.tally) asks for n more than its demand
-        extra = dict(short)
-        total = sum(roles.demand)
-        weights = [s * total + (extra.get(code(r), 0) if s > 0 else 0) for r, s in zip(ids, share)]
-        whole = sum(weights)
-        share = tuple(w / whole for w in weights)
-    return roles._replace(share=share, pieces=keys.carry(keys.squeezed(roles.pieces, lost), dict(zip(ids, share))))
+def _squeezed_view(roles: Roles, lost: tuple[keys.Span, ...], short: tuple[tuple[int, int], ...],
+                   near: bool) -> Roles:
+    share = _grown(roles, short, near) if short else roles.share
+    return roles._replace(share=share, pieces=keys.carry(keys.squeezed(roles.pieces, lost), dict(zip(roles.ids, share))))
+
+
+def _grown(roles: Roles, short: tuple[tuple[int, int], ...], near: bool) -> tuple[float, ...]:
+    """The shares with each role found short of n MAPs (demand.tally, witness) grown by n MAPs' worth of the
+    demand: taken from every role alike, or under rule 'nearest' lent by the short edge's own two clusters, down to
+    half what they hold (the rest from every role alike). Taken alike, the MAPs a broken chain asked for were
+    whichever keys the growth reached, anywhere in the formation, and each crossed it (docs/notes/vehicle.md)."""
+    ids, share = roles.ids, roles.share
+    extra = dict(short)
+    total = sum(roles.demand)
+    weights = [s * total + (extra.get(code(r), 0) if s > 0 else 0) for r, s in zip(ids, share)]
+    whole = sum(weights)
+    alike = tuple(w / whole for w in weights)
+    if not near:
+        return alike
+    out = list(share)
+    for i, r in enumerate(ids):
+        if isinstance(r, int) or alike[i] <= share[i]:
+            continue
+        want = alike[i] - share[i]
+        ends = [roles.index(c) for c in r]
+        held = sum(out[j] for j in ends)
+        lent = min(want, held / 2.0)
+        for j in ends:
+            out[j] -= lent * out[j] / held if held > 0 else 0.0
+        out[i] += lent
+        rest = want - lent
+        if rest > 0:
+            others = sum(o for k, o in enumerate(out) if k != i)
+            out = [o + rest if k == i else o * (1.0 - rest / others) for k, o in enumerate(out)]
+    return tuple(out)
 
 
 def vacate(mem: Mine, step: int, q: np.ndarray, clusters: ClusterMap, fp: FlockParams) -> Mine:
@@ -141,7 +222,8 @@ def vacate(mem: Mine, step: int, q: np.ndarray, clusters: ClusterMap, fp: FlockP
     declared role counts as heard VACANT_STEPS from now, so its new members, who may fly in from a part of the
     formation not yet joined to this one, have twice that to arrive before it can be declared again.
     """
-    roles = view(layout.roles(clusters, fp.d, nearest(fp)), mem.lost, mem.short)
+    near = nearest(fp)
+    roles = view(layout.roles(clusters, fp.d, near), mem.lost, mem.short, near)
     current, codes = _current(roles)
     seen = {c: k for c, k in mem.seen if c in codes}  # roles that left the layout are forgotten
     short = tuple((c, n) for c, n in mem.short if c in codes)
