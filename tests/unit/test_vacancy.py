@@ -15,7 +15,7 @@ from uav_agent.core.allocations.demand.chain import TAUT_STEPS, chain_of, tally,
 from uav_agent.core.allocations.demand.memory import Mine
 from uav_agent.core.state import M1, M2, NOBODY, Near, Told
 from uav_agent.core.ablation import switched_off
-from uav_agent.core.allocations.demand.vacancy import PATIENT_STEPS, VACANT_STEPS, code, gossip, vacate, view, witness
+from uav_agent.core.allocations.demand.vacancy import PATIENT_STEPS, VACANT_STEPS, code, gossip, vacate, vanished, view
 from uav_flock_tools.batch import BatchSimulator
 from world_sim.core import layouts
 from world_sim.core.scenario import load
@@ -205,31 +205,31 @@ def relays_at(*xs: float) -> Near:
 
 
 def test_a_relay_that_vanishes_from_well_within_range_finds_its_chain_short_at_once() -> None:
-    """Rule 'patient''s witness: a relay heard 10 m off at one step and nowhere near there at the next has failed,
-    so its chain is one MAP short at once, not after PATIENT_STEPS of tautness. One that moved a step's flight, or
-    one heard at the edge of range (it may have flown out of it), is not counted; nor does the paper's vehicle, a
-    lossy channel, or the rule switched off count any."""
+    """Rule 'patient', a relay seen to fail: one heard 10 m off at one step and nowhere near there at the next has
+    failed, so its chain is one MAP short at once, not after PATIENT_STEPS of tautness. One that moved a step's
+    flight, or one heard at the edge of range (it may have flown out of it), is not counted; nor does the paper's
+    vehicle, a lossy channel, or the rule switched off count any."""
     me = np.array([150.0, 0.0, P.height])
-    first = witness(relay_of_edge_12(), me, relays_at(140.0, 160.0, 150.0 + P.r - 1.0), MULTIROTOR)
+    first = vanished(relay_of_edge_12(), me, relays_at(140.0, 160.0, 150.0 + P.r - 1.0), MULTIROTOR)
     assert len(first.around) == 2, 'the two relays well within r, not the one at r - 1 m'
     assert first.short == ()
-    moved = witness(first, me, relays_at(141.4, 160.0), MULTIROTOR)
+    moved = vanished(first, me, relays_at(141.4, 160.0), MULTIROTOR)
     assert moved.short == (), 'a relay a step\'s flight from where it was is heard again; one at r - 1 m may have left'
-    failed = witness(first, me, relays_at(160.0), MULTIROTOR)
+    failed = vanished(first, me, relays_at(160.0), MULTIROTOR)
     assert dict(failed.short) == {code((1, 2)): 1}
-    both = witness(first, me, relays_at(), MULTIROTOR)
+    both = vanished(first, me, relays_at(), MULTIROTOR)
     assert dict(both.short) == {code((1, 2)): 2}, 'each relay seen to fail counts'
     lossy = dataclasses.replace(MULTIROTOR, hush=10)
     for fp in (P, lossy):
-        assert witness(witness(relay_of_edge_12(), me, relays_at(140.0), fp), me, relays_at(), fp).short == ()
+        assert vanished(vanished(relay_of_edge_12(), me, relays_at(140.0), fp), me, relays_at(), fp).short == ()
     with switched_off(['patient']):
-        assert witness(witness(relay_of_edge_12(), me, relays_at(140.0), MULTIROTOR), me, relays_at(),
+        assert vanished(vanished(relay_of_edge_12(), me, relays_at(140.0), MULTIROTOR), me, relays_at(),
                        MULTIROTOR).short == ()
 
 
 def test_two_maps_that_saw_one_failure_ask_for_one_map() -> None:
     """Both neighbours of a failed relay count it; the gossip keeps the larger count, so the chain asks for one."""
-    seen = [witness(witness(relay_of_edge_12(), np.array([x, 0.0, P.height]), relays_at(150.0), MULTIROTOR),
+    seen = [vanished(vanished(relay_of_edge_12(), np.array([x, 0.0, P.height]), relays_at(150.0), MULTIROTOR),
                     np.array([x, 0.0, P.height]), relays_at(), MULTIROTOR) for x in (135.0, 165.0)]
     merged = gossip(seen[0], NOW, [], [], [seen[1].short])
     assert dict(merged.short) == {code((1, 2)): 1}

@@ -69,7 +69,7 @@ VEHICLE_RULES = {
                'PATIENT_STEPS found taut, not TAUT_STEPS: a multirotor takes that long to cross to it, under the demand '
                'allocation (vacancy.vacant_steps, chain.taut_steps); but a relay seen to fail (heard well within r, then '
                'nowhere near where it was, under the paper\'s channel) finds its chain one MAP short at once '
-               '(vacancy.witness)',
+               '(vacancy.vanished)',
     'nearest': "a new edge or cluster takes its share first from the clusters nearest it on the tree, down to their "
                'floor, not from the roles most above their share wherever they are, and an edge found short is lent '
                'its MAPs by its own two clusters, under the demand allocation (layout.roles, vacancy.nearest, '

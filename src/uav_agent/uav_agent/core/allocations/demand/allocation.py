@@ -15,7 +15,7 @@ from ...clusters import NO_GOAL, ClusterMap
 from ...state import APART, INLINE, M0, M1, M2, NOBODY, PASSING, RELATED, Memory, Near, Reference, Told, aim, hold
 from .chain import anchored, chain_of, hushed, pivot, relay_place, relay_slot, swing_place, tally, taut
 from .memory import Mine, gossip_of
-from .vacancy import gossip, role_of, vacate, witness
+from .vacancy import gossip, role_of, vacate, vanished
 
 if TYPE_CHECKING:
     from ...params import FlockParams
@@ -173,10 +173,10 @@ class Demand:
     def decide(self, mem: Memory, agent_id: int, n_users: int, r_g: float, q: np.ndarray, clusters: ClusterMap,
                fp: FlockParams, step: int = 0, near: Near = NOBODY) -> Memory:
         """Gossip first (the roles heard of, keys lost, roles short: vacancy.py) and the relays seen to fail
-        (vacancy.witness), then the role and mode."""
+        (vacancy.vanished), then the role and mode."""
         heard = [gossip_of(t) for t in near.told]
         mine = gossip(Mine.of(mem), step, [g.seen for g in heard], [g.lost for g in heard], [g.short for g in heard])
-        mine = witness(mine, q, near, fp)
+        mine = vanished(mine, q, near, fp)
         return demand_switch(mine, agent_id, r_g, q, clusters, fp, step, near).memory()
 
     def reference(self, mem: Memory, agent_id: int, q: np.ndarray, nbr_q: np.ndarray, told: Sequence[Told],

@@ -47,7 +47,7 @@ class Own(NamedTuple):
     demand.anchored). A settled relay on a lagged vehicle keeps and tells its chain's ends as it last heard them
     (ends: chain.Ends as four numbers, or none; rule 'ends'). On a lagged vehicle under the paper's channel it keeps
     the relays it heard at its last step well within r, each as (x, y, role code), to see which of them failed
-    (around: vacancy.witness); it never tells them."""
+    (around: vacancy.vanished); it never tells them."""
 
     settled: bool = False
     transit: bool = False

@@ -40,13 +40,14 @@ PATIENT_STEPS = 300  # 30 s on a lagged vehicle (rule 'patient'): a multirotor's
                      # role, and a chain's relays reach its ends one by one
 
 STEP_S = 0.1  # a step (s): the steps above count at this Δt
-# Rule 'patient''s witness (witness): a relay heard this far inside r cannot leave r by the next step (two MAPs
-# open at most 2 v_max Δt, 3 m at 15 m/s, and their own GNSS errors, σ 0.5 m each, differ by well under 2 m), and one
-# heard again is within v_max Δt of where it was (its GNSS error drifts over a minute; separation keeps others 3 m off).
-WITNESS_MARGIN_S = 2 * STEP_S   # times v_max, plus WITNESS_GNSS
-WITNESS_GNSS = 2.0              # m
-WITNESS_MATCH_S = STEP_S        # times v_max, plus WITNESS_MATCH_GNSS
-WITNESS_MATCH_GNSS = 0.5        # m
+# A relay seen to fail (vanished, rule 'patient'): one heard this far inside r cannot leave r by the next step (two
+# MAPs open at most 2 v_max Δt, 3 m at 15 m/s, and their own GNSS errors, σ 0.5 m each, differ by well under 2 m), and
+# one heard again is within v_max Δt of where it was (its GNSS error drifts over a minute; separation keeps others
+# 3 m off).
+VANISH_MARGIN_S = 2 * STEP_S   # times v_max, plus VANISH_GNSS
+VANISH_GNSS = 2.0              # m
+VANISH_MATCH_S = STEP_S        # times v_max, plus VANISH_MATCH_GNSS
+VANISH_MATCH_GNSS = 0.5        # m
 
 EDGE_CODE = 64      # role codes: cluster k is k (< 63 ids a run may use), edge (a, b) is 64 + 64 a + b
 
@@ -72,35 +73,35 @@ def patient(fp: FlockParams) -> bool:
     return envelope.limited(fp) and on('patient')
 
 
-def witnessing(fp: FlockParams) -> bool:
-    """Whether a MAP looks for relays that failed (witness): under rule 'patient', and under the paper's channel only,
+def watching(fp: FlockParams) -> bool:
+    """Whether a MAP looks for relays that failed (vanished): under rule 'patient', and under the paper's channel only,
     where a neighbour within r is heard at every step (under a lossy one, silence is most often lost states)."""
     return patient(fp) and fp.hush <= 0
 
 
-def witness(mem: Mine, q: np.ndarray, near: Near, fp: FlockParams) -> Mine:
-    """Rule 'patient''s witness: each relay heard at the last step well within r and heard nowhere near where it was
-    now has failed, and its chain is found one MAP short at once, for each such relay (Mine.short; merged by the
-    larger count, so two MAPs that saw the same failure ask for one MAP, not two).
+def vanished(mem: Mine, q: np.ndarray, near: Near, fp: FlockParams) -> Mine:
+    """Rule 'patient', a relay seen to fail: a relay heard at the last step well within r, and heard nowhere near
+    where it was now, has failed, and its chain is found one MAP short at once, one per such relay (Mine.short, merged
+    by the larger count: two MAPs that saw one failure ask for one MAP, not two).
 
     Patience waits out a silence because a silent role may still be on its way (vacant_steps, chain.taut_steps). A
     relay that vanishes from well within range is no such silence: nothing flies out of range in one step. Waiting
     30 s per MAP to find a broken chain short, still layouts after a loss of 30 % stayed split for the rest of the
-    run in 3 runs of 60 (docs/notes/vehicle.md, "A failure seen is a chain short")."""
-    if not witnessing(fp):
+    run in 3 runs of 60 (docs/notes/vehicle.md, "A relay seen to fail")."""
+    if not watching(fp):
         return mem
     now = np.asarray(near.q, dtype=float)[:, :2] if len(near.told) else np.zeros((0, 2))
     gone: dict[int, int] = {}
     if mem.around:
         was = np.asarray(mem.around, dtype=float)
-        match = fp.v_max * WITNESS_MATCH_S + WITNESS_MATCH_GNSS
+        match = fp.v_max * VANISH_MATCH_S + VANISH_MATCH_GNSS
         if len(now):
             seen = (np.hypot(was[:, None, 0] - now[None, :, 0], was[:, None, 1] - now[None, :, 1]) <= match).any(axis=1)
         else:
             seen = np.zeros(len(was), dtype=bool)
         for c in was[~seen, 2].astype(int).tolist():
             gone[c] = gone.get(c, 0) + 1
-    within = fp.r - fp.v_max * WITNESS_MARGIN_S - WITNESS_GNSS
+    within = fp.r - fp.v_max * VANISH_MARGIN_S - VANISH_GNSS
     xy = np.asarray(q, dtype=float)[:2]
     relays = [i for i, t in enumerate(near.told) if t.mode == M1 and t.bridge is not None]
     around: tuple[tuple[float, float, int], ...] = ()
@@ -178,11 +179,12 @@ def role_of(agent_id: int, lost: tuple[keys.Span, ...], clusters: ClusterMap, fp
 def _squeezed_view(roles: Roles, lost: tuple[keys.Span, ...], short: tuple[tuple[int, int], ...],
                    near: bool) -> Roles:
     share = _grown(roles, short, near) if short else roles.share
-    return roles._replace(share=share, pieces=keys.carry(keys.squeezed(roles.pieces, lost), dict(zip(roles.ids, share))))
+    pieces = keys.carry(keys.squeezed(roles.pieces, lost), dict(zip(roles.ids, share)))
+    return roles._replace(share=share, pieces=pieces)
 
 
 def _grown(roles: Roles, short: tuple[tuple[int, int], ...], near: bool) -> tuple[float, ...]:
-    """The shares with each role found short of n MAPs (demand.tally, witness) grown by n MAPs' worth of the
+    """The shares with each role found short of n MAPs (demand.tally, vanished) grown by n MAPs' worth of the
     demand: taken from every role alike, or under rule 'nearest' lent by the short edge's own two clusters, down to
     half what they hold (the rest from every role alike). Taken alike, the MAPs a broken chain asked for were
     whichever keys the growth reached, anywhere in the formation, and each crossed it (docs/notes/vehicle.md)."""
