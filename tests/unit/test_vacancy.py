@@ -237,8 +237,7 @@ def test_two_maps_that_saw_one_failure_ask_for_one_map() -> None:
 
 def test_on_a_multirotor_a_short_edge_is_lent_its_maps_by_its_own_clusters() -> None:
     """Rule 'nearest': edge (1, 2) found two MAPs short grows by as much as before, but its two clusters lend it:
-    cluster 0, two hops off, keeps its share, and every MAP that joins the chain was a server of cluster 1 or 2. With
-    edge (0, 1) found short too, cluster 1 lends to both, at most half its share, and (1, 2) grows as before."""
+    cluster 0, two hops off, keeps its share, and every MAP that joins the chain was a server of cluster 1 or 2."""
     short = ((code((1, 2)), 2),)
     edge = ROW.count + ROLES.edges.index((1, 2))
     alike, lent = view(ROLES, (), short), view(ROLES, (), short, near=True)
@@ -250,8 +249,3 @@ def test_on_a_multirotor_a_short_edge_is_lent_its_maps_by_its_own_clusters() -> 
     joined = [before[i] for i in range(n) if lent.of(key_of(i)) == edge and before[i] != edge]
     assert len(joined) >= 1 and set(joined) <= {1, 2}, joined
     assert all(lent.of(key_of(i)) in (before[i], edge) for i in range(n)), 'only MAPs joining the chain move'
-    both = view(ROLES, (), ((code((0, 1)), 3), (code((1, 2)), 2)), near=True)
-    assert math.isclose(both.share[edge], lent.share[edge], rel_tol=1e-12), 'another edge found short takes none of it'
-    assert both.share[ROLES.index((0, 1))] > ROLES.share[ROLES.index((0, 1))]
-    assert both.share[1] >= ROLES.share[1] / 2 - 1e-12, 'a cluster lends at most half its share'
-    assert math.isclose(sum(both.share), 1.0, rel_tol=1e-12)

@@ -185,10 +185,9 @@ def _squeezed_view(roles: Roles, lost: tuple[keys.Span, ...], short: tuple[tuple
 
 def _grown(roles: Roles, short: tuple[tuple[int, int], ...], near: bool) -> tuple[float, ...]:
     """The shares with each role found short of n MAPs (demand.tally, vanished) grown by n MAPs' worth of the
-    demand: taken from every role alike, or under rule 'nearest' lent by the short edge's own two clusters, each
-    lending at most half its share to the edges found short, and the rest taken alike from the roles not found
-    short. Taken alike, the MAPs a broken chain asked for were whichever keys the growth reached, anywhere in the
-    formation, and each crossed it (docs/notes/vehicle.md, "A relay seen to fail")."""
+    demand: taken from every role alike, or under rule 'nearest' lent by the short edge's own two clusters, down to
+    half what they hold (the rest from every role alike). Taken alike, the MAPs a broken chain asked for were
+    whichever keys the growth reached, anywhere in the formation, and each crossed it (docs/notes/vehicle.md)."""
     ids, share = roles.ids, roles.share
     extra = dict(short)
     total = sum(roles.demand)
@@ -198,27 +197,20 @@ def _grown(roles: Roles, short: tuple[tuple[int, int], ...], near: bool) -> tupl
     if not near:
         return alike
     out = list(share)
-    grows = [i for i, r in enumerate(ids) if not isinstance(r, int) and extra.get(code(r), 0) > 0 and share[i] > 0]
-    spare = {i: s / 2.0 for i, (r, s) in enumerate(zip(ids, share)) if isinstance(r, int)}
-    rest = {}
-    for i in grows:  # each edge grows as it would were it the only one short: another's growth takes none of it
-        n = extra[code(ids[i])]
-        want = n * (1.0 - share[i]) / (total + n)
-        ends = [roles.index(c) for c in ids[i]]
-        can = sum(spare[j] for j in ends)
-        lent = min(want, can)
+    for i, r in enumerate(ids):
+        if isinstance(r, int) or alike[i] <= share[i]:
+            continue
+        want = alike[i] - share[i]
+        ends = [roles.index(c) for c in r]
+        held = sum(out[j] for j in ends)
+        lent = min(want, held / 2.0)
         for j in ends:
-            give = lent * spare[j] / can if can > 0 else 0.0
-            out[j] -= give
-            spare[j] -= give
+            out[j] -= lent * out[j] / held if held > 0 else 0.0
         out[i] += lent
-        rest[i] = want - lent
-    owed = sum(rest.values())
-    pool = sum(o for k, o in enumerate(out) if k not in rest)
-    if owed >= pool / 2.0:
-        return alike  # short of more than the formation can lend: every role gives alike
-    if owed > 0:  # what the clusters could not lend, from every role not found short alike
-        out = [o + rest[k] if k in rest else o * (1.0 - owed / pool) for k, o in enumerate(out)]
+        rest = want - lent
+        if rest > 0:
+            others = sum(o for k, o in enumerate(out) if k != i)
+            out = [o + rest if k == i else o * (1.0 - rest / others) for k, o in enumerate(out)]
     return tuple(out)
 
 
