@@ -108,7 +108,7 @@ def vanished(mem: Mine, q: np.ndarray, near: Near, fp: FlockParams) -> Mine:
     if relays:
         at = now[relays]
         close = np.hypot(at[:, 0] - xy[0], at[:, 1] - xy[1]) <= within
-        around = tuple((float(x), float(y), code(near.told[i].bridge))  # type: ignore[arg-type]
+        around = tuple((float(x), float(y), stated_role(near.told[i]))  # type: ignore[misc]
                        for (x, y), i, ok in zip(at.tolist(), relays, close.tolist()) if ok)
     if not gone:
         return mem if around == mem.around else mem._replace(around=around)
