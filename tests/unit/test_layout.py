@@ -181,6 +181,30 @@ def test_rule_cascade_passes_an_arrivals_keys_hop_by_hop(size: float) -> None:
     assert all(abs(counts[()][r] - counts[('cascade',)][r]) <= 1 for r in counts[()] | counts[('cascade',)]), counts
 
 
+def test_rule_cascade_flies_over_a_cluster_that_gave_an_arrival_all_its_own() -> None:
+    """Rule 'cascade' where the arrival is larger than its neighbour: the neighbour's own MAPs all go to the arrival,
+    so the new edge's cannot pass through it. They pass through the clusters beyond that still hold their own,
+    each MAP crossing two hops at most, not straight from the far end of the tree three hops off (arrival layout
+    6, seed 1, of studies/vehicle.yaml: five relays crossed 350 m of lattices and the chain stood 40 s late)."""
+    fp, n = FlockParams(), 150
+    xy, radii = np.array([[0.0, 0.0], [150.0, 0.0], [300.0, 0.0]]), np.array([40.0, 30.0, 35.0])
+    tree = {(0, 1), (1, 2), (2, 3)}
+    first = ClusterMap(xy, fp.height, radii)
+    before = role_ids(first, n, fp, True)
+    now = ClusterMap(np.r_[xy, [[300.0, 160.0]]], fp.height, np.r_[radii, 45.0], previous=first)
+    after = role_ids(now, n, fp, True)
+    assert set(now.mst(now.live)) == tree
+
+    def hops(b: Any, a: Any) -> int:
+        if not isinstance(a, int):
+            return 1 + min(hops(b, end) for end in a)
+        return len(layout.path(now, b, a)) - 1
+
+    crossed = collections.Counter(hops(b, a) for b, a in zip(before, after) if b != a and isinstance(b, int))
+    assert crossed[2] > 0, f'the case has nothing to pass over a cluster that gave all its own: {crossed}'
+    assert max(crossed) == 2, f'MAPs crossing three hops or more: {crossed}'
+
+
 def test_rule_cascade_passes_a_new_edges_keys_hop_by_hop_when_a_drifting_cluster_changes_the_tree() -> None:
     """Rule 'cascade' beyond arrivals: cluster 1 drifts until the tree swaps edge (0, 1) for (2, 3), which stands
     while the new edge takes its share from the clusters nearest it (rule 'nearest'). The servers of 2 and 3 go

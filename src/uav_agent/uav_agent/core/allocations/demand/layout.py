@@ -110,7 +110,8 @@ def cascaded(old: tuple[keys.Piece, ...], new: tuple[keys.Piece, ...], now: Clus
     after it came (docs/notes/vehicle.md, "Where an arrival's time goes"). An edge that joined the tree as a cluster
     drifted was staffed alike from two and three hops off: its chain was still not laid when the edge it replaced
     was let go, 20 s later, and the formation split (notes, "Rule `cascade` for every role"). Shares stay as `kept`
-    laid them out.
+    laid them out. A cluster on the way that holds none of its own keys any more (an arrival larger than it took
+    them all) is flown over, so what passes it crosses two hops, not all the way from the far end of the tree.
     """
     pieces = new
     tree = now.mst(now.live)
@@ -122,13 +123,18 @@ def cascaded(old: tuple[keys.Piece, ...], new: tuple[keys.Piece, ...], now: Clus
             ways = [path(now, end, source) for end in ([role] if isinstance(role, int) else role)]
             way = min(ways, key=lambda w: (len(w), w))  # [an end of role, ..., source]
             hops = way if isinstance(role, int) else [role, *way]
-            if len(hops) <= 2:
-                continue  # from a neighbour: one hop already
-            # no more than each cluster on the way holds of its own keys: none crosses two hops
-            amount = min(amount, *(keys.came_from(old, pieces, c).get(c, 0.0) for c in hops[1:-1]))
-            for near_one, far_one in zip(hops[:-2], hops[1:-1]):
-                pieces = keys.handed(pieces, far_one, near_one, amount, old, far_one)
-            pieces = keys.handed(pieces, role, hops[-2], amount, old, source)
+            for _ in hops[1:-1]:  # each pass uses up what one cluster on the way holds of its own, or the amount
+                # a cluster on the way that holds none of its own keys any more (an arrival next to it took them
+                # all) is flown over: what passes it crosses two hops, not as many as the whole way
+                own = {c: keys.came_from(old, pieces, c).get(c, 0.0) for c in hops[1:-1]}
+                via = [hops[0], *(c for c in hops[1:-1] if own[c] > keys.SLIVER / 2), hops[-1]]
+                if len(via) <= 2 or amount <= keys.SLIVER / 2:
+                    break  # from a neighbour (one hop already), or nothing left to pass
+                step = min(amount, *(own[c] for c in via[1:-1]))
+                for near_one, far_one in zip(via[:-2], via[1:-1]):
+                    pieces = keys.handed(pieces, far_one, near_one, step, old, far_one)
+                pieces = keys.handed(pieces, role, via[-2], step, old, source)
+                amount -= step
     return pieces
 
 
