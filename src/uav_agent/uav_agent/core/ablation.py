@@ -75,8 +75,9 @@ VEHICLE_RULES = {
                'its MAPs by its own two clusters, under the demand allocation (layout.roles, vacancy.nearest, '
                'vacancy.view)',
     'cascade': 'the keys a role of the tree (an arriving cluster first, or an edge to it) takes from a cluster more than '
-               'one hop away pass hop by hop: each cluster on the way gives its own to the one before it, so no MAP '
-               'crosses two hops, under rule nearest (layout.cascaded)',
+               'one hop away pass hop by hop: each cluster on the way gives its own to the one before it, so a MAP '
+               'crosses one hop, or two past a cluster that gave all its own to an arrival, under rule nearest '
+               '(layout.cascaded)',
 }
 RULES.update(CHANNEL_RULES)
 RULES.update(VEHICLE_RULES)
