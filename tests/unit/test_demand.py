@@ -386,6 +386,23 @@ def test_only_a_settled_relay_whose_edges_share_one_cluster_swings() -> None:
     assert pivot(settled, q, (0, 2), gone, fp) is None, 'its old edge ended with its cluster: nothing to swing'
 
 
+def test_on_a_lagged_vehicle_a_relay_one_standing_chain_gives_up_to_another_flies_the_tree_not_the_chord() -> None:
+    """Rule 'swing' swings a swapped edge's relays; a relay that chain (0, 1), still in the tree, gives up to (0, 2)
+    swings alone. On a lagged vehicle it flew the chord out of everyone's range, so it flies the tree instead (along
+    (0, 1) to cluster 0, then out along (0, 2)); on the paper's vehicle, where a chord takes a step or two, it swings."""
+    clusters = ClusterMap(np.array([[0.0, 0.0], [150.0, 0.0], [60.0, 140.0], [300.0, 50.0]]), P.height,
+                          np.full(4, 25.0))
+    lagged = replace(P, v_max=15.0, a_max=4.0, tau=0.3, keep=6.1)
+    q = np.array([120.0, 0.0, P.height])
+    settled = Mine(mode=M1, goal=0, bridge=(0, 1), settled=True)
+    both = ((0, 1), (0, 2))
+    assert pivot(settled, q, (0, 2), clusters, lagged) == (0, pytest.approx(0.875)), "its edge left the tree: a swing"
+    assert pivot(settled, q, (0, 2), clusters, P, both) == (0, pytest.approx(0.875)), "the paper's vehicle swings"
+    assert pivot(settled, q, (0, 2), clusters, lagged, both) is None
+    moved = Mine(mode=M1, goal=0, bridge=(0, 2), settled=True, transit=True)
+    assert en_route(moved, q, clusters, lagged) == 0, 'in transit along the tree: first to cluster 0'
+
+
 def test_under_a_lossy_channel_a_map_holds_its_place_through_a_silence_no_longer_than_the_channels_losses_last() -> None:
     """Rule 'hold': a relay that heard its chain on both sides, or a server that heard a relay of its cluster,
     within fp.hush steps keeps the place it had when the silence began; past hush it acts as before."""

@@ -64,7 +64,8 @@ def demand_switch(mem: Mine, agent_id: int, r_g: float, q: np.ndarray, clusters:
         return mem
     edge = roles.edges[role - clusters.count]
     if mem.mode != M1 or mem.bridge != edge:
-        mem = _anew(mem, mode=M1, goal=edge[0], bridge=edge, transit=mem.settled, swing=pivot(mem, q, edge, clusters, fp))
+        mem = _anew(mem, mode=M1, goal=edge[0], bridge=edge, transit=mem.settled,
+                    swing=pivot(mem, q, edge, clusters, fp, roles.edges))
     if (mem.transit or not mem.settled) and clusters.segment_distance(q, edge) <= fp.d:
         mem = mem._replace(settled=True, transit=False, since=step)
     if mem.swing is not None:

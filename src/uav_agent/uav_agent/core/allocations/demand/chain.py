@@ -93,18 +93,25 @@ def _gap_from(end: int, edge: Edge, clusters: ClusterMap, fp: FlockParams) -> tu
     return (length, start, stop) if edge[0] == end else (length, length - stop, length - start)
 
 
-def pivot(mem: Mine, q: np.ndarray, edge: Edge, clusters: ClusterMap, fp: FlockParams) -> Optional[tuple[int, float]]:
+def pivot(mem: Mine, q: np.ndarray, edge: Edge, clusters: ClusterMap, fp: FlockParams,
+          edges: Sequence[Edge] = ()) -> Optional[tuple[int, float]]:
     """The swing a relay takes to edge: the cluster its old edge shares with it, and the relay's place along
-    the old gap from that cluster (0..1); None if it was not settled on an edge that shares exactly one.
+    the old gap from that cluster (0..1); None if it was not settled on an edge that shares exactly one, or, on a
+    lagged vehicle, if its old edge is still one of the roles' edges (the tree did not swap it).
 
     When a drifting cluster changes the tree, relays of an edge that left it take the keys of one that joined.
     Keeping its place from the shared cluster P and flying straight there, each relay lands on the new edge
     about where the chain needs it, and those near P barely move: the new chain forms along its whole length
     at once, where flying along the tree (through P's centre and out) would grow it from one end, one relay
-    at a time (docs/dynamics.md, "Swinging chains").
+    at a time (docs/dynamics.md, "Swinging chains"). A relay that one chain still standing gives up to another
+    (a drifting edge growing, its neighbour's share shrinking) swings alone: on a lagged vehicle it flew the chord,
+    100-200 m, out of everyone's range for 7-15 s (drifting layout 3, seed 0), so it flies the tree, along its
+    old chain, through the cluster and out along the new one (docs/notes/vehicle.md).
     """
     old = mem.bridge
     if not on('swing') or mem.mode != M1 or old is None or not mem.settled or not clusters.ends_live(old):
+        return None
+    if envelope.limited(fp) and old in edges:
         return None
     shared = set(old) & set(edge)
     if len(shared) != 1:
