@@ -124,8 +124,6 @@ def cascaded(old: tuple[keys.Piece, ...], new: tuple[keys.Piece, ...], now: Clus
             way = min(ways, key=lambda w: (len(w), w))  # [an end of role, ..., source]
             hops = way if isinstance(role, int) else [role, *way]
             for _ in hops[1:-1]:  # each pass uses up what one cluster on the way holds of its own, or the amount
-                # a cluster on the way that holds none of its own keys any more (an arrival next to it took them
-                # all) is flown over: what passes it crosses two hops, not as many as the whole way
                 own = {c: keys.came_from(old, pieces, c).get(c, 0.0) for c in hops[1:-1]}
                 via = [hops[0], *(c for c in hops[1:-1] if own[c] > keys.SLIVER / 2), hops[-1]]
                 if len(via) <= 2 or amount <= keys.SLIVER / 2:
