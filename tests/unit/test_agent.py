@@ -44,7 +44,7 @@ def test_agent_step_reproduces_the_batch_step_bit_for_bit(paper_scenario_path: s
                                                 memory[j].bridge, tuple(ids_of(memory[j].achieved)),
                                                 Told.of(memory[j]).block) for j in nbr]
                 hood = Neighbourhood.hearing(q[nbr], p[nbr], n_u[nbr], [said(m) for m in heard])
-                u, mem, _ = agent_step(memory[i], int(i), q[n], p[n], int(n_u[n]), cover, hood, sim.clusters, s.flock, k)
+                u, mem, *_ = agent_step(memory[i], int(i), q[n], p[n], int(n_u[n]), cover, hood, sim.clusters, s.flock, k)
                 q_next, p_next = physics.integrate(q[n][None], p[n][None], u[None], s.dt)
                 assert mem == sim.memory[i], f'MAP {i} decided differently at step {k}'
                 assert np.array_equal(q_next[0], sim.q[i]) and np.array_equal(p_next[0], sim.p[i]), \

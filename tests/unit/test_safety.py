@@ -204,3 +204,41 @@ def test_when_a_protected_link_and_separation_conflict_the_link_gives_way() -> N
     assert n @ with_link.u[0, :2] <= budget + 1e-6, (with_link.u, budget)
     assert with_link.flags[0] & safety.RELAXED
     assert np.allclose(with_link.u, alone.u, atol=1e-3), (with_link.u, alone.u)
+
+
+def test_a_map_held_back_from_its_goal_lets_go_of_its_links_for_a_while_and_says_so() -> None:
+    """Rule 'release' (safety.held_next): held back by a link (HELD) more than half of d from its goal, a MAP counts
+    on (AWAY) and after RELEASE_S protects no link for FREE_S (RELEASED), then counts afresh; held at its goal, or not
+    held, it counts nothing; with the rule off it counts on and is never let go."""
+    from uav_agent.core.ablation import switched_off
+    held_steps, free_steps = round(safety.RELEASE_S / 0.1), round(safety.FREE_S / 0.1)
+    held, bits = 0, []
+    for _ in range(held_steps + free_steps + 1):
+        held, did = safety.held_next(held, safety.HELD, FP.d, FP)
+        bits.append(did)
+    assert bits[:held_steps] == [safety.AWAY] * held_steps, 'counted while held back far from its goal'
+    assert bits[held_steps:held_steps + free_steps] == [safety.RELEASED] * free_steps, 'free of its links for FREE_S'
+    assert held == 1 and bits[-1] == safety.AWAY, 'and held again after it, it counts from the start'
+    assert safety.held_next(50, safety.HELD, 0.4 * FP.d, FP) == (0, 0), 'held at its goal: a taut link, not a stall'
+    assert safety.held_next(50, safety.RELAXED, FP.d, FP) == (0, 0), 'not held back this step'
+    with switched_off(['release']):
+        assert safety.held_next(held_steps - 1, safety.HELD, FP.d, FP) == (held_steps, safety.AWAY)
+
+
+def test_a_released_map_protects_no_link_and_its_count_is_carried_on() -> None:
+    """policies.needed asks for no link of a MAP rule 'release' sets free; agent.after_filter, which the agent node
+    (agent_step) and the batch simulator both call, carries the count on and adds the bits, under the filter only."""
+    from uav_agent.core import policies
+    from uav_agent.core.agent import after_filter
+    from uav_agent.core.allocations.demand.memory import Gossip, Mine
+    from uav_agent.core.state import M1, Memory, Reference, Told
+    fp = replace(FP, safety='filter')
+    relay = Mine.of(Memory(mode=M1, goal=0, bridge=(0, 1)))._replace(settled=True).memory()
+    fellow = [Told(M1, 0, (0, 1), Gossip(settled=True))]
+    assert policies.needed(relay, fellow, fp) == [True]
+    assert policies.needed(relay, fellow, fp, free=True) == [False]
+    ref = Reference(np.zeros(3), np.zeros(3), np.array([5.0, 0.0, 20.0]), M1, np.zeros((3, 3)))
+    far, near = np.array([0.0, 15.0, 20.0]), np.array([2.0, 1.0, 20.0])
+    assert after_filter(7, safety.HELD, far, ref, fp) == (8, safety.HELD | safety.AWAY)
+    assert after_filter(7, safety.HELD, near, ref, fp) == (0, safety.HELD), 'on its piece of the edge'
+    assert after_filter(7, safety.HELD, far, ref, FP) == (7, safety.HELD), 'the rules (no filter) carry nothing'

@@ -69,6 +69,7 @@ class AgentNode(Recovery, Node):
         self.world_seen = False
 
         self.memory = Memory()
+        self.held = 0  # the safety filter's liveness count (agent.Step.held)
         self.clusters: Optional[ClusterMap] = None
         self.clusters_version = 0  # of the clusters held; a step waits for the version its sensing names
         self.pending: Optional[convert.SensingData] = None
@@ -302,8 +303,8 @@ class AgentNode(Recovery, Node):
         coverage = np.zeros(self.clusters.count)
         if self.memory.goal != NO_GOAL:
             coverage[self.memory.goal] = s.goal_coverage  # r_g of the goal the world knows we hold
-        u, mem, did = agent_step(self.memory, self.map_id, s.q, s.p, s.n_users, coverage, hood, self.clusters,
-                                 self.params, s.step, (s.traffic_q, s.traffic_p))
+        u, mem, did, self.held = agent_step(self.memory, self.map_id, s.q, s.p, s.n_users, coverage, hood,
+                                            self.clusters, self.params, s.step, (s.traffic_q, s.traffic_p), self.held)
         if not np.all(np.isfinite(u)):
             self.reject('core', f'non-finite control input at step {s.step}; holding u = 0')
             u = np.zeros(3)

@@ -10,7 +10,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from uav_agent.core.agent import Neighbourhood, Said, plan
+from uav_agent.core.agent import Neighbourhood, Said, after_filter, plan
 from uav_agent.core.ear import Ear, Heard, Sent, hear
 from uav_agent.core.control import control_input
 from uav_agent.core.policies import hearsay
@@ -29,6 +29,7 @@ class BatchSimulator:
         self.memory = [Memory() for _ in range(scenario.maps)]
         # What each MAP holds of its neighbours' states (ear.py).
         self.ears = [Ear(scenario.links, scenario.seed, i, hearsay(scenario.flock)) for i in range(scenario.maps)]
+        self.held = [0] * scenario.maps  # each MAP's liveness count under the safety filter (agent.Step.held)
 
     # Views kept for callers that inspect the run as it goes.
     users = property(lambda self: self.world.users)
@@ -51,7 +52,7 @@ class BatchSimulator:
         refs, apart, needed = [], [], []
         for n, i in enumerate(rows.tolist()):
             self.memory[i], ref, kinds, keep = plan(self.memory[i], i, sensed.q[n], int(sensed.n_users[n]),
-                                              sensed.cluster_coverage, hoods[n], w.clusters, fp, sensed.k)
+                                              sensed.cluster_coverage, hoods[n], w.clusters, fp, sensed.k, self.held[i])
             refs.append(ref)
             apart += kinds
             needed += keep
@@ -63,6 +64,10 @@ class BatchSimulator:
         u, flags = control_input(sensed.q, sensed.p, sensed.n_users.astype(float), mode, target, qa, qb, owner, nbr.q,
                                  nbr.p, nbr.n_users, fp, np.array(apart, dtype=np.intp), ref_vel, seen,
                                  np.array(needed, dtype=bool))
+        if fp.safety == 'filter':  # the filter's liveness count, as each agent carries it (agent_step)
+            flags = flags.copy()
+            for n, i in enumerate(rows.tolist()):
+                self.held[i], flags[n] = after_filter(self.held[i], int(flags[n]), sensed.q[n], refs[n], fp)
         modes = np.array([self.memory[i].mode for i in rows], dtype=np.intp)
         goals = np.array([self.memory[i].goal for i in rows], dtype=np.intp)
         w.advance(sensed, u, modes, goals, integrate, flags)

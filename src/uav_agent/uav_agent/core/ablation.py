@@ -65,6 +65,8 @@ VEHICLE_RULES = {
              "and its edge's servers, both settled: the allocation's needed) shorter than r less a margin, those of the "
              'relative-neighbourhood graph among them, with a slack priced below separation (safety.protected, '
              'safety.link_budget)',
+    'release': "the safety filter's liveness: a MAP that a protected link has held back from its goal (farther than "
+               'half of d from it) for RELEASE_S without a break protects no link for FREE_S (safety.held_next)',
     'patient': 'a role is declared lost after PATIENT_STEPS unheard of, not VACANT_STEPS, and a chain short after '
                'PATIENT_STEPS found taut, not TAUT_STEPS: a multirotor takes that long to cross to it, under the demand '
                'allocation (vacancy.vacant_steps, chain.taut_steps); but a relay seen to fail (heard well within r, then '

@@ -15,7 +15,8 @@ from .clusters import ClusterMap
 from .control import control_input
 from .params import FlockParams
 from .policies import decide, links, needed, reference
-from .state import Memory, Near, Reference, Told
+from .safety import held_next
+from .state import M1, Memory, Near, Reference, Told
 
 
 class Said(NamedTuple):
@@ -64,25 +65,58 @@ class Plan(NamedTuple):
 
 
 def plan(mem: Memory, agent_id: int, q: np.ndarray, n_users: int, cluster_coverage: np.ndarray, nbrs: Neighbourhood,
-         clusters: ClusterMap, params: FlockParams, step: int = 0) -> Plan:
-    """Algorithm 1 lines 3-5 for one MAP at step k: gossip, mode switch (Alg. 2), the goal term's reference."""
+         clusters: ClusterMap, params: FlockParams, step: int = 0, held: int = 0) -> Plan:
+    """Algorithm 1 lines 3-5 for one MAP at step k: gossip, mode switch (Alg. 2), the goal term's reference; held,
+    the safety filter's liveness count (Step.held)."""
     mem = decide(mem, agent_id, n_users, cluster_coverage, q, nbrs.achieved, clusters, params, step,
                  Near(nbrs.q, nbrs.told))
     ref = reference(mem, agent_id, q, nbrs.q, nbrs.told, clusters, params)
-    return Plan(mem, ref, links(mem, nbrs.told, params), needed(mem, nbrs.told, params))
+    return Plan(mem, ref, links(mem, nbrs.told, params), needed(mem, nbrs.told, params, held < 0))
+
+
+def off_goal(q: np.ndarray, ref: Reference) -> float:
+    """How far (m, in the plane) a MAP is from where its goal term aims: q^r (eq. 12), or a relay's piece of its
+    edge q_1^r-q_2^r (eq. 13)."""
+    x = np.asarray(q, dtype=float)[:2]
+    if ref.mode != M1:
+        return float(np.hypot(*(x - ref.target[:2])))
+    a, b = ref.q1[:2], ref.q2[:2]
+    ab = b - a
+    t = float(np.clip(np.dot(x - a, ab) / max(float(np.dot(ab, ab)), 1e-12), 0.0, 1.0))
+    return float(np.hypot(*(x - a - t * ab)))
+
+
+def after_filter(held: int, flags: int, q: np.ndarray, ref: Reference, params: FlockParams) -> tuple[int, int]:
+    """A MAP's liveness count and flags once its command is filtered (safety.held_next, rule 'release'): what the
+    agent node and the batch simulator both carry from step to step. Nothing changes without the safety filter."""
+    if params.safety != 'filter':
+        return held, flags
+    held, bits = held_next(held, flags, off_goal(q, ref), params)
+    return held, flags | bits
+
+
+class Step(NamedTuple):
+    """One MAP's step: its command u_i, its memory after it, what the safety filter did to u_i (safety.RELAXED,
+    HELD, AWAY, RELEASED bits) and its liveness count for the next step (safety.held_next; 0 without the filter)."""
+
+    u: np.ndarray
+    memory: Memory
+    flags: int
+    held: int
 
 
 def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_users: int, cluster_coverage: np.ndarray,
                nbrs: Neighbourhood, clusters: ClusterMap, params: FlockParams, step: int = 0,
-               traffic: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, Memory, int]:
+               traffic: tuple[np.ndarray, np.ndarray] | None = None, held: int = 0) -> Step:
     """Algorithm 1 lines 3-6 for one MAP at step k: its plan, then its control input (eq. 9), and what the safety
     filter did to it (safety.RELAXED, HELD bits). traffic: the positions and velocities its traffic receiver took
-    in (vehicle.traffic), None without one."""
-    mem, ref, links, keep = plan(mem, agent_id, q, n_users, cluster_coverage, nbrs, clusters, params, step)
+    in (vehicle.traffic), None without one; held: its liveness count from the step before (Step.held)."""
+    mem, ref, links, keep = plan(mem, agent_id, q, n_users, cluster_coverage, nbrs, clusters, params, step, held)
     owner = np.zeros(len(nbrs.q), dtype=np.intp)
     seen = None if traffic is None else (np.zeros(len(traffic[0]), dtype=np.intp), *traffic)
     u, flags = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([ref.mode]),
                       ref.target[None, :], ref.q1[None, :], ref.q2[None, :], owner, nbrs.q, nbrs.p,
                       np.asarray(nbrs.n_users, dtype=float), params, np.array(links, dtype=np.intp),
                       ref.velocity[None], seen, np.array(keep, dtype=bool))
-    return u[0], mem, int(flags[0])
+    held, did = after_filter(held, int(flags[0]), q, ref, params)
+    return Step(u[0], mem, did, held)

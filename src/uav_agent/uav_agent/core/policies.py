@@ -84,11 +84,11 @@ def links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[int]:
     return [allocation.link(own, t, fp) for t in heard]
 
 
-def needed(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[bool]:
+def needed(mem: Memory, heard: Sequence[Told], fp: FlockParams, free: bool = False) -> list[bool]:
     """For each neighbour heard, whether its link to this MAP is one the network needs kept (Allocation.needed);
-    none without the safety filter, which alone keeps them."""
+    none without the safety filter, which alone keeps them, nor while rule 'release' sets the MAP free of them."""
     allocation = ALLOCATIONS[fp.allocation]
-    if fp.safety != 'filter' or not hasattr(allocation, 'needed'):
+    if fp.safety != 'filter' or not hasattr(allocation, 'needed') or free:
         return [False] * len(heard)
     own = Told.of(mem)
     return [allocation.needed(own, t) for t in heard]

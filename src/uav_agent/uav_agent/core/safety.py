@@ -27,6 +27,7 @@ import daqp
 import numpy as np
 from numpy.typing import NDArray
 
+from .ablation import on
 from .envelope import STEP_S, lengths, saturate
 from .params import FlockParams
 from .potentials import F64
@@ -42,8 +43,15 @@ FLAG_TOL = 1e-6     # m/s^2: how far past a link's row a command must be for the
 LINK_MARGIN = 1.0   # m: a protected link is kept this much shorter than r, where the chains are laid taut
 # What the filter did to a MAP's command at a step (Filtered.flags, bits; Command.msg's filter): a protected link
 # whose row it could not keep (its slack gave way), and a protected link that stopped the nominal, which would
-# have opened it faster than its barrier allows (the MAP held back from where eq. 9 sends it).
-RELAXED, HELD = 1, 2
+# have opened it faster than its barrier allows (the MAP held back from where eq. 9 sends it); with the agent's
+# (agent.after_filter): held back while farther than OFF_GOAL from its goal, and protecting no link (rule 'release').
+RELAXED, HELD, AWAY, RELEASED = 1, 2, 4, 8
+# Rule 'release', the filter's liveness: a MAP held back from its goal for RELEASE_S without a break protects no
+# link for FREE_S, then counts again. Held back means a protected link stopped it while it was more than OFF_GOAL of d
+# from where its goal term aims (a settled MAP whose nominal only jitters against a taut link is not kept from anything).
+RELEASE_S = 10.0
+FREE_S = 5.0
+OFF_GOAL = 0.5
 _ANGLES = 2.0 * np.pi * np.arange(SIDES) / SIDES
 _FACES = np.column_stack([np.cos(_ANGLES), np.sin(_ANGLES)])
 _APOTHEM = math.cos(math.pi / SIDES)
@@ -117,6 +125,18 @@ def protected(owner: NDArray[np.intp], dq: F64, m: int, asked: NDArray[np.bool_]
         apart = lengths(block[:, None, :] - block[None, :, :])
         out[lo:hi] &= ~(np.maximum(apart, d[None, :]) < d[:, None]).any(axis=1)
     return out
+
+
+def held_next(held: int, flags: int, off_goal: float, fp: FlockParams) -> tuple[int, int]:
+    """Rule 'release': a MAP's count after this step (held: steps held back from its goal without a break; below
+    0: steps left free of its links) and the AWAY, RELEASED bits this step adds to its flags."""
+    if held < 0:
+        return held + 1, RELEASED
+    if not flags & HELD or off_goal <= OFF_GOAL * fp.d:
+        return 0, 0
+    if held + 1 >= round(RELEASE_S / STEP_S) and on('release'):
+        return -round(FREE_S / STEP_S), AWAY
+    return held + 1, AWAY
 
 
 def binding(dq: F64, dv: F64, fp: FlockParams) -> NDArray[np.bool_]:

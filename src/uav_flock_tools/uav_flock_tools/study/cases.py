@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -34,7 +34,7 @@ HELD_S = 10.0  # a run "ends covered and connected" when it is so over its last 
 # the links that deliver half of what is sent over them (docs/links.md), of which the disc graph is the share `disc`.
 FIGURES = ('converged', 'connected', 'splits', 'outage', 'rc', 'recovery', 'ends_ok', 'end_rc', 'end_components',
            'disc', *('t_star', 'least_distance', 'top_speed', 'top_accel', 'power', 'energy', 'relaxed', 'held',
-                     'formed', 'connected_formed'))
+                     'formed', 'connected_formed', 'held_longest', 'released'))
 # A multirotor's (docs/vehicle.md; None on the ideal vehicle): T* (s), the least distance between two MAPs (m),
 # the top speed (m/s) and acceleration (m/s^2) over the ground read from the trajectory, the formation's mean
 # power per MAP after convergence (W; over the whole run if it never converged), the energy it drew (J), the
@@ -43,6 +43,8 @@ FIGURES = ('converged', 'connected', 'splits', 'outage', 'rc', 'recovery', 'ends
 # FORMED_SPEED) with the share of time connected after it (None if it never formed). A multirotor's formation
 # first counts as converged while MAPs still fly to their roles at up to v_max, joined at that step by some of
 # them only passing by; `connected` counts from that step, `connected_formed` from the formation at rest.
+# Under the safety filter, rule 'release' (safety.held_next): the longest any MAP was held back from its goal
+# without a break (s), and the share of MAP-steps free of their protected links.
 FORMED_SPEED = 3.0  # m/s over the ground: a formation is formed once every MAP flies slower (hovering in gusts: < 1)
 
 
@@ -148,6 +150,13 @@ def flight_figures(s: Scenario, m: np.ndarray, trajectory: np.ndarray, centroids
             'energy': float(records.vehicle_column(m, 'energy')[-1]),
             **{name: float(records.vehicle_column(m, name).sum() / max(m[:, 4].sum(), 1.0)) for name in ('relaxed', 'held')},
             **formation(m, trajectory)}
+
+
+def liveness_figures(s: Scenario, world: Any, m: np.ndarray) -> dict[str, float]:
+    """'held_longest' and 'released' of a multirotor's run from its world (model.World); none on the ideal vehicle."""
+    if s.vehicle.ideal:
+        return {}
+    return {'held_longest': world.away_longest * s.dt, 'released': world.released / max(float(m[:, 4].sum()), 1.0)}
 
 
 def usable(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

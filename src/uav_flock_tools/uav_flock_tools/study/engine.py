@@ -38,7 +38,7 @@ def execute(run: Run, keep: bool = False) -> dict[str, Any]:
 
     from .. import provenance
     from ..batch import BatchSimulator
-    from .cases import figures, flight_figures
+    from .cases import figures, flight_figures, liveness_figures
     t0 = time.perf_counter()
     row: dict[str, Any] = {'key': run.key, 'layout': run.layout, 'seed': run.seed, 'kind': run.kind,
                            'variant': run.variant, 'maps': None, 'duration': None, **dict.fromkeys(FIGURES), 'error': None}
@@ -58,6 +58,7 @@ def execute(run: Run, keep: bool = False) -> dict[str, Any]:
             row['_series'] = dict(zip(metrics_columns(s), result.metrics.T.tolist()))
         row.update(figures(result.metrics, s.dt, EVENT_S.get(kind)))
         row.update(flight_figures(s, result.metrics, result.trajectory, result.users.centroids, row['converged']))
+        row.update(liveness_figures(s, sim.world, result.metrics))
     except Exception as exc:  # noqa: BLE001 -- the row carries it
         row['error'] = f'{type(exc).__name__}: {exc} | {traceback.format_exc(limit=-1).strip().splitlines()[-2].strip()}'
     row.update(code=provenance.code(), wall_s=time.perf_counter() - t0, host=socket.gethostname())

@@ -8,7 +8,7 @@ from typing import Optional
 import numpy as np
 
 from uav_agent.core.clusters import NO_GOAL, ClusterMap
-from uav_agent.core.safety import HELD, RELAXED
+from uav_agent.core.safety import AWAY, HELD, RELAXED, RELEASED
 
 from . import airframes, physics
 from .records import Motion, metrics_columns
@@ -90,6 +90,11 @@ class World:
         self.q, self.p = self.flight.release(self.q, self.p, scenario.release_center, scenario.release_half_width,
                                              rng['vehicle'])
         self.energy = 0.0  # J the formation has drawn so far (an airframe that is not exact: Airframe.power)
+        # Rule 'release' as the MAPs' flags tell it (safety.AWAY, RELEASED): per MAP the steps it has been held back
+        # from its goal without a break, the longest such run of any MAP, and the MAP-steps free of their links.
+        self.away = np.zeros(scenario.maps, dtype=np.intp)
+        self.away_longest = 0
+        self.released = 0
         self.ids = np.arange(scenario.maps, dtype=np.intp)
         self.alive = np.ones(scenario.maps, dtype=bool)
         self.goal = np.full(scenario.maps, NO_GOAL, dtype=np.intp)  # each MAP's goal after its last step
@@ -200,6 +205,9 @@ class World:
             did = np.zeros(len(rows), dtype=np.uint8) if flags is None else np.asarray(flags, dtype=np.uint8)
             row = np.r_[row, physics.least_distance(q, sensed.pairs), watts.mean() if len(rows) else 0.0, self.energy,
                         np.count_nonzero(did & RELAXED), np.count_nonzero(did & HELD)]
+            self.away[rows] = np.where(did & AWAY, self.away[rows] + 1, 0)
+            self.away_longest = max(self.away_longest, int(self.away[rows].max(initial=0)))
+            self.released += int(np.count_nonzero(did & RELEASED))
             self.energy += float(watts.sum()) * self.scenario.dt
             traj.append(sensed.q)
         self._metrics.append(row)
