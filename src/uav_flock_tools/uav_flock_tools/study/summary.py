@@ -95,7 +95,8 @@ def flight(rows: list[dict[str, Any]]) -> str:
     from world_sim.core.vehicle import HOVER
     out = ['| kind | variant | converged / T*: median | worst | least distance (m) | top speed (m/s) | '
            'top acceleration (m/s²) | power after convergence / hover: mean | worst | MAP-steps a protected link '
-           'gave way, held back (filter) | connected once formed: mean, worst (runs formed) |', '|---' * 11 + '|']
+           'gave way, held back (filter) | longest a MAP held back from its goal (s), MAP-steps set free (rule release) | '
+           'connected once formed: mean, worst (runs formed) |', '|---' * 12 + '|']
     for kind in dict.fromkeys(r['kind'] for r in rows):
         for variant in dict.fromkeys(r['variant'] for r in rows):
             cell = [r for r in rows if r['kind'] == kind and r['variant'] == variant and r.get('t_star') is not None]
@@ -106,7 +107,7 @@ def flight(rows: list[dict[str, Any]]) -> str:
             out.append(f"| {kind} | {variant} | {np.median(ratio):.2f} | {ratio.max():.2f} | "
                        f"{min(r['least_distance'] for r in cell):.2f} | {max(r['top_speed'] for r in cell):.2f} | "
                        f"{max(r['top_accel'] for r in cell):.2f} | {power.mean():.3f} | {power.max():.3f} | "
-                       f"{_shares(cell)} | {_formed(cell)} |")
+                       f"{_shares(cell)} | {_liveness(cell)} | {_formed(cell)} |")
     return '\n## Flight (multirotor)\n\n' + '\n'.join(out) + '\n'
 
 
@@ -125,6 +126,14 @@ def _shares(cell: list[dict[str, Any]]) -> str:
     if any(r.get('relaxed') is None for r in cell):
         return ''
     return f"{100 * np.mean([r['relaxed'] for r in cell]):.2f} %, {100 * np.mean([r['held'] for r in cell]):.2f} %"
+
+
+def _liveness(cell: list[dict[str, Any]]) -> str:
+    """Rule 'release' over a cell's runs: the longest any MAP was held back from its goal without a break, and the
+    share of MAP-steps free of their links ('' for runs flown before they were counted, or without the filter)."""
+    if any(r.get('held_longest') is None for r in cell):
+        return ''
+    return f"{max(r['held_longest'] for r in cell):.1f}, {100 * np.mean([r['released'] for r in cell]):.2f} %"
 
 
 def write(rows: list[dict[str, Any]], out: Path) -> list[Path]:
