@@ -269,7 +269,7 @@ def test_a_variant_flies_with_the_rules_it_switches_off_and_only_that_run(tmp_pa
     from uav_agent.core import ablation
     from uav_flock_tools.batch import BatchSimulator
     from uav_flock_tools.study import spec as specs
-    from uav_flock_tools.study.cases import FIGURES, figures, flight_figures
+    from uav_flock_tools.study.cases import FIGURES, figures, flight_figures, liveness_figures
     from uav_flock_tools.study.engine import execute
     (tmp_path / 's.yaml').write_text(  # as a user types it
         'layouts: {count: 1, clusters: [3, 3]}\nkinds: [static]\nduration: 8\nvariants:\n'
@@ -281,10 +281,12 @@ def test_a_variant_flies_with_the_rules_it_switches_off_and_only_that_run(tmp_pa
     assert row['error'] is None and ablation.on('hearsay')
     s = off.scenario()
     with ablation.switched_off(['hearsay']):
-        flown = BatchSimulator(s).run()
+        sim = BatchSimulator(s)
+        flown = sim.run()
     alone = flown.metrics
     expected = figures(alone, s.dt, None)  # a random layout flies the multirotor: its flight figures too
     expected.update(flight_figures(s, alone, flown.trajectory, flown.users.centroids, expected['converged']))
+    expected.update(liveness_figures(s, sim.world, alone))
     assert not s.vehicle.ideal and {k: row[k] for k in FIGURES} == expected
     assert not np.array_equal(alone, BatchSimulator(on.scenario()).run().metrics), 'hearsay acts on this run'
 
