@@ -191,30 +191,19 @@ def test_on_a_lagged_vehicle_a_relay_and_its_servers_only_repel() -> None:
         assert demand.link(relay, server, lagged) == RELATED and demand.link(relay, fellow, lagged) == RELATED
 
 
-def test_the_links_the_filter_keeps_are_a_whole_chains_between_maps_settled_at_their_roles() -> None:
+def test_the_links_the_filter_keeps_are_a_chains_between_maps_settled_at_their_roles() -> None:
     """Allocation.needed (rule 'links'): fellow relays of one edge and a relay with a server of its edge's clusters,
-    both settled; never two servers of one cluster, a MAP not yet at its role, one in transit, or another chain's.
-    On a lagged vehicle, where a chain's ends are passed on (rule 'ends'), only once the relay's chain joins both
-    its clusters: one still laid out from one anchor is not held back by its links."""
-    from uav_agent.core.ablation import switched_off
+    both settled; never two servers of one cluster, a MAP not yet at its role, one in transit, or another chain's."""
     from uav_agent.core.policies import ALLOCATIONS
     demand = ALLOCATIONS['demand']
-    lagged = replace(P, v_max=15.0, a_max=4.0, tau=0.3, keep=6.1)
-    at, laid = Gossip(settled=True, ends=(1.0, 0.0, 2.0, 90.0)), Gossip(settled=True, ends=(2.0, 0.0, 0.0, 0.0))
+    at = Gossip(settled=True)
     relay, fellow, server = Told(M1, 0, (0, 1), at), Told(M1, 0, (0, 1), at), Told(M2, 1, None, at)
-    for fp in (P, lagged):
-        assert demand.needed(relay, fellow, fp) and demand.needed(relay, server, fp) and demand.needed(server, relay, fp)
-        assert not demand.needed(server, Told(M2, 1, None, at), fp), "a cluster's lattice"
-        assert not demand.needed(relay, Told(M1, 0, (0, 1), Gossip()), fp), 'a relay still on its way to the chain'
-        assert not demand.needed(relay, Told(M2, 1, None, Gossip(transit=True, settled=True)), fp), 'a server in transit'
-        assert not demand.needed(relay, Told(M1, 1, (1, 2), at), fp) and not demand.needed(relay, Told(M2, 2, None, at), fp)
-        assert not ALLOCATIONS['algorithm2'].needed(relay, fellow, fp)
-    half = Told(M1, 0, (0, 1), laid)
-    assert not demand.needed(relay, half, lagged) and not demand.needed(half, server, lagged), 'a chain not yet whole'
-    assert demand.needed(relay, half, P) and demand.needed(relay, half, replace(lagged, hush=30)), \
-        'where the ends are not passed on, every settled chain counts as whole'
-    with switched_off(['ends']):
-        assert demand.needed(relay, half, lagged)
+    assert demand.needed(relay, fellow) and demand.needed(relay, server) and demand.needed(server, relay)
+    assert not demand.needed(server, Told(M2, 1, None, at)), "a cluster's lattice"
+    assert not demand.needed(relay, Told(M1, 0, (0, 1), Gossip())), 'a relay still on its way to the chain'
+    assert not demand.needed(relay, Told(M2, 1, None, Gossip(transit=True, settled=True))), 'a server in transit'
+    assert not demand.needed(relay, Told(M1, 1, (1, 2), at)) and not demand.needed(relay, Told(M2, 2, None, at))
+    assert not ALLOCATIONS['algorithm2'].needed(relay, fellow)
 
 
 def test_fellow_relays_on_a_lagged_vehicle_space_themselves_along_their_edge_only() -> None:

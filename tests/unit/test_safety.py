@@ -233,9 +233,8 @@ def test_a_released_map_protects_no_link_and_its_count_is_carried_on() -> None:
     from uav_agent.core.allocations.demand.memory import Gossip, Mine
     from uav_agent.core.state import M1, Memory, Reference, Told
     fp = replace(FP, safety='filter')
-    whole = (1.0, 0.0, 2.0, 90.0)  # a chain that joins both its clusters (chain.Ends)
-    relay = Mine.of(Memory(mode=M1, goal=0, bridge=(0, 1)))._replace(settled=True, ends=whole).memory()
-    fellow = [Told(M1, 0, (0, 1), Gossip(settled=True, ends=whole))]
+    relay = Mine.of(Memory(mode=M1, goal=0, bridge=(0, 1)))._replace(settled=True).memory()
+    fellow = [Told(M1, 0, (0, 1), Gossip(settled=True))]
     assert policies.needed(relay, fellow, fp) == [True]
     assert policies.needed(relay, fellow, fp, free=True) == [False]
     ref = Reference(np.zeros(3), np.zeros(3), np.array([5.0, 0.0, 20.0]), M1, np.zeros((3, 3)))

@@ -62,9 +62,9 @@ VEHICLE_RULES = {
             "under the paper's channel (chain.ends_place)",
     'priority': "that braking is served first from a_max, eq. 9's terms from what is left (envelope.command)",
     'links': "the safety filter (policies: {safety: filter}) also keeps a chain's links (fellow relays of one edge, a relay "
-             "and its edge's servers, both settled, the chain whole: the allocation's needed) shorter than r less a "
-             'margin, those of the relative-neighbourhood graph among them, with a slack priced below separation '
-             '(safety.protected, safety.link_budget)',
+             "and its edge's servers, both settled: the allocation's needed) shorter than r less a margin, those of the "
+             'relative-neighbourhood graph among them, with a slack priced below separation (safety.protected, '
+             'safety.link_budget)',
     'release': "the safety filter's liveness: a MAP that a protected link has held back from its goal (farther than "
                'half of d from it) for RELEASE_S without a break protects no link for FREE_S (safety.held_next)',
     'patient': 'a role is declared lost after PATIENT_STEPS unheard of, not VACANT_STEPS, and a chain short after '

@@ -41,7 +41,7 @@ class Allocation(Protocol):
         of eq. 10), APART (repulsion within d only), PASSING (repulsion within d/2 only) or INLINE (all of
         eq. 10 along the own MAP's edge only); fp says what they fly (envelope.limited)."""
 
-    def needed(self, a: Told, b: Told, fp: FlockParams) -> bool:
+    def needed(self, a: Told, b: Told) -> bool:
         """Whether the link between two MAPs that stated a and b is one the network needs kept: the safety
         filter's rule 'links' protects such links only (control.control_input). One that does not say keeps
         none (policies.needed)."""
@@ -91,7 +91,7 @@ def needed(mem: Memory, heard: Sequence[Told], fp: FlockParams, free: bool = Fal
     if fp.safety != 'filter' or not hasattr(allocation, 'needed') or free:
         return [False] * len(heard)
     own = Told.of(mem)
-    return [allocation.needed(own, t, fp) for t in heard]
+    return [allocation.needed(own, t) for t in heard]
 
 
 def hearsay(fp: FlockParams) -> bool:

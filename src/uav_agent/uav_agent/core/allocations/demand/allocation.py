@@ -13,7 +13,7 @@ from ... import envelope
 from ...ablation import on
 from ...clusters import NO_GOAL, ClusterMap
 from ...state import APART, INLINE, M0, M1, M2, NOBODY, PASSING, RELATED, Memory, Near, Reference, Told, aim, hold
-from .chain import anchored, chain_of, hushed, pivot, relay_place, relay_slot, spreads, swing_place, tally, taut
+from .chain import anchored, chain_of, hushed, pivot, relay_place, relay_slot, swing_place, tally, taut
 from .memory import Mine, gossip_of
 from .vacancy import gossip, role_of, vacate, vanished
 
@@ -79,14 +79,6 @@ def demand_switch(mem: Mine, agent_id: int, r_g: float, q: np.ndarray, clusters:
         mem = tally(mem, taut(mem, chain, fp), roles, fp)
         ends = tuple(float(x) for x in chain.ends) if chain.ends.below_hops or chain.ends.above_hops else ()
     return mem if mem.ends == ends else mem._replace(ends=ends)
-
-
-def whole(t: Told, fp: FlockParams) -> bool:
-    """Whether a MAP's chain, as its state message tells it, joins both its clusters: a relay that knows an anchor on
-    each side through its chain (rule 'ends', chain.Ends); a server, or any MAP where the ends are not passed on
-    (chain.spreads), counts as whole."""
-    ends = gossip_of(t).ends
-    return t.mode != M1 or not spreads(fp) or (len(ends) == 4 and ends[0] > 0 and ends[2] > 0)
 
 
 def related(a: Told, b: Told) -> bool:
@@ -222,11 +214,9 @@ class Demand:
             return APART if loose(a, b, fp) else INLINE if inline(a, b, fp) else RELATED
         return PASSING if (gossip_of(a).transit or gossip_of(b).transit) and on('passing') else APART
 
-    def needed(self, a: Told, b: Told, fp: FlockParams) -> bool:
+    def needed(self, a: Told, b: Told) -> bool:
         """A chain's links, both ends settled at their roles: fellow relays of one edge, or a relay and a server
         of its edge's clusters. A cluster's lattice holds itself together many times over; what splits a formation
         is a chain's last link giving way as its cluster drifts off, or a relay's (docs/notes/vehicle.md). A MAP not
-        yet at its role keeps no link, so no link holds it back from where it is going; nor does a relay whose chain
-        does not yet join its two clusters (whole), which joins nothing the network needs while it is laid out."""
-        return (M1 in (a.mode, b.mode) and gossip_of(a).settled and gossip_of(b).settled and related(a, b)
-                and whole(a, fp) and whole(b, fp))
+        yet at its role keeps no link, so no link holds it back from where it is going."""
+        return (M1 in (a.mode, b.mode) and gossip_of(a).settled and gossip_of(b).settled and related(a, b))
