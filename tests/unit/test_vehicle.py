@@ -262,8 +262,9 @@ def test_every_envelope_rule_acts_on_a_multirotor_run() -> None:
     from uav_agent.core.ablation import VEHICLE_RULES, switched_off
     paper = load(os.path.join(get_package_share_directory('world_sim'), 'config', 'paper.yaml'))
     # Rule 'traffic' acts only once a MAP closes on one faster than it could stop, rules 'ends' and 'links' once
-    # relays have settled on their edges: not in the first 5 s.
-    later = {'traffic': 12.0, 'ends': 15.0, 'links': 15.0}
+    # relays have settled on their edges, rule 'release' once a link has held a MAP back for 10 s (here from 27 s):
+    # not in the first 5 s.
+    later = {'traffic': 12.0, 'ends': 15.0, 'links': 15.0, 'release': 28.0}
     for rule in VEHICLE_RULES:
         s = replace(paper, vehicle=vehicle.MULTIROTOR, duration=later.get(rule, 5.0), flock=policy_sets(paper)['default'])
         if rule == 'patient':  # a role silent for 10-30 s, not on the paper's layout: random layout 21 of the studies,
@@ -282,7 +283,7 @@ def test_every_envelope_rule_acts_on_a_multirotor_run() -> None:
             assert digest(s) != base, rule
 
 
-FILTER_RULES = ('links',)  # the safety filter's (core/safety.py, policies: {safety: filter})
+FILTER_RULES = ('links', 'release')  # the safety filter's (core/safety.py, policies: {safety: filter})
 
 
 @functools.cache
