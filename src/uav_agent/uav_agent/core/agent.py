@@ -11,7 +11,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from .clusters import ClusterMap
+from .clusters import ClusterMap, segment_distance
 from .control import control_input
 from .params import FlockParams
 from .policies import decide, links, needed, reference
@@ -77,13 +77,9 @@ def plan(mem: Memory, agent_id: int, q: np.ndarray, n_users: int, cluster_covera
 def off_goal(q: np.ndarray, ref: Reference) -> float:
     """How far (m, in the plane) a MAP is from where its goal term aims: q^r (eq. 12), or a relay's piece of its
     edge q_1^r-q_2^r (eq. 13)."""
-    x = np.asarray(q, dtype=float)[:2]
     if ref.mode != M1:
-        return float(np.hypot(*(x - ref.target[:2])))
-    a, b = ref.q1[:2], ref.q2[:2]
-    ab = b - a
-    t = float(np.clip(np.dot(x - a, ab) / max(float(np.dot(ab, ab)), 1e-12), 0.0, 1.0))
-    return float(np.hypot(*(x - a - t * ab)))
+        return float(np.hypot(*(np.asarray(q, dtype=float)[:2] - ref.target[:2])))
+    return segment_distance(q, ref.q1[:2], ref.q2[:2])
 
 
 def after_filter(held: int, flags: int, q: np.ndarray, ref: Reference, params: FlockParams) -> tuple[int, int]:
