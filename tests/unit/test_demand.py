@@ -191,19 +191,29 @@ def test_on_a_lagged_vehicle_a_relay_and_its_servers_only_repel() -> None:
         assert demand.link(relay, server, lagged) == RELATED and demand.link(relay, fellow, lagged) == RELATED
 
 
-def test_the_links_the_filter_keeps_are_a_chains_between_maps_settled_at_their_roles() -> None:
+def test_the_links_the_filter_keeps_are_a_chains_between_maps_settled_at_their_roles_once_its_clusters_are_served() -> None:
     """Allocation.needed (rule 'links'): fellow relays of one edge and a relay with a server of its edge's clusters,
-    both settled; never two servers of one cluster, a MAP not yet at its role, one in transit, or another chain's."""
+    both settled, once both the chain's clusters are among the own MAP's achieved goals; never two servers of one
+    cluster, a MAP not yet at its role, one in transit, another chain's, or a chain to a cluster not yet served."""
     from uav_agent.core.policies import ALLOCATIONS
     demand = ALLOCATIONS['demand']
     at = Gossip(settled=True)
+    served = 0b111  # clusters 0, 1 and 2 achieved
+
+    def own(told: Told, achieved: int = served) -> Memory:
+        mine = Mine.of(Memory(mode=told.mode, goal=told.goal, bridge=told.bridge, achieved=achieved))
+        return mine._replace(settled=True).memory()
+
     relay, fellow, server = Told(M1, 0, (0, 1), at), Told(M1, 0, (0, 1), at), Told(M2, 1, None, at)
-    assert demand.needed(relay, fellow) and demand.needed(relay, server) and demand.needed(server, relay)
-    assert not demand.needed(server, Told(M2, 1, None, at)), "a cluster's lattice"
-    assert not demand.needed(relay, Told(M1, 0, (0, 1), Gossip())), 'a relay still on its way to the chain'
-    assert not demand.needed(relay, Told(M2, 1, None, Gossip(transit=True, settled=True))), 'a server in transit'
-    assert not demand.needed(relay, Told(M1, 1, (1, 2), at)) and not demand.needed(relay, Told(M2, 2, None, at))
-    assert not ALLOCATIONS['algorithm2'].needed(relay, fellow)
+    assert demand.needed(own(relay), fellow) and demand.needed(own(relay), server) and demand.needed(own(server), relay)
+    assert not demand.needed(own(server), Told(M2, 1, None, at)), "a cluster's lattice"
+    assert not demand.needed(own(relay), Told(M1, 0, (0, 1), Gossip())), 'a relay still on its way to the chain'
+    assert not demand.needed(own(relay), Told(M2, 1, None, Gossip(transit=True, settled=True))), 'a server in transit'
+    assert not demand.needed(own(relay), Told(M1, 1, (1, 2), at)) and not demand.needed(own(relay), Told(M2, 2, None, at))
+    for achieved in (0b001, 0b010, 0):  # the chain's second or first cluster, or neither, not yet served
+        assert not demand.needed(own(relay, achieved), fellow), 'a chain to a cluster not yet served'
+        assert not demand.needed(own(server, achieved), relay) and not demand.needed(own(relay, achieved), server)
+    assert not ALLOCATIONS['algorithm2'].needed(own(relay), fellow)
 
 
 def test_fellow_relays_on_a_lagged_vehicle_space_themselves_along_their_edge_only() -> None:

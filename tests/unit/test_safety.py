@@ -233,7 +233,7 @@ def test_a_released_map_protects_no_link_and_its_count_is_carried_on() -> None:
     from uav_agent.core.allocations.demand.memory import Gossip, Mine
     from uav_agent.core.state import M1, Memory, Reference, Told
     fp = replace(FP, safety='filter')
-    relay = Mine.of(Memory(mode=M1, goal=0, bridge=(0, 1)))._replace(settled=True).memory()
+    relay = Mine.of(Memory(mode=M1, goal=0, bridge=(0, 1), achieved=0b11))._replace(settled=True).memory()
     fellow = [Told(M1, 0, (0, 1), Gossip(settled=True))]
     assert policies.needed(relay, fellow, fp) == [True]
     assert policies.needed(relay, fellow, fp, free=True) == [False]

@@ -136,7 +136,7 @@ class CommandData(NamedTuple):
     u: np.ndarray                   # (3,) m/s^2
     mode: int
     goal: int
-    filter: int = 0                 # what the safety filter did to u (safety.RELAXED, HELD bits)
+    filter: int = 0                 # what the safety filter did to u (safety.RELAXED, HELD, AWAY, RELEASED bits)
 
     def to_msg(self, header: Header) -> Command:
         return Command(header=header, id=int(self.id), step=int(self.step), accel=vector(self.u),

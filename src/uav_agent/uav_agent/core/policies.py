@@ -41,10 +41,10 @@ class Allocation(Protocol):
         of eq. 10), APART (repulsion within d only), PASSING (repulsion within d/2 only) or INLINE (all of
         eq. 10 along the own MAP's edge only); fp says what they fly (envelope.limited)."""
 
-    def needed(self, a: Told, b: Told) -> bool:
-        """Whether the link between two MAPs that stated a and b is one the network needs kept: the safety
-        filter's rule 'links' protects such links only (control.control_input). One that does not say keeps
-        none (policies.needed)."""
+    def needed(self, own: Memory, other: Told) -> bool:
+        """Whether the link between a MAP (its memory) and a neighbour that stated `other` is one the network needs
+        kept: the safety filter's rule 'links' protects such links only (control.control_input). One that does not
+        say keeps none (policies.needed)."""
 
 
 ALLOCATIONS: dict[str, Allocation] = {
@@ -90,8 +90,7 @@ def needed(mem: Memory, heard: Sequence[Told], fp: FlockParams, free: bool = Fal
     allocation = ALLOCATIONS[fp.allocation]
     if fp.safety != 'filter' or not hasattr(allocation, 'needed') or free:
         return [False] * len(heard)
-    own = Told.of(mem)
-    return [allocation.needed(own, t) for t in heard]
+    return [allocation.needed(mem, t) for t in heard]
 
 
 def hearsay(fp: FlockParams) -> bool:

@@ -185,7 +185,7 @@ class World:
     def advance(self, sensed: Sensed, u: np.ndarray, modes: np.ndarray, goals: np.ndarray,
                 integrate: bool = True, flags: Optional[np.ndarray] = None) -> np.ndarray:
         """Record step k with the MAPs' decisions and, unless told otherwise, integrate to k + 1. flags: what each
-        MAP's safety filter did to its command (safety.RELAXED, HELD bits; None: nothing).
+        MAP's safety filter did to its command (safety.RELAXED, HELD, AWAY, RELEASED bits; None: nothing).
 
         Returns the metrics row of step k.
         """

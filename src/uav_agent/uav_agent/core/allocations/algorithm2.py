@@ -92,6 +92,6 @@ class Algorithm2:
         """Every neighbour alike: the paper's flocking terms take them all."""
         return RELATED
 
-    def needed(self, a: Told, b: Told) -> bool:
+    def needed(self, own: Memory, other: Told) -> bool:
         """None: Algorithm 2 names no chains, so the safety filter keeps no link under it."""
         return False

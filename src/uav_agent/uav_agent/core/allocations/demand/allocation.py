@@ -214,9 +214,15 @@ class Demand:
             return APART if loose(a, b, fp) else INLINE if inline(a, b, fp) else RELATED
         return PASSING if (gossip_of(a).transit or gossip_of(b).transit) and on('passing') else APART
 
-    def needed(self, a: Told, b: Told) -> bool:
-        """A chain's links, both ends settled at their roles: fellow relays of one edge, or a relay and a server
-        of its edge's clusters. A cluster's lattice holds itself together many times over; what splits a formation
-        is a chain's last link giving way as its cluster drifts off, or a relay's (docs/notes/vehicle.md). A MAP not
-        yet at its role keeps no link, so no link holds it back from where it is going."""
-        return (M1 in (a.mode, b.mode) and gossip_of(a).settled and gossip_of(b).settled and related(a, b))
+    def needed(self, own: Memory, other: Told) -> bool:
+        """A chain's links, both ends settled at their roles, once both the chain's clusters are served (in the own
+        MAP's achieved goals): fellow relays of one edge, or a relay and a server of its edge's clusters. A
+        cluster's lattice holds itself together many times over; what splits a formation is a chain's last link
+        giving way as its cluster drifts off, or a relay's (docs/notes/vehicle.md). A MAP not yet at its role keeps
+        no link, so no link holds it back from where it is going; nor does a chain to a cluster not yet served,
+        which is still being laid out as the MAPs fly in, and joins no users yet (docs/vehicle.md, "A chain's links
+        once its clusters are served")."""
+        a = Told.of(own)
+        edge = a.bridge if a.mode == M1 else other.bridge
+        return (M1 in (a.mode, other.mode) and gossip_of(a).settled and gossip_of(other).settled and related(a, other)
+                and (edge is None or all(own.achieved >> c & 1 for c in edge)))
