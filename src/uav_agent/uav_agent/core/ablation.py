@@ -62,7 +62,8 @@ VEHICLE_RULES = {
             "under the paper's channel (chain.ends_place)",
     'priority': "that braking is served first from a_max, eq. 9's terms from what is left (envelope.command)",
     'links': "the safety filter (policies: {safety: filter}) also keeps a chain's links (fellow relays of one edge, a relay "
-             "and its edge's servers, both settled: the allocation's needed) shorter than r less a margin, those of the "
+             "and its edge's servers, both settled, once both the chain's clusters are served: the allocation's needed) "
+             "shorter than r less a margin, those of the "
              'relative-neighbourhood graph among them, with a slack priced below separation (safety.protected, '
              'safety.link_budget)',
     'release': "the safety filter's liveness: a MAP that a protected link has held back from its goal (farther than "
