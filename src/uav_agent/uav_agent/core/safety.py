@@ -5,7 +5,7 @@ keeps the links it protects (rule 'links') and stays within its envelope.
 One small QP per MAP and step, decided from its own state and what the others broadcast:
 
     minimise  |u - u_nom|^2 + SLACK_COST s + LINK_COST sum(s_l)   (u: the horizontal acceleration; slacks >= 0)
-    subject to  n_ij . u <= (KAPPA h_ij - h_ij' c_ij + w_ij^2 / d_ij) / 2 + s     per reported MAP j
+    subject to  m_ij . u <= its bound + s                                         per reported MAP j (separation)
                -n_il . u <= share_il (KAPPA h_il - h_il' o_il - w_il^2 / d_il) + s_l   per protected link l
                 e_k . u <= a_max cos(pi / SIDES)                                   the polygon inside the disc a_max
                 u . p / |p| <= (v_max - |p|) / (tau + STEP_S)                      the speed within v_max
@@ -15,8 +15,14 @@ h_ij = v_safe(d_ij - keep) - c_ij is the pairwise barrier for double integrators
 v_safe(g) the closing speed from which both, braking at BRAKE_SHARE a_max each after the lag and the step's hold,
 stop within g (g = v T + v^2 / (4 a), T = tau + STEP_S: the lag's room is what sets it apart from their sqrt law).
 Its derivative along the pair's motion is n . (a_j - a_i) + w^2 / d - v_safe' c; each MAP takes half of each pair's
-budget, as they do, so ḣ >= -KAPPA h holds when both do their half. Separation is hard against the nominal (the
-slack's linear price outbids any nominal), soft only against the envelope, which the vehicle enforces anyway.
+budget, as they do, so ḣ >= -KAPPA h holds when both do their half (row m_ij = n_ij, bound (KAPPA h_ij - h_ij' c_ij
++ w_ij^2 / d_ij) / 2). It brakes a pair that would pass wide of keep as hard as one head-on, so each pair has a
+second barrier, the collision cone (Thontepu et al., collision-cone CBFs, 2022): h = |v| (cos phi - cos theta),
+the relative velocity at theta from the line of centres, outside the cone of half-angle asin(keep / d) when
+h >= 0. Either keeps the pair apart, so the row is that of the one with most room (the union of their safe sets,
+as Glotfelter, Cortés and Egerstedt compose barriers, 2017): a pair passing wide flies on, one that would not is
+turned aside before it is braked. Separation is hard against the nominal (the slack's linear price outbids any
+nominal), soft only against the envelope, which the vehicle enforces anyway.
 """
 from __future__ import annotations
 
@@ -82,10 +88,54 @@ def _barrier(dq: F64, dv: F64, fp: FlockParams, sign: float, share: F64 | float)
     return share * (KAPPA * (safe - speed) - speed / root - sign * sideways2 / dist)
 
 
-def budget(dq: F64, dv: F64, fp: FlockParams) -> F64:
+def line_budget(dq: F64, dv: F64, fp: FlockParams) -> F64:
     """Per pair (j at dq from i, moving at dv relative to it), the most of i's acceleration towards j that keeps
-    the pair's barrier: n . a_i <= budget (m/s^2). Negative: i must accelerate away. Symmetric: j's is the same."""
+    the braking barrier along their line of centres: n . a_i <= line_budget (m/s^2). Symmetric: j's is the same."""
     return _barrier(dq, dv, fp, -1.0, 0.5)
+
+
+def _cone(dq: F64, dv: F64, fp: FlockParams) -> tuple[F64, F64, F64]:
+    """The collision cone's barrier per pair: h = |v| (cos phi - cos theta) (m/s), the relative velocity v at
+    theta from the line of centres, outside the cone of half-angle phi = asin(keep / d) when h >= 0; and the
+    unit row for i's acceleration with i's half of the budget that keeps ḣ >= -KAPPA h."""
+    p, v = -dq[:, :2], -dv[:, :2]  # i's position and velocity relative to j
+    dist = np.maximum(lengths(p), 1e-9)
+    speed = np.maximum(lengths(v), 1e-9)
+    s = np.sqrt(np.maximum(dist * dist - fp.keep * fp.keep, 1e-9))
+    pv = (p * v).sum(axis=1)
+    num = pv + speed * s
+    h = num / dist
+    grad = (p + v * (s / speed)[:, None]) / dist[:, None]  # ḣ = grad . (a_i - a_j) + drift
+    drift = (speed * speed + speed * pv / s) / dist - num * pv / dist ** 3
+    norm = np.maximum(lengths(grad), 1e-9)
+    return h, -grad / norm[:, None], 0.5 * (KAPPA * h + drift) / norm
+
+
+def separation(dq: F64, dv: F64, fp: FlockParams) -> tuple[F64, F64]:
+    """Per pair (j at dq from i, moving at dv relative to it), the row that keeps it apart: i's acceleration along
+    the row's unit direction at most its bound (m/s^2), j's alike. Two barriers, either of which keeps the pair
+    apart (the union of their safe sets): braking along the line of centres, and the collision cone, which lets
+    a pair that will pass wide of keep fly on and turns aside one that would not. Of those not used up, the one
+    with most room; with both used up, the one less so. The cone alone holds no pair at rest, and none within
+    keep."""
+    n = dq[:, :2] / np.maximum(lengths(dq[:, :2]), 1e-9)[:, None]
+    b = line_budget(dq, dv, fp)
+    if not len(dq):
+        return n, b
+    a, t = braking(fp), horizon(fp)
+    dist = np.maximum(lengths(dq), 1e-9)
+    root = np.sqrt(t * t + np.maximum(dist - fp.keep, 0.0) / a)
+    h_line = 2.0 * a * (root - t) + (dq * dv).sum(axis=-1) / dist  # v_safe(d - keep) less the closing speed
+    h_cone, c_row, c_b = _cone(dq, dv, fp)
+    can = (lengths(dq[:, :2]) > fp.keep) & (lengths(dv[:, :2]) > 1e-6)
+    cone = can & np.where((h_line >= 0.0) & (h_cone >= 0.0), c_b > b, h_cone > h_line)
+    return np.where(cone[:, None], c_row, n), np.where(cone, c_b, b)
+
+
+def budget(dq: F64, dv: F64, fp: FlockParams) -> F64:
+    """Per pair, the bound of its separation row (separation): below a_max, a command within the envelope can
+    reach it (binding), and the lower, the more urgent (what the traffic receiver passes on first)."""
+    return separation(dq, dv, fp)[1]
 
 
 def opening_share(dq: F64, own_p: F64, nbr_p: F64) -> F64:
@@ -178,8 +228,7 @@ def filtered(u_nom: F64, own_p: F64, owner: NDArray[np.intp], dq: F64, dv: F64, 
     room = np.maximum((fp.v_max - speed) / horizon(fp), -limit)
     moving = speed > 1e-9
     first = np.searchsorted(owner, np.arange(m + 1))
-    n = dq[:, :2] / np.maximum(lengths(dq[:, :2]), 1e-9)[:, None]
-    b = budget(dq, dv, fp)
+    n, b = separation(dq, dv, fp)
     nominal = saturate(u_nom[:, :2], fp.a_max)  # within a_max first: what a link slack's price must outbid is 2 a_max
     outside = ((nominal @ _FACES.T) > limit).any(axis=1) | (moving & ((nominal * heading).sum(axis=1) > room))
     for i in np.flatnonzero(outside | (first[1:] > first[:-1]) | (l_first[1:] > l_first[:-1])):
