@@ -19,6 +19,7 @@ from uav_agent.core.links import Links
 from uav_flock_tools.batch import BatchSimulator
 from uav_flock_tools.simrun import load_scenario
 from world_sim.core import outcome, physics, records, vehicle
+from world_sim.core.airframes.multirotor import Multirotor
 from world_sim.core.scenario import Scenario
 
 
@@ -60,7 +61,7 @@ HEAD = ('| vehicle | success | time to success, median (s) | / T*: median | conn
 
 # What the vehicle adds to a step, wherever it is called from (world side: release, integration, GNSS, wind,
 # traffic receiver, records; agent side: the envelope's rules). Timed where the code calls it, outermost only.
-OWN = {vehicle: ('release', 'traffic'), vehicle.Flight: ('estimate', 'power', 'step'),
+OWN = {Multirotor: ('release', 'traffic', 'estimate', 'power', 'step'),
        physics: ('least_distance',), envelope: ('capped', 'spring', 'keep_apart', 'governor', 'command')}
 
 
