@@ -73,25 +73,25 @@ def braking(fp: FlockParams) -> float:
     return BRAKE_SHARE * fp.a_max
 
 
-def _barrier(dq: F64, dv: F64, fp: FlockParams, sign: float, share: F64 | float) -> F64:
+def _barrier(dq: F64, dv: F64, fp: FlockParams, sign: float, share: F64 | float) -> tuple[F64, F64]:
     """The one braking-curve barrier of both rows: the speed s = sign n . dv at which the pair uses up its gap
     (closing, sign -1, against `keep`; opening, sign +1, against r - LINK_MARGIN) kept below v_safe(gap), and this
-    MAP's share of the acceleration budget that keeps it so. Sideways speed w closes a gap that opens (w^2 / d)
-    and opens one that closes."""
+    MAP's share of the acceleration budget that keeps it so; with the barrier h = v_safe(gap) - s itself. Sideways
+    speed w closes a gap that opens (w^2 / d) and opens one that closes."""
     a, t = braking(fp), horizon(fp)
     dist = np.maximum(lengths(dq), 1e-9)
     speed = sign * (dq * dv).sum(axis=-1) / dist
     sideways2 = np.maximum((dv * dv).sum(axis=-1) - speed * speed, 0.0)
     gap = dist - fp.keep if sign < 0 else fp.r - LINK_MARGIN - dist
     root = np.sqrt(t * t + np.maximum(gap, 0.0) / a)
-    safe = 2.0 * a * (root - t)  # v_safe(gap)
-    return share * (KAPPA * (safe - speed) - speed / root - sign * sideways2 / dist)
+    h = 2.0 * a * (root - t) - speed  # v_safe(gap) less the speed
+    return share * (KAPPA * h - speed / root - sign * sideways2 / dist), h
 
 
 def line_budget(dq: F64, dv: F64, fp: FlockParams) -> F64:
     """Per pair (j at dq from i, moving at dv relative to it), the most of i's acceleration towards j that keeps
     the braking barrier along their line of centres: n . a_i <= line_budget (m/s^2). Symmetric: j's is the same."""
-    return _barrier(dq, dv, fp, -1.0, 0.5)
+    return _barrier(dq, dv, fp, -1.0, 0.5)[0]
 
 
 def _cone(dq: F64, dv: F64, fp: FlockParams) -> tuple[F64, F64, F64]:
@@ -119,13 +119,9 @@ def separation(dq: F64, dv: F64, fp: FlockParams) -> tuple[F64, F64]:
     with most room; with both used up, the one less so. The cone alone holds no pair at rest, and none within
     keep."""
     n = dq[:, :2] / np.maximum(lengths(dq[:, :2]), 1e-9)[:, None]
-    b = line_budget(dq, dv, fp)
+    b, h_line = _barrier(dq, dv, fp, -1.0, 0.5)
     if not len(dq):
         return n, b
-    a, t = braking(fp), horizon(fp)
-    dist = np.maximum(lengths(dq), 1e-9)
-    root = np.sqrt(t * t + np.maximum(dist - fp.keep, 0.0) / a)
-    h_line = 2.0 * a * (root - t) + (dq * dv).sum(axis=-1) / dist  # v_safe(d - keep) less the closing speed
     h_cone, c_row, c_b = _cone(dq, dv, fp)
     can = (lengths(dq[:, :2]) > fp.keep) & (lengths(dv[:, :2]) > 1e-6)
     cone = can & np.where((h_line >= 0.0) & (h_cone >= 0.0), c_b > b, h_cone > h_line)
@@ -152,7 +148,7 @@ def link_budget(dq: F64, dv: F64, fp: FlockParams, share: F64 | float = 0.5) -> 
     """Per protected link (j at dq from i, moving at dv relative to it), the most of i's acceleration away from j
     that keeps the link's barrier h = v_safe(r - LINK_MARGIN - d) - o (o the speed at which the link opens):
     -n . a_i <= link_budget. The sideways speed w opens a link at w^2 / d and counts against it."""
-    return _barrier(dq, dv, fp, 1.0, share)
+    return _barrier(dq, dv, fp, 1.0, share)[0]
 
 
 def protected(owner: NDArray[np.intp], dq: F64, m: int, asked: NDArray[np.bool_]) -> NDArray[np.bool_]:
