@@ -19,7 +19,7 @@ from uav_agent.core.allocations.demand.memory import Gossip, Mine
 from uav_agent.core.clusters import NO_GOAL, ClusterMap, key_of, mst_edges
 from uav_agent.core.params import FlockParams
 from uav_agent.core.policies import decide, reference
-from uav_agent.core.state import M0, M1, M2, NOBODY, Memory, Near, Told
+from uav_agent.core.state import ALONE, M0, M1, M2, NOBODY, SHARED, UNKEPT, Memory, Near, Told
 from uav_flock_tools.batch import BatchSimulator
 from world_sim.core import layouts, outcome
 from world_sim.core.scenario import load
@@ -192,9 +192,10 @@ def test_on_a_lagged_vehicle_a_relay_and_its_servers_only_repel() -> None:
 
 
 def test_the_links_the_filter_keeps_are_a_chains_between_maps_settled_at_their_roles_once_its_clusters_are_served() -> None:
-    """Allocation.needed (rule 'links'): fellow relays of one edge and a relay with a server of its edge's clusters,
-    both settled, once both the chain's clusters are among the own MAP's achieved goals; never two servers of one
-    cluster, a MAP not yet at its role, one in transit, another chain's, or a chain to a cluster not yet served."""
+    """Allocation.needed (rule 'links'): fellow relays of one edge, both keeping it, and a relay with a server of its
+    edge's clusters, the relay alone keeping it, both settled, once both the chain's clusters are among the own MAP's
+    achieved goals; never two servers of one cluster, a MAP not yet at its role, one in transit, another chain's, or a
+    chain to a cluster not yet served."""
     from uav_agent.core.policies import ALLOCATIONS
     demand = ALLOCATIONS['demand']
     at = Gossip(settled=True)
@@ -205,7 +206,8 @@ def test_the_links_the_filter_keeps_are_a_chains_between_maps_settled_at_their_r
         return mine._replace(settled=True).memory()
 
     relay, fellow, server = Told(M1, 0, (0, 1), at), Told(M1, 0, (0, 1), at), Told(M2, 1, None, at)
-    assert demand.needed(own(relay), fellow) and demand.needed(own(relay), server) and demand.needed(own(server), relay)
+    assert demand.needed(own(relay), fellow) == SHARED
+    assert demand.needed(own(relay), server) == ALONE and demand.needed(own(server), relay) == UNKEPT, 'the relay follows'
     assert not demand.needed(own(server), Told(M2, 1, None, at)), "a cluster's lattice"
     assert not demand.needed(own(relay), Told(M1, 0, (0, 1), Gossip())), 'a relay still on its way to the chain'
     assert not demand.needed(own(relay), Told(M2, 1, None, Gossip(transit=True, settled=True))), 'a server in transit'

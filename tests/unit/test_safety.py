@@ -156,7 +156,7 @@ def test_a_protected_link_holds_against_nominals_pulling_apart_at_a_max() -> Non
         for _ in range(200):
             owner, dq, dv = pairs(q, p)
             kept = np.flatnonzero(safety.protected(owner, dq, 2, safety.link_budget(dq, dv, FP) < FP.a_max))
-            held = (owner[kept], dq[kept], dv[kept]) if links else None
+            held = (owner[kept], dq[kept], dv[kept], np.zeros(len(kept), bool)) if links else None
             u = safety.filtered(nominal, p, owner[:0], dq[:0], dv[:0], FP, held).u
             q, p = f.step(np.arange(2), q, p, u)
             most = max(most, float(np.linalg.norm(q[0] - q[1])))
@@ -188,6 +188,28 @@ def test_the_map_that_opens_a_link_takes_its_share_of_holding_it() -> None:
     assert mine > 0.9 and mine + theirs == pytest.approx(1.0)
 
 
+def test_a_relay_that_keeps_its_link_to_a_server_alone_follows_it_and_the_server_flies_free() -> None:
+    """A server 16 m from its relay flies away from it at 6 m/s, its nominal to fly on, the relay's to hold still:
+    with the link the relay's alone (state.ALONE), the server flies on as its nominal asks and the relay follows, the
+    link within r for 10 s; shared, the server is held back; kept by nobody, the link breaks. (The relay does not
+    hear the server's acceleration: one that speeds up away from it for long stretches the link past r - 1 m.)"""
+    def flown(keeper: str) -> tuple[float, float]:
+        f = Multirotor(CALM, 2, 0.1, np.random.default_rng(0))
+        q = np.array([[0.0, 0.0, 20.0], [16.0, 0.0, 20.0]])  # the relay, the server
+        p, nominal, widest = np.array([[0.0, 0.0, 0.0], [6.0, 0.0, 0.0]]), np.zeros((2, 3)), 0.0
+        for _ in range(100):
+            owner, dq, dv = pairs(q, p)
+            rows = {'alone': [0], 'shared': [0, 1], 'nobody': []}[keeper]
+            link = (owner[rows], dq[rows], dv[rows], np.full(len(rows), keeper == 'alone'))
+            u = safety.filtered(nominal, p, owner[:0], dq[:0], dv[:0], FP, link).u
+            q, p = f.step(np.arange(2), q, p, u)
+            widest = max(widest, float(np.linalg.norm(q[0] - q[1])))
+        return widest, float(q[1, 0])
+    alone, shared, nobody = flown('alone'), flown('shared'), flown('nobody')
+    assert alone[0] < FP.r and alone[1] == pytest.approx(nobody[1]), ('the relay follows, the server flies on', alone, nobody)
+    assert shared[1] < alone[1] - 20.0, ('shared, the server is held back', shared, alone)
+    assert nobody[0] > FP.r
+
 def test_the_filter_says_when_a_link_held_a_map_back_and_when_it_gave_way() -> None:
     """Two MAPs 22 m apart at rest, each pulled away at a_max: the link holds both back (HELD, not RELAXED). Flying
     apart at 12 m/s already, no command within a_max keeps the link's barrier: it gives way (RELAXED). A nominal
@@ -199,7 +221,8 @@ def test_the_filter_says_when_a_link_held_a_map_back_and_when_it_gave_way() -> N
                              (np.zeros((2, 3)), -apart, 0)):
         owner, dq, dv = pairs(q, p)
         kept = np.flatnonzero(safety.protected(owner, dq, 2, np.ones(2, dtype=bool)))
-        flags = safety.filtered(nominal, p, owner[:0], dq[:0], dv[:0], FP, (owner[kept], dq[kept], dv[kept])).flags
+        flags = safety.filtered(nominal, p, owner[:0], dq[:0], dv[:0], FP,
+                                (owner[kept], dq[kept], dv[kept], np.zeros(len(kept), bool))).flags
         assert flags.tolist() == [want, want], (p[0, 0], flags)
     unprotected = safety.filtered(apart, np.zeros((2, 3)), owner[:0], dq[:0], dv[:0], FP).flags
     assert unprotected.tolist() == [0, 0]
@@ -215,7 +238,7 @@ def test_when_a_protected_link_and_separation_conflict_the_link_gives_way() -> N
     sep_dq, sep_dv = q[1:2] - q[0], p[1:2] - p[0]
     budget = safety.budget(sep_dq, sep_dv, FP)[0]
     assert budget < -1.0, 'separation asks for no flight: the case tests nothing'
-    link = (np.zeros(1, dtype=np.intp), q[2:3] - q[0], p[2:3] - p[0])
+    link = (np.zeros(1, dtype=np.intp), q[2:3] - q[0], p[2:3] - p[0], np.zeros(1, bool))
     nominal = np.zeros((1, 3))
     owner = np.zeros(1, dtype=np.intp)
     with_link = safety.filtered(nominal, p[:1], owner, sep_dq, sep_dv, FP, link)
@@ -251,12 +274,12 @@ def test_a_released_map_protects_no_link_and_its_count_is_carried_on() -> None:
     from uav_agent.core import policies
     from uav_agent.core.agent import after_filter
     from uav_agent.core.allocations.demand.memory import Gossip, Mine
-    from uav_agent.core.state import M1, Memory, Reference, Told
+    from uav_agent.core.state import M1, SHARED, UNKEPT, Memory, Reference, Told
     fp = replace(FP, safety='filter')
     relay = Mine.of(Memory(mode=M1, goal=0, bridge=(0, 1), achieved=0b11))._replace(settled=True).memory()
     fellow = [Told(M1, 0, (0, 1), Gossip(settled=True))]
-    assert policies.needed(relay, fellow, fp) == [True]
-    assert policies.needed(relay, fellow, fp, free=True) == [False]
+    assert policies.needed(relay, fellow, fp) == [SHARED]
+    assert policies.needed(relay, fellow, fp, free=True) == [UNKEPT]
     ref = Reference(np.zeros(3), np.zeros(3), np.array([5.0, 0.0, 20.0]), M1, np.zeros((3, 3)))
     far, near = np.array([0.0, 15.0, 20.0]), np.array([2.0, 1.0, 20.0])
     assert after_filter(7, safety.HELD, far, ref, fp) == (8, safety.HELD | safety.AWAY)

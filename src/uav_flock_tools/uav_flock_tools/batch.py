@@ -63,7 +63,7 @@ class BatchSimulator:
                                                    sensed.p[sensed.traffic[:, 1]])
         u, flags = control_input(sensed.q, sensed.p, sensed.n_users.astype(float), mode, target, qa, qb, owner, nbr.q,
                                  nbr.p, nbr.n_users, fp, np.array(apart, dtype=np.intp), ref_vel, seen,
-                                 np.array(needed, dtype=bool))
+                                 np.array(needed, dtype=np.int8))
         if fp.safety == 'filter':  # the filter's liveness count, as each agent carries it (agent_step)
             flags = flags.copy()
             for n, i in enumerate(rows.tolist()):

@@ -61,9 +61,9 @@ VEHICLE_RULES = {
             'share of the span at once, or lays a chain too short for it out taut from one anchor, on a lagged vehicle '
             "under the paper's channel (chain.ends_place)",
     'priority': "that braking is served first from a_max, eq. 9's terms from what is left (envelope.command)",
-    'links': "the safety filter (policies: {safety: filter}) also keeps a chain's links (fellow relays of one edge, a relay "
-             "and its edge's servers, both settled, once both the chain's clusters are served: the allocation's needed) "
-             "shorter than r less a margin, those of the "
+    'links': "the safety filter (policies: {safety: filter}) also keeps a chain's links (fellow relays of one edge, both "
+             "sharing it, and a relay and its edge's servers, the relay alone, both settled, once both the chain's clusters "
+             "are served: the allocation's needed) shorter than r less a margin, those of the "
              'relative-neighbourhood graph among them, with a slack priced below separation (safety.protected, '
              'safety.link_budget)',
     'release': "the safety filter's liveness: a MAP that a protected link has held back from its goal (farther than "

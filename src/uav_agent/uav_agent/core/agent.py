@@ -55,13 +55,13 @@ class Neighbourhood:
 
 class Plan(NamedTuple):
     """One MAP's decision of step k: its memory after it, what eq. 9's goal term aims at, what each
-    neighbour's link is to the flocking terms (state.RELATED, APART, PASSING or INLINE) and whether the network
-    needs it kept (the safety filter's rule 'links'), rows as the neighbours'."""
+    neighbour's link is to the flocking terms (state.RELATED, APART, PASSING or INLINE) and who keeps it if the
+    network needs it kept (the safety filter's rule 'links': state.UNKEPT, SHARED, ALONE), rows as the neighbours'."""
 
     memory: Memory
     reference: Reference
     links: list[int]
-    needed: list[bool]
+    needed: list[int]
 
 
 def plan(mem: Memory, agent_id: int, q: np.ndarray, n_users: int, cluster_coverage: np.ndarray, nbrs: Neighbourhood,
@@ -113,6 +113,6 @@ def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_u
     u, flags = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([ref.mode]),
                       ref.target[None, :], ref.q1[None, :], ref.q2[None, :], owner, nbrs.q, nbrs.p,
                       np.asarray(nbrs.n_users, dtype=float), params, np.array(links, dtype=np.intp),
-                      ref.velocity[None], seen, np.array(keep, dtype=bool))
+                      ref.velocity[None], seen, np.array(keep, dtype=np.int8))
     held, did = after_filter(held, int(flags[0]), q, ref, params)
     return Step(u[0], mem, did, held)

@@ -17,7 +17,7 @@ from .ablation import on
 from .clusters import segment_distance
 from .params import FlockParams
 from .potentials import F64, action, bump, sigma_abs, sigma_grad, sigma_norm
-from .state import APART, INLINE, M1, PASSING
+from .state import ALONE, APART, INLINE, M1, PASSING
 
 
 def sum_edges(values: F64, owner: NDArray[np.intp], m: int) -> F64:
@@ -134,13 +134,14 @@ def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer]
                   nbr_nu: F64, fp: FlockParams, apart: NDArray[np.integer] | None = None,
                   ref_vel: F64 | None = None,
                   traffic: tuple[NDArray[np.intp], F64, F64] | None = None,
-                  needed: NDArray[np.bool_] | None = None) -> Control:
+                  needed: NDArray[np.integer] | None = None) -> Control:
     """u_i of eq. 9 for every own MAP: flocking terms plus the goal term its mode selects.
 
     target is q^r for M0/M2 rows; bridge_a/bridge_b are q_1^r/q_2^r for M1 rows (ignored elsewhere);
     ref_vel (n, 3, 3) the velocities of target, bridge_a and bridge_b (None: all still); traffic the owner row,
     position and velocity of each broadcast the MAPs' traffic receivers took in (rule 'traffic'); needed, per
-    neighbour link, whether the network needs it kept (agent.Plan.needed; None: none is).
+    neighbour link, who keeps it if the network needs it kept (agent.Plan.needed, state.UNKEPT, SHARED or ALONE;
+    None: none is).
     """
     if envelope.limited(fp):
         u = envelope.flocking_within(flocking_terms, own_q, own_p, own_nu, owner, nbr_q, nbr_p, nbr_nu, fp, apart,
@@ -167,7 +168,7 @@ def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer]
             l_owner, l_dq, l_dv = owner[ask], nbr_q[ask] - own_q[owner[ask]], nbr_p[ask] - own_p[owner[ask]]
             near = safety.link_budget(l_dq, l_dv, fp) < fp.a_max  # the rows a command within a_max can reach
             chosen = np.flatnonzero(safety.protected(l_owner, l_dq, len(own_q), near))
-            links = l_owner[chosen], l_dq[chosen], l_dv[chosen]
+            links = l_owner[chosen], l_dq[chosen], l_dv[chosen], needed[ask][chosen] == ALONE
         return Control(*safety.filtered(u + h, own_p, by[rows], dq[rows], dv[rows], fp, links))
     brake = envelope.keep_apart(own_q, own_p, *seen, fp) + envelope.governor(own_p, fp)
     return Control(envelope.command(u + h, brake, fp), none)

@@ -16,7 +16,7 @@ from .allocations.demand import Demand
 from .clusters import NO_GOAL, ClusterMap, merge_achieved
 from .params import OPEN_CHOICES, SAFETY, FlockParams
 from .params import check as check_values
-from .state import NOBODY, Memory, Near, Reference, Told
+from .state import NOBODY, UNKEPT, Memory, Near, Reference, Told
 
 
 class Allocation(Protocol):
@@ -41,10 +41,10 @@ class Allocation(Protocol):
         of eq. 10), APART (repulsion within d only), PASSING (repulsion within d/2 only) or INLINE (all of
         eq. 10 along the own MAP's edge only); fp says what they fly (envelope.limited)."""
 
-    def needed(self, own: Memory, other: Told) -> bool:
-        """Whether the link between a MAP (its memory) and a neighbour that stated `other` is one the network needs
-        kept: the safety filter's rule 'links' protects such links only (control.control_input). One that does not
-        say keeps none (policies.needed)."""
+    def needed(self, own: Memory, other: Told) -> int:
+        """Who keeps the link between a MAP (its memory) and a neighbour that stated `other` against the nominal, if
+        the network needs it kept (state.UNKEPT, SHARED or ALONE): the safety filter's rule 'links' protects such links
+        only (control.control_input). One that does not say keeps none (policies.needed)."""
 
 
 ALLOCATIONS: dict[str, Allocation] = {
@@ -84,12 +84,13 @@ def links(mem: Memory, heard: Sequence[Told], fp: FlockParams) -> list[int]:
     return [allocation.link(own, t, fp) for t in heard]
 
 
-def needed(mem: Memory, heard: Sequence[Told], fp: FlockParams, free: bool = False) -> list[bool]:
-    """For each neighbour heard, whether its link to this MAP is one the network needs kept (Allocation.needed);
-    none without the safety filter, which alone keeps them, nor while rule 'release' sets the MAP free of them."""
+def needed(mem: Memory, heard: Sequence[Told], fp: FlockParams, free: bool = False) -> list[int]:
+    """For each neighbour heard, who keeps its link to this MAP, if the network needs it kept (Allocation.needed:
+    state.UNKEPT, SHARED or ALONE); none without the safety filter, which alone keeps them, nor while rule
+    'release' sets the MAP free of them."""
     allocation = ALLOCATIONS[fp.allocation]
     if fp.safety != 'filter' or not hasattr(allocation, 'needed') or free:
-        return [False] * len(heard)
+        return [UNKEPT] * len(heard)
     return [allocation.needed(mem, t) for t in heard]
 
 

@@ -135,10 +135,11 @@ def budget(dq: F64, dv: F64, fp: FlockParams) -> F64:
 
 
 def opening_share(dq: F64, own_p: F64, nbr_p: F64) -> F64:
-    """Per link, the own MAP's share of the pair's budget: in proportion to how fast each end flies away from the
-    other (SHARE_FLOOR m/s each added, so half each while both hold still). The MAP that opens the link brakes for
-    it, and the one it leaves stays where the network has it; the two shares add up to the whole, so the link
-    holds when both do theirs, and both ends compute them alike from the same broadcasts."""
+    """Per link both ends keep (state.SHARED), the own MAP's share of the pair's budget: in proportion to how fast
+    each end flies away from the other (SHARE_FLOOR m/s each added, so half each while both hold still). The MAP
+    that opens the link brakes for it, and the one it leaves stays where the network has it; the two shares add up
+    to the whole, so the link holds when both do theirs, and both ends compute them alike from the same broadcasts.
+    A link one end keeps alone (state.ALONE) is its whole budget."""
     n = dq / np.maximum(lengths(dq), 1e-9)[:, None]
     own, other = np.maximum(-(n * own_p).sum(axis=1), 0.0), np.maximum((n * nbr_p).sum(axis=1), 0.0)
     return (own + SHARE_FLOOR) / (own + other + 2.0 * SHARE_FLOOR)
@@ -208,15 +209,16 @@ class Filtered(NamedTuple):
 
 
 def filtered(u_nom: F64, own_p: F64, owner: NDArray[np.intp], dq: F64, dv: F64, fp: FlockParams,
-             links: tuple[NDArray[np.intp], F64, F64] | None = None) -> Filtered:
+             links: tuple[NDArray[np.intp], F64, F64, NDArray[np.bool_]] | None = None) -> Filtered:
     """Each own MAP's command: u_nom (its z kept) filtered through the QP above, the pairs to keep apart as rows
     (owner, j's position less i's, j's velocity less i's) grouped by owner, and likewise the protected links to
-    keep (none: no link rows)."""
+    keep, with whether the owner keeps each alone (state.ALONE; else its opening_share; none: no link rows)."""
     m = len(u_nom)
-    l_owner, l_dq, l_dv = links if links is not None else (np.zeros(0, np.intp), np.zeros((0, 3)), np.zeros((0, 3)))
+    l_owner, l_dq, l_dv, alone = links if links is not None else (
+        np.zeros(0, np.intp), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool))
     l_first = np.searchsorted(l_owner, np.arange(m + 1))
     l_n = l_dq[:, :2] / np.maximum(lengths(l_dq[:, :2]), 1e-9)[:, None]
-    l_b = link_budget(l_dq, l_dv, fp, opening_share(l_dq, own_p[l_owner], own_p[l_owner] + l_dv))
+    l_b = link_budget(l_dq, l_dv, fp, np.where(alone, 1.0, opening_share(l_dq, own_p[l_owner], own_p[l_owner] + l_dv)))
     out, flags = u_nom.copy(), np.zeros(m, dtype=np.uint8)
     limit = fp.a_max * _APOTHEM
     speed = lengths(own_p[:, :2])

@@ -13,6 +13,10 @@ M0, M1, M2 = 0, 1, 2  # dynamic, connectivity, static (Section IV-A)
 # unrelated (repulsion within d only), one of the two on its way to a new role (repulsion within d/2 only), or
 # fellow relays of one chain on a lagged vehicle (all of eq. 10 along their edge only: rule 'inline').
 RELATED, APART, PASSING, INLINE = 0, 1, 2, 3
+# Who keeps a link the network needs against the nominal (the safety filter's rule 'links', Allocation.needed): no
+# one (the link is not needed, or the other end keeps it alone), both ends, each its share (safety.opening_share), or
+# this MAP alone, the other end flying free of it.
+UNKEPT, SHARED, ALONE = 0, 1, 2
 
 
 class Memory(NamedTuple):

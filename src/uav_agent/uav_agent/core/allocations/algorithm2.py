@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from ..clusters import NO_GOAL, ClusterMap
-from ..state import M0, M1, M2, NOBODY, RELATED, Memory, Near, Reference, Told, aim, hold
+from ..state import M0, M1, M2, NOBODY, RELATED, UNKEPT, Memory, Near, Reference, Told, aim, hold
 
 if TYPE_CHECKING:
     from ..params import FlockParams
@@ -92,6 +92,6 @@ class Algorithm2:
         """Every neighbour alike: the paper's flocking terms take them all."""
         return RELATED
 
-    def needed(self, own: Memory, other: Told) -> bool:
+    def needed(self, own: Memory, other: Told) -> int:
         """None: Algorithm 2 names no chains, so the safety filter keeps no link under it."""
-        return False
+        return UNKEPT

@@ -12,7 +12,8 @@ import numpy as np
 from ... import envelope
 from ...ablation import on
 from ...clusters import NO_GOAL, ClusterMap
-from ...state import APART, INLINE, M0, M1, M2, NOBODY, PASSING, RELATED, Memory, Near, Reference, Told, aim, hold
+from ...state import (ALONE, APART, INLINE, M0, M1, M2, NOBODY, PASSING, RELATED, SHARED, UNKEPT, Memory, Near,
+                      Reference, Told, aim, hold)
 from .chain import anchored, chain_of, hushed, pivot, relay_place, relay_slot, swing_place, tally, taut
 from .memory import Mine, gossip_of
 from .vacancy import gossip, role_of, vacate, vanished
@@ -214,15 +215,19 @@ class Demand:
             return APART if loose(a, b, fp) else INLINE if inline(a, b, fp) else RELATED
         return PASSING if (gossip_of(a).transit or gossip_of(b).transit) and on('passing') else APART
 
-    def needed(self, own: Memory, other: Told) -> bool:
+    def needed(self, own: Memory, other: Told) -> int:
         """A chain's links, both ends settled at their roles, once both the chain's clusters are served (in the own
-        MAP's achieved goals): fellow relays of one edge, or a relay and a server of its edge's clusters. A
-        cluster's lattice holds itself together many times over; what splits a formation is a chain's last link
-        giving way as its cluster drifts off, or a relay's (docs/notes/vehicle.md). A MAP not yet at its role keeps
-        no link, so no link holds it back from where it is going; nor does a chain to a cluster not yet served,
-        which is still being laid out as the MAPs fly in, and joins no users yet (docs/vehicle.md, "A chain's links
-        once its clusters are served")."""
+        MAP's achieved goals): fellow relays of one edge keep theirs SHARED; a relay keeps its link to a server of its
+        edge's clusters ALONE, and the server flies free of it (UNKEPT), since the server's place is where its users
+        are and the relay's is wherever the chain needs it: a server held back by its chain left users unserved
+        (docs/vehicle.md, "A relay keeps its link to a server alone"). A cluster's lattice holds itself together many
+        times over; what splits a formation is a chain's last link giving way as its cluster drifts off, or a
+        relay's (docs/notes/vehicle.md). A MAP not yet at its role keeps no link, so no link holds it back from where
+        it is going; nor does a chain to a cluster not yet served, which is still being laid out as the MAPs fly in,
+        and joins no users yet (docs/vehicle.md, "A chain's links once its clusters are served")."""
         a = Told.of(own)
         edge = a.bridge if a.mode == M1 else other.bridge
-        return (M1 in (a.mode, other.mode) and gossip_of(a).settled and gossip_of(other).settled and related(a, other)
-                and (edge is None or all(own.achieved >> c & 1 for c in edge)))
+        if not (M1 in (a.mode, other.mode) and gossip_of(a).settled and gossip_of(other).settled and related(a, other)
+                and (edge is None or all(own.achieved >> c & 1 for c in edge))):
+            return UNKEPT
+        return SHARED if a.mode == other.mode else ALONE if a.mode == M1 else UNKEPT
