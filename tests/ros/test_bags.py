@@ -110,6 +110,15 @@ def test_every_published_message_is_in_the_bag(recorded: Path) -> None:
     assert [len(ids) for _, ids, _ in b.failures] == [2], 'one scheduled failure of 2 MAPs'
 
 
+def test_the_maps_hear_of_the_end_only_once_the_recorder_holds_their_last_commands(recorded: Path) -> None:
+    """A MAP's writer goes when it hears /events/finished: heard first, it could take its last command with it."""
+    with AnyReader([recorded / 'bag']) as r:
+        finished = [t for c, t, _ in r.messages(connections=[c for c in r.connections if c.topic == '/events/finished'])]
+        commands = [t for c, t, _ in r.messages(connections=[c for c in r.connections if c.topic.endswith('/cmd')])]
+    assert len(finished) == 1 and commands
+    assert max(commands) < finished[0], 'the recorder wrote a command after the run was announced finished'
+
+
 def test_coverage_and_fiedler_recomputed_from_raw_positions_equal_the_recorded_ones(recorded: Path) -> None:
     b = bag.load(recorded / 'bag')
     again = bag.recompute(b, b.scenario['association'])

@@ -342,7 +342,8 @@ class WorldNode(Watch, Node):
 
     # ------------------------------------------------------------------ end
     def done(self) -> bool:
-        """Finished, and the recorder (if any) has written the last step or stopped answering."""
+        """Finished, and the recorder (if any) has written the last step or stopped answering: only then may the
+        agents hear of the end, since a MAP's writer that goes first can take its last command with it."""
         if not self.finished:
             return False
         if not self.ok or not self.record or self.recorded >= self.world.k:
@@ -356,8 +357,6 @@ class WorldNode(Watch, Node):
             steps = f'{self.resent} stalled steps had their' if self.resent > 1 else '1 stalled step had its'
             print(f'{steps} sensing sent again (delays of discovery or delivery; '
                   'lockstep results do not depend on them; logs/world.log says which)', flush=True)
-        if ok:
-            self.finished_pub.publish(Int64(data=int(self.world.k)))
         self.recorder_moved = time.monotonic()
         if self.out is None:
             return
@@ -383,7 +382,8 @@ def main(argv: Optional[list[str]] = None) -> int:
             executor.spin_once(timeout_sec=0.1)
         if not node.finished:
             node.finish(ok=False)  # keep what was simulated
-        elif node.ok:  # the agents learn of the end before the writer is gone
+        elif node.ok:  # only once the recorder holds the last step: the agents' writers go when they learn of it
+            node.finished_pub.publish(Int64(data=int(node.world.k)))
             node.finished_pub.wait_for_all_acked(Duration(seconds=FINISHED_ACK_S))
         node.flush()
     finally:
