@@ -117,7 +117,7 @@ def test_a_run_under_a_channel_records_what_the_maps_heard() -> None:
     assert np.all((col['heard_components'] >= 1) & (col['usable_components'] >= col['components']))
 
 
-def test_a_stale_state_stands_where_its_sender_flew_on_and_one_gone_out_of_range_is_dropped() -> None:
+def test_a_stale_state_stands_where_its_sender_flew_on_says_its_age_and_one_gone_out_of_range_is_dropped() -> None:
     said = Said(0, Told(0, -1, None))
     held = [(3, 0, Heard(np.array([10.0, 0, 20]), np.array([5.0, 0, 0]), 2.0, said)),
             (5, 4, Heard(np.array([10.0, 0, 20]), np.array([5.0, 0, 0]), 1.0, said)),
@@ -125,8 +125,10 @@ def test_a_stale_state_stands_where_its_sender_flew_on_and_one_gone_out_of_range
     hood = heard_from(held, 0.1, np.zeros(3) + [0, 0, 20], R)
     assert hood.q[:, 0].tolist() == [10.0, 12.0, 22.0], 'age 0 as heard; age 4 flown on 4 x 0.1 s at 5 m/s'
     assert hood.n_users.tolist() == [2.0, 1.0, 0.0] and len(hood.told) == 3
+    assert hood.age.tolist() == pytest.approx([0.0, 0.4, 0.4]), 'how old each state is, for the filter\'s link margins'
     far = heard_from(held, 0.1, np.array([-5.0, 0, 20]), R)
     assert far.q[:, 0].tolist() == [10.0, 12.0], 'MAP 8, flown on to 27 m away, is taken for gone'
+    assert far.age.tolist() == pytest.approx([0.0, 0.4])
 
 
 def test_a_neighbour_whose_own_states_are_lost_is_heard_through_another_as_old_as_its_step() -> None:

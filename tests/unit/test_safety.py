@@ -156,7 +156,7 @@ def test_a_protected_link_holds_against_nominals_pulling_apart_at_a_max() -> Non
         for _ in range(200):
             owner, dq, dv = pairs(q, p)
             kept = np.flatnonzero(safety.protected(owner, dq, 2, safety.link_budget(dq, dv, FP) < FP.a_max))
-            held = (owner[kept], dq[kept], dv[kept], np.zeros(len(kept), bool)) if links else None
+            held = (owner[kept], dq[kept], dv[kept], np.zeros(len(kept), bool), np.zeros(len(kept))) if links else None
             u = safety.filtered(nominal, p, owner[:0], dq[:0], dv[:0], FP, held).u
             q, p = f.step(np.arange(2), q, p, u)
             most = max(most, float(np.linalg.norm(q[0] - q[1])))
@@ -200,7 +200,7 @@ def test_a_relay_that_keeps_its_link_to_a_server_alone_follows_it_and_the_server
         for _ in range(100):
             owner, dq, dv = pairs(q, p)
             rows = {'alone': [0], 'shared': [0, 1], 'nobody': []}[keeper]
-            link = (owner[rows], dq[rows], dv[rows], np.full(len(rows), keeper == 'alone'))
+            link = (owner[rows], dq[rows], dv[rows], np.full(len(rows), keeper == 'alone'), np.zeros(len(rows)))
             u = safety.filtered(nominal, p, owner[:0], dq[:0], dv[:0], FP, link).u
             q, p = f.step(np.arange(2), q, p, u)
             widest = max(widest, float(np.linalg.norm(q[0] - q[1])))
@@ -209,6 +209,30 @@ def test_a_relay_that_keeps_its_link_to_a_server_alone_follows_it_and_the_server
     assert alone[0] < FP.r and alone[1] == pytest.approx(nobody[1]), ('the relay follows, the server flies on', alone, nobody)
     assert shared[1] < alone[1] - 20.0, ('shared, the server is held back', shared, alone)
     assert nobody[0] > FP.r
+
+def test_a_link_heard_late_is_kept_shorter_by_how_far_its_ends_could_have_flown_since() -> None:
+    """Two MAPs 16 m apart at rest, each pulled away from the other at a_max, keeping their link shared; MAP 0
+    hears MAP 1's state once a second and places it where its velocity then takes it (ear.py's rule 'predict').
+    Its link's margin grows with the state's age (safety.stale_margin), and the link stays within r - 1 m as when
+    heard every step; taking the old state for a fresh one, MAP 0 lets it open past that."""
+    def widest(late: bool) -> float:
+        f = Multirotor(CALM, 2, 0.1, np.random.default_rng(0))
+        q, p = np.array([[0.0, 0.0, 20.0], [16.0, 0.0, 20.0]]), np.zeros((2, 3))
+        nominal, flown, most = np.array([[-4.0, 0.0, 0.0], [4.0, 0.0, 0.0]]), [], 0.0
+        for k in range(300):
+            flown.append((q[1].copy(), p[1].copy()))
+            age = k % 10  # steps since MAP 1's last state that MAP 0 heard
+            heard_q, heard_p = flown[k - age][0] + age * 0.1 * flown[k - age][1], flown[k - age][1]
+            link = (np.array([0, 1]), np.array([heard_q - q[0], q[0] - q[1]]), np.array([heard_p - p[0], p[0] - p[1]]),
+                    np.zeros(2, bool), safety.stale_margin(np.array([age * 0.1 if late else 0.0, 0.0]), FP))
+            u = safety.filtered(nominal, p, np.zeros(0, np.intp), np.zeros((0, 3)), np.zeros((0, 3)), FP, link).u
+            q, p = f.step(np.arange(2), q, p, u)
+            most = max(most, float(np.linalg.norm(q[0] - q[1])))
+        return most
+    reach = FP.r - safety.LINK_MARGIN
+    assert safety.stale_margin(np.array([0.0, 0.5]), FP).tolist() == [0.0, FP.a_max * 0.25]
+    assert widest(True) < reach + 0.05 < widest(False) - 0.1, (widest(True), widest(False), reach)
+
 
 def test_the_filter_says_when_a_link_held_a_map_back_and_when_it_gave_way() -> None:
     """Two MAPs 22 m apart at rest, each pulled away at a_max: the link holds both back (HELD, not RELAXED). Flying
@@ -222,7 +246,7 @@ def test_the_filter_says_when_a_link_held_a_map_back_and_when_it_gave_way() -> N
         owner, dq, dv = pairs(q, p)
         kept = np.flatnonzero(safety.protected(owner, dq, 2, np.ones(2, dtype=bool)))
         flags = safety.filtered(nominal, p, owner[:0], dq[:0], dv[:0], FP,
-                                (owner[kept], dq[kept], dv[kept], np.zeros(len(kept), bool))).flags
+                                (owner[kept], dq[kept], dv[kept], np.zeros(len(kept), bool), np.zeros(len(kept)))).flags
         assert flags.tolist() == [want, want], (p[0, 0], flags)
     unprotected = safety.filtered(apart, np.zeros((2, 3)), owner[:0], dq[:0], dv[:0], FP).flags
     assert unprotected.tolist() == [0, 0]
@@ -238,7 +262,7 @@ def test_when_a_protected_link_and_separation_conflict_the_link_gives_way() -> N
     sep_dq, sep_dv = q[1:2] - q[0], p[1:2] - p[0]
     budget = safety.budget(sep_dq, sep_dv, FP)[0]
     assert budget < -1.0, 'separation asks for no flight: the case tests nothing'
-    link = (np.zeros(1, dtype=np.intp), q[2:3] - q[0], p[2:3] - p[0], np.zeros(1, bool))
+    link = (np.zeros(1, dtype=np.intp), q[2:3] - q[0], p[2:3] - p[0], np.zeros(1, bool), np.zeros(1))
     nominal = np.zeros((1, 3))
     owner = np.zeros(1, dtype=np.intp)
     with_link = safety.filtered(nominal, p[:1], owner, sep_dq, sep_dv, FP, link)

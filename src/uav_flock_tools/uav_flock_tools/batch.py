@@ -63,7 +63,7 @@ class BatchSimulator:
                                                    sensed.p[sensed.traffic[:, 1]])
         u, flags = control_input(sensed.q, sensed.p, sensed.n_users.astype(float), mode, target, qa, qb, owner, nbr.q,
                                  nbr.p, nbr.n_users, fp, np.array(apart, dtype=np.intp), ref_vel, seen,
-                                 np.array(needed, dtype=np.int8))
+                                 np.array(needed, dtype=np.int8), nbr.age)
         if fp.safety == 'filter':  # the filter's liveness count, as each agent carries it (agent_step)
             flags = flags.copy()
             for n, i in enumerate(rows.tolist()):
@@ -88,7 +88,8 @@ class BatchSimulator:
         owner = np.repeat(np.arange(len(rows), dtype=np.intp), [len(h.q) for h in hoods])
         return hoods, owner, Neighbourhood(
             np.concatenate([np.zeros((0, 3)), *(h.q for h in hoods)]), np.concatenate([np.zeros((0, 3)), *(h.p for h in hoods)]),
-            np.concatenate([np.zeros(0), *(h.n_users for h in hoods)]), [], [])
+            np.concatenate([np.zeros(0), *(h.n_users for h in hoods)]), [], [],
+            np.concatenate([np.zeros(0), *(h.age for h in hoods)]))
 
     def run(self, progress: Optional[Callable[[int], None]] = None) -> RunResult:
         """Steps 0..N (N = duration / dt), inclusive, so the record ends at t = duration."""

@@ -41,16 +41,25 @@ class Neighbourhood:
     n_users: np.ndarray    # (n,) N_u^j
     achieved: list[int]    # achieved-goal masks
     told: list[Told]       # what each one stated of its role, and its allocation's block
+    # (n,) how old each state is (s): 0 under the paper's channel; under another (docs/links.md) the time since the
+    # step it was sent at, which the safety filter's link rows allow for (control.control_input). None: all 0.
+    age: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.age is None:
+            self.age = np.zeros(len(self.q))
 
     @classmethod
     def empty(cls) -> 'Neighbourhood':
         return cls(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), [], [])
 
     @classmethod
-    def hearing(cls, q: np.ndarray, p: np.ndarray, n_users: np.ndarray, said: Sequence[Said]) -> 'Neighbourhood':
+    def hearing(cls, q: np.ndarray, p: np.ndarray, n_users: np.ndarray, said: Sequence[Said],
+                age: np.ndarray | None = None) -> 'Neighbourhood':
         """The neighbourhood of what each neighbour said, rows alike: the one place the gossip is gathered."""
         return cls(np.asarray(q, dtype=float).reshape(-1, 3), np.asarray(p, dtype=float).reshape(-1, 3),
-                   np.asarray(n_users, dtype=float), [s.achieved for s in said], [s.told for s in said])
+                   np.asarray(n_users, dtype=float), [s.achieved for s in said], [s.told for s in said],
+                   None if age is None else np.asarray(age, dtype=float))
 
 
 class Plan(NamedTuple):
@@ -113,6 +122,6 @@ def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_u
     u, flags = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([ref.mode]),
                       ref.target[None, :], ref.q1[None, :], ref.q2[None, :], owner, nbrs.q, nbrs.p,
                       np.asarray(nbrs.n_users, dtype=float), params, np.array(links, dtype=np.intp),
-                      ref.velocity[None], seen, np.array(keep, dtype=np.int8))
+                      ref.velocity[None], seen, np.array(keep, dtype=np.int8), nbrs.age)
     held, did = after_filter(held, int(flags[0]), q, ref, params)
     return Step(u[0], mem, did, held)

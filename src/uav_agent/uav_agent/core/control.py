@@ -134,14 +134,14 @@ def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer]
                   nbr_nu: F64, fp: FlockParams, apart: NDArray[np.integer] | None = None,
                   ref_vel: F64 | None = None,
                   traffic: tuple[NDArray[np.intp], F64, F64] | None = None,
-                  needed: NDArray[np.integer] | None = None) -> Control:
+                  needed: NDArray[np.integer] | None = None, nbr_age: F64 | None = None) -> Control:
     """u_i of eq. 9 for every own MAP: flocking terms plus the goal term its mode selects.
 
     target is q^r for M0/M2 rows; bridge_a/bridge_b are q_1^r/q_2^r for M1 rows (ignored elsewhere);
     ref_vel (n, 3, 3) the velocities of target, bridge_a and bridge_b (None: all still); traffic the owner row,
     position and velocity of each broadcast the MAPs' traffic receivers took in (rule 'traffic'); needed, per
     neighbour link, who keeps it if the network needs it kept (agent.Plan.needed, state.UNKEPT, SHARED or ALONE;
-    None: none is).
+    None: none is); nbr_age how old each neighbour's state is (s; None: all of this step).
     """
     if envelope.limited(fp):
         u = envelope.flocking_within(flocking_terms, own_q, own_p, own_nu, owner, nbr_q, nbr_p, nbr_nu, fp, apart,
@@ -166,9 +166,10 @@ def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer]
         if on('links') and needed is not None and needed.any():  # the links it protects, of those the network needs
             ask = np.flatnonzero(needed)
             l_owner, l_dq, l_dv = owner[ask], nbr_q[ask] - own_q[owner[ask]], nbr_p[ask] - own_p[owner[ask]]
-            near = safety.link_budget(l_dq, l_dv, fp) < fp.a_max  # the rows a command within a_max can reach
+            l_wide = safety.stale_margin(np.zeros(len(ask)) if nbr_age is None else nbr_age[ask], fp)
+            near = safety.link_budget(l_dq, l_dv, fp, 0.5, l_wide) < fp.a_max  # the rows a command within a_max can reach
             chosen = np.flatnonzero(safety.protected(l_owner, l_dq, len(own_q), near))
-            links = l_owner[chosen], l_dq[chosen], l_dv[chosen], needed[ask][chosen] == ALONE
+            links = l_owner[chosen], l_dq[chosen], l_dv[chosen], needed[ask][chosen] == ALONE, l_wide[chosen]
         return Control(*safety.filtered(u + h, own_p, by[rows], dq[rows], dv[rows], fp, links))
     brake = envelope.keep_apart(own_q, own_p, *seen, fp) + envelope.governor(own_p, fp)
     return Control(envelope.command(u + h, brake, fp), none)

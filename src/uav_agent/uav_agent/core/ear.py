@@ -98,7 +98,7 @@ class Ear:
                                          np.array([h.n_users for h in states], dtype=float), [h.said for h in states])
         held = self.inbox.usable(k)
         q, dist = _placed(held, dt, here)
-        hood = _within(held, q, dist, r)
+        hood = _within(held, q, dist, r, dt)
         if self.hearsay:
             nearest = sorted((n for n in range(len(held)) if dist[n] <= r), key=lambda n: (dist[n], held[n][0]))
             self.passed = [Passed(held[n][0], k - held[n][1], held[n][2])
@@ -138,7 +138,7 @@ def heard_from(held: Sequence[tuple[int, int, Heard]], dt: float, here: np.ndarr
     'predict'); one whose sender is so placed beyond r is taken for gone (rule 'gone'): out of range, its
     messages stop as lost ones do, and its old place would pull the MAP towards where it no longer is.
     """
-    return _within(held, *_placed(held, dt, here), r)
+    return _within(held, *_placed(held, dt, here), r, dt)
 
 
 def _placed(held: Sequence[tuple[int, int, Heard]], dt: float, here: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -150,9 +150,13 @@ def _placed(held: Sequence[tuple[int, int, Heard]], dt: float, here: np.ndarray)
     return q, np.linalg.norm(q - here, axis=1)
 
 
-def _within(held: Sequence[tuple[int, int, Heard]], q: np.ndarray, dist: np.ndarray, r: float) -> Neighbourhood:
-    """heard_from's neighbourhood from where the held states' senders are placed and how far they are."""
+def _within(held: Sequence[tuple[int, int, Heard]], q: np.ndarray, dist: np.ndarray, r: float,
+            dt: float) -> Neighbourhood:
+    """heard_from's neighbourhood from where the held states' senders are placed and how far they are, with
+    each state's age (s)."""
     states = [h for _, _, h in held]
     keep = dist <= r if on('gone') else np.ones(len(states), dtype=bool)
+    age = np.array([a * dt for _, a, _ in held], dtype=float)
     return Neighbourhood.hearing(q[keep], np.array([h.p for h in states]).reshape(-1, 3)[keep],
-                                 np.array([h.n_users for h in states])[keep], [h.said for h, k in zip(states, keep) if k])
+                                 np.array([h.n_users for h in states])[keep], [h.said for h, k in zip(states, keep) if k],
+                                 age[keep])

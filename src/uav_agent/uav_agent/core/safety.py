@@ -73,16 +73,17 @@ def braking(fp: FlockParams) -> float:
     return BRAKE_SHARE * fp.a_max
 
 
-def _barrier(dq: F64, dv: F64, fp: FlockParams, sign: float, share: F64 | float) -> tuple[F64, F64]:
+def _barrier(dq: F64, dv: F64, fp: FlockParams, sign: float, share: F64 | float,
+             wide: F64 | float = 0.0) -> tuple[F64, F64]:
     """The one braking-curve barrier of both rows: the speed s = sign n . dv at which the pair uses up its gap
-    (closing, sign -1, against `keep`; opening, sign +1, against r - LINK_MARGIN) kept below v_safe(gap), and this
-    MAP's share of the acceleration budget that keeps it so; with the barrier h = v_safe(gap) - s itself. Sideways
-    speed w closes a gap that opens (w^2 / d) and opens one that closes."""
+    (closing, sign -1, against `keep`; opening, sign +1, against r - LINK_MARGIN - wide) kept below v_safe(gap), and
+    this MAP's share of the acceleration budget that keeps it so; with the barrier h = v_safe(gap) - s itself.
+    Sideways speed w closes a gap that opens (w^2 / d) and opens one that closes."""
     a, t = braking(fp), horizon(fp)
     dist = np.maximum(lengths(dq), 1e-9)
     speed = sign * (dq * dv).sum(axis=-1) / dist
     sideways2 = np.maximum((dv * dv).sum(axis=-1) - speed * speed, 0.0)
-    gap = dist - fp.keep if sign < 0 else fp.r - LINK_MARGIN - dist
+    gap = dist - fp.keep if sign < 0 else fp.r - LINK_MARGIN - wide - dist
     root = np.sqrt(t * t + np.maximum(gap, 0.0) / a)
     h = 2.0 * a * (root - t) - speed  # v_safe(gap) less the speed
     return share * (KAPPA * h - speed / root - sign * sideways2 / dist), h
@@ -145,11 +146,19 @@ def opening_share(dq: F64, own_p: F64, nbr_p: F64) -> F64:
     return (own + SHARE_FLOOR) / (own + other + 2.0 * SHARE_FLOOR)
 
 
-def link_budget(dq: F64, dv: F64, fp: FlockParams, share: F64 | float = 0.5) -> F64:
+def link_budget(dq: F64, dv: F64, fp: FlockParams, share: F64 | float = 0.5, wide: F64 | float = 0.0) -> F64:
     """Per protected link (j at dq from i, moving at dv relative to it), the most of i's acceleration away from j
-    that keeps the link's barrier h = v_safe(r - LINK_MARGIN - d) - o (o the speed at which the link opens):
-    -n . a_i <= link_budget. The sideways speed w opens a link at w^2 / d and counts against it."""
-    return _barrier(dq, dv, fp, 1.0, share)[0]
+    that keeps the link's barrier h = v_safe(r - LINK_MARGIN - wide - d) - o (o the speed at which the link opens):
+    -n . a_i <= link_budget. The sideways speed w opens a link at w^2 / d and counts against it; wide is what the
+    link's margin grows by while j's state is old (stale_margin)."""
+    return _barrier(dq, dv, fp, 1.0, share, wide)[0]
+
+
+def stale_margin(age: F64, fp: FlockParams) -> F64:
+    """How much farther apart (m) two MAPs may be than a neighbour's state `age` s old places them (flown on at its
+    velocity then, ear.py's rule 'predict'): each accelerating away from the other at a_max since, a_max age^2 in
+    all. A link's margin grows by it, so the filter keeps a link it hears late as surely as one it hears now."""
+    return fp.a_max * np.asarray(age, dtype=float) ** 2
 
 
 def protected(owner: NDArray[np.intp], dq: F64, m: int, asked: NDArray[np.bool_]) -> NDArray[np.bool_]:
@@ -209,16 +218,18 @@ class Filtered(NamedTuple):
 
 
 def filtered(u_nom: F64, own_p: F64, owner: NDArray[np.intp], dq: F64, dv: F64, fp: FlockParams,
-             links: tuple[NDArray[np.intp], F64, F64, NDArray[np.bool_]] | None = None) -> Filtered:
+             links: tuple[NDArray[np.intp], F64, F64, NDArray[np.bool_], F64] | None = None) -> Filtered:
     """Each own MAP's command: u_nom (its z kept) filtered through the QP above, the pairs to keep apart as rows
     (owner, j's position less i's, j's velocity less i's) grouped by owner, and likewise the protected links to
-    keep, with whether the owner keeps each alone (state.ALONE; else its opening_share; none: no link rows)."""
+    keep, with whether the owner keeps each alone (state.ALONE; else its opening_share) and how much its margin
+    grows while j's state is old (stale_margin, m); none: no link rows."""
     m = len(u_nom)
-    l_owner, l_dq, l_dv, alone = links if links is not None else (
-        np.zeros(0, np.intp), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool))
+    l_owner, l_dq, l_dv, alone, l_wide = links if links is not None else (
+        np.zeros(0, np.intp), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool), np.zeros(0))
     l_first = np.searchsorted(l_owner, np.arange(m + 1))
     l_n = l_dq[:, :2] / np.maximum(lengths(l_dq[:, :2]), 1e-9)[:, None]
-    l_b = link_budget(l_dq, l_dv, fp, np.where(alone, 1.0, opening_share(l_dq, own_p[l_owner], own_p[l_owner] + l_dv)))
+    l_b = link_budget(l_dq, l_dv, fp, np.where(alone, 1.0, opening_share(l_dq, own_p[l_owner], own_p[l_owner] + l_dv)),
+                      l_wide)
     out, flags = u_nom.copy(), np.zeros(m, dtype=np.uint8)
     limit = fp.a_max * _APOTHEM
     speed = lengths(own_p[:, :2])
