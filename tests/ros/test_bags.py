@@ -397,8 +397,10 @@ def test_bag_tools_reject_bad_input_in_one_line(tmp_path: Path) -> None:
         assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
     # A value the agent would refuse is refused before it starts, in the words of the option typed.
     for value, says in (('r=-1', '--set r: must be positive'), ('zero_users=sometimes', '--set zero_users: must be one of')):
-        done = cli('replay', str(GOLDEN / 'bag'), '--agent', '3', '--set', value)
+        done = subprocess.run([sys.executable, '-m', 'uav_flock_tools.cli', 'replay', str(GOLDEN / 'bag'), '--agent', '3',
+                               '--set', value], cwd=tmp_path, capture_output=True, text=True, timeout=300)
         assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1 and says in done.stderr, done.stderr
+        assert not (tmp_path / 'runs').exists(), 'a refused --set wrote a folder for its plot'
     (tmp_path / 'broken').mkdir()
     (tmp_path / 'broken' / 'metadata.yaml').write_text('rosbag2_bagfile_information: [\n')
     done = cli('report', str(tmp_path / 'broken'))  # rosbags' own message spans lines: one line all the same

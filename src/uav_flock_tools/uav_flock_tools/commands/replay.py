@@ -36,8 +36,6 @@ def handle(args: argparse.Namespace) -> int:
         # tests/golden/bag is, is not written beside: its picture goes into a new runs/replay-<time>/.
         home = path.parent if (path.parent / 'run.json').exists() else default_out('replay')
         plot = Path(args.plot) if args.plot else unused(home, f'replay_map{args.agent}')
-        if args.set:
-            make_folder(plot.parent, 'replay: --plot')
         outcome = replay.replay(path, args.agent, args.tolerance, args.timeout, dict(args.set or []))
     except (bag.BagError, replay.ReplayError, domains.DomainInUse) as exc:
         raise UsageError(f'replay: {exc}') from None
@@ -46,6 +44,7 @@ def handle(args: argparse.Namespace) -> int:
         import numpy as np
 
         from .. import plots
+        make_folder(plot.parent, 'replay: --plot')  # only now: a refused --set leaves no empty folder behind
         t, du = np.array(outcome.du).T
         setting = ', '.join(f'{k}={v}' for k, v in outcome.changed.items())
         plots.command_difference(t, du, args.tolerance, f'MAP {args.agent} replayed with {setting}', plot)
