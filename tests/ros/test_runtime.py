@@ -142,14 +142,14 @@ def test_a_run_whose_maps_all_fail_goes_on_to_its_end(tmp_path: Path, ros_env: d
 def test_killed_agents_are_dropped_and_the_run_completes(tmp_path: Path, ros_env: dict[str, str]) -> None:
     run = tmp_path / 'up'
     shm_before = shm_entries()
-    proc = up('--maps', '12', '--seed', '0', '--duration', '60', '--agents-per-process', '1', '--out', str(run),
+    proc = up('--maps', '12', '--seed', '0', '--duration', '20', '--agents-per-process', '1', '--out', str(run),
               env=ros_env)
     seen, rest = kill_during(proc, str(run), '3,7', 't =   2.0 s')
     assert proc.returncode == 0, seen + rest
     assert shm_entries() - shm_before == set(), 'SIGKILLed agents left shared-memory files (segments or ports)'
     assert dropped_ids(seen) == [3, 7], seen
     m = read_csv(run / 'metrics.csv')
-    assert m['t'][-1] == 60.0, 'the run completes'
+    assert m['t'][-1] == 20.0, 'the run completes'
     assert m['alive'][0] == 12 and m['alive'][-1] == 10
     t = read_csv(run / 'trajectory.csv')
     last = set(t['id'][t['step'] == t['step'].max()].astype(int).tolist())
