@@ -2,6 +2,7 @@
 unchanged to the byte, a multirotor within its limits as its records show, its error processes as specified."""
 from __future__ import annotations
 
+import copy
 import hashlib
 import math
 from dataclasses import replace
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from uav_agent.core.ablation import switched_off
 from uav_agent.core.links import Links
 from uav_agent.core.params import FlockParams
 from uav_flock_tools.batch import BatchSimulator
@@ -294,8 +296,6 @@ def first_difference(s: Scenario, rule: str, fork: float = 0.0) -> float | None:
     """The first time (s) at which s flown with `rule` switched off from `fork` on leaves the run with every rule on
     (None: never). One run up to fork, then both in lockstep: a fork before the rule first acts changes nothing,
     and the comparison stops at the first step the two part."""
-    import copy
-    from uav_agent.core.ablation import switched_off
     with_rule = BatchSimulator(s)
     start = round(fork / s.dt)
     for _ in range(start):
@@ -334,7 +334,6 @@ def test_swerve_lets_two_maps_that_can_no_longer_stop_miss(speed: float, lateral
     """At 10 m/s each, braking alone needs about 31 m to stop keep m short: heard at 24 m, two MAPs on a collision
     course pass within the separation unless they turn away from each other (rule 'swerve'). Head-on at 12 m/s
     each, not even that is enough (docs/vehicle.md)."""
-    from uav_agent.core.ablation import switched_off
     with switched_off(['swerve']):
         braking = closest_pass(speed, lateral)
     assert braking < vehicle.MULTIROTOR.separation, 'braking alone would have stopped them: the case tests nothing'
