@@ -16,7 +16,8 @@ MINE = st.builds(  # each field drawn as its type says (Own's annotations)
     lost=st.lists(st.tuples(st.floats(0, 0.5), st.floats(0.5, 1)), max_size=3).map(tuple), short=PAIRS,
     since=st.integers(-1, 999), taut=st.integers(0, 999), straight=st.booleans(), whole=st.integers(-1, 999),
     hold=st.one_of(st.none(), st.lists(st.floats(-50, 50), min_size=1, max_size=2).map(tuple)),
-    ends=st.one_of(st.just(()), st.lists(st.floats(0, 99), min_size=4, max_size=4).map(tuple)))
+    ends=st.one_of(st.just(()), st.lists(st.floats(0, 99), min_size=4, max_size=4).map(tuple)),
+    around=st.lists(st.tuples(st.floats(-99, 99), st.floats(-99, 99), st.integers(0, 9)), max_size=3).map(tuple))
 
 
 def test_the_common_memory_holds_five_fields() -> None:
