@@ -384,6 +384,52 @@ def test_relays_whose_edge_leaves_the_tree_swing_about_the_cluster_it_shares_wit
         'at its new place the swing ends and the chain rule takes over'
 
 
+def test_on_a_lagged_vehicle_a_swapped_edge_stands_and_its_relays_let_go_join_the_nearer_cluster() -> None:
+    """The case above on a lagged vehicle: a swing there is break before make (until the chain's far end reaches
+    cluster 0, cluster 2's side is cut off), so the swapped edge (1, 2) stands for STANDING surveys, its relays kept,
+    while (0, 2) is staffed from the clusters. Let go, a relay joins the nearer of 1 and 2 by where it is, not the one
+    its key names, and stays with it; the paper's vehicle swings as before."""
+    from uav_agent.core.ablation import switched_off
+    fp, n = FlockParams(), 150
+    lagged = replace(fp, v_max=15.0, a_max=4.0, tau=0.3, keep=6.1)
+    radii = np.full(3, 25.0)
+    xy = np.array([[0.0, 0.0], [150.0, 0.0], [200.0, 120.0]])
+    moved = np.array([[0.0, 0.0], [150.0, 0.0], [60.0, 140.0]])
+    ideal = ClusterMap(moved, fp.height, radii, previous=ClusterMap(xy, fp.height, radii))
+    assert layout.roles(ideal, fp.d).standing == (), "the paper's vehicle: the chain swings"
+    maps = [ClusterMap(xy, fp.height, radii)]
+    for _ in range(layout.STANDING + 1):
+        maps.append(ClusterMap(moved, fp.height, radii, previous=maps[-1]))
+        layout.roles(maps[-1], fp.d, near=True)  # laid out before the next survey drops the one it carries from
+    assert layout.roles(maps[1], fp.d, near=True).edges == ((0, 1), (0, 2), (1, 2))
+    assert layout.roles(maps[1], fp.d, near=True).standing == (((1, 2), layout.STANDING),)
+    was, kept = role_ids(maps[0], n, fp, near=True), role_ids(maps[1], n, fp, near=True)
+    relays = [i for i in range(n) if was[i] == (1, 2) and kept[i] == (1, 2)]
+    assert len(relays) >= 0.9 * was.count((1, 2)) >= 4, 'the chain keeps its relays (its share as its length says)'
+    a, b = moved[1], moved[2]
+    for m in maps[1:-1]:
+        for i, f in zip(relays, np.linspace(0.2, 0.8, len(relays))):
+            q = np.array([*(a + f * (b - a)), fp.height])
+            mem = demand_switch(Mine(mode=M1, goal=1, bridge=(1, 2), settled=True), i, 0.0, q, m, lagged)
+            assert mem.mode == M1 and mem.bridge == (1, 2) and mem.swing is None, 'the chain stands, no relay swings'
+    last = maps[-1]
+    assert layout.roles(last, fp.d, near=True).edges == ((0, 1), (0, 2)), 'then it is let go'
+    named = role_ids(last, n, fp, near=True)
+    assert {named[i] for i in relays} == {1, 2}, 'its keys name both its clusters'
+    for i in relays:
+        for f, nearer in ((0.25, 1), (0.75, 2)):
+            q = np.array([*(a + f * (b - a)), fp.height])
+            mem = demand_switch(Mine(mode=M1, goal=1, bridge=(1, 2), settled=True), i, 0.0, q, last, lagged)
+            assert (mem.mode, mem.goal, mem.rejoin) == (M0, nearer, (named[i], nearer)), \
+                f'relay {i} a quarter of the way from cluster {nearer} joins it, its key naming {named[i]}'
+            on = demand_switch(mem, i, 0.0, np.array([*moved[nearer], fp.height]), last, lagged)
+            assert on.goal == nearer, 'and stays with it once there'
+    with switched_off(['nearest']):
+        assert layout.roles(last, fp.d).standing == () and demand_switch(
+            Mine(mode=M0, goal=2, settled=True, rejoin=(2, 1)), relays[0], 0.0, np.array([*a, fp.height]), last,
+            lagged).rejoin is None, "without rule 'nearest' a MAP goes where its key says"
+
+
 def test_only_a_settled_relay_whose_edges_share_one_cluster_swings() -> None:
     fp = FlockParams()
     clusters = ClusterMap(np.array([[0.0, 0.0], [150.0, 0.0], [60.0, 140.0], [300.0, 50.0]]), fp.height,

@@ -17,7 +17,8 @@ MINE = st.builds(  # each field drawn as its type says (Own's annotations)
     since=st.integers(-1, 999), taut=st.integers(0, 999), straight=st.booleans(), whole=st.integers(-1, 999),
     hold=st.one_of(st.none(), st.lists(st.floats(-50, 50), min_size=1, max_size=2).map(tuple)),
     ends=st.one_of(st.just(()), st.lists(st.floats(0, 99), min_size=4, max_size=4).map(tuple)),
-    around=st.lists(st.tuples(st.floats(-99, 99), st.floats(-99, 99), st.integers(0, 9)), max_size=3).map(tuple))
+    around=st.lists(st.tuples(st.floats(-99, 99), st.floats(-99, 99), st.integers(0, 9)), max_size=3).map(tuple),
+    rejoin=st.one_of(st.none(), st.tuples(st.integers(0, 9), st.integers(0, 9))))
 
 
 def test_the_common_memory_holds_five_fields() -> None:

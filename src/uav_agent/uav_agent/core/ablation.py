@@ -13,8 +13,10 @@ from typing import Iterable, Iterator
 RULES = {
     'carry': 'keys carried across surveys: a role gives up or takes only what its share changed by (keys.carry)',
     'kept': 'kept shares: a role keeps its MAPs down to its share / (1 + SLACK) (layout.kept)',
-    'standing': 'make before break: an edge that left the tree keeps its relays (layout.standing)',
-    'swing': 'swinging chains: relays of a swapped edge swing about the shared cluster (demand.pivot)',
+    'standing': 'make before break: an edge that left the tree keeps its relays (layout.standing); on a lagged vehicle, '
+                'with rule nearest, also an edge swapped for one with a cluster in common, whose relays would swing',
+    'swing': 'swinging chains: relays of a swapped edge swing about the shared cluster, on the paper\'s vehicle; on a '
+             'lagged one the swapped edge stands instead (rule standing), unless rule nearest is off (demand.pivot)',
     'tree': 'along the tree: a MAP in transit flies cluster to cluster (demand.en_route)',
     'chain': 'leaving by the chain: a MAP in transit leaves its disc along the relay chain (demand.leg_aim)',
     'passing': 'passing at d/2: unrelated MAPs in transit repel within d/2 only (demand.Demand.link)',
@@ -75,8 +77,9 @@ VEHICLE_RULES = {
                '(vacancy.vanished)',
     'nearest': "a new edge or cluster takes its share first from the clusters nearest it on the tree, down to their "
                'floor, not from the roles most above their share wherever they are, and an edge found short is lent '
-               'its MAPs by its own two clusters, under the demand allocation (layout.roles, vacancy.nearest, '
-               'vacancy.view)',
+               'its MAPs by its own two clusters, and a relay let go from a standing chain joins the nearer of its two '
+               'clusters by where it is, under the demand allocation (layout.roles, vacancy.nearest, vacancy.view, '
+               'demand.rejoined)',
     'cascade': 'the keys a role of the tree (an arriving cluster first, or an edge to it) takes from a cluster more than '
                'one hop away pass hop by hop: each cluster on the way gives its own to the one before it, so a MAP '
                'crosses one hop, or two past a cluster that gave all its own to an arrival, under rule nearest '

@@ -5,7 +5,7 @@ gap, swing about a shared cluster when the tree changes (chain.py), and a MAP se
 the tree."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Optional, Sequence
 
 import numpy as np
 
@@ -16,7 +16,7 @@ from ...state import (ALONE, APART, INLINE, M0, M1, M2, NOBODY, PASSING, RELATED
                       Reference, Told, aim, hold)
 from .chain import anchored, chain_of, hushed, pivot, relay_place, relay_slot, swing_place, tally, taut
 from .memory import Mine, gossip_of
-from .vacancy import gossip, role_of, vacate, vanished
+from .vacancy import gossip, nearest, role_of, vacate, vanished
 
 if TYPE_CHECKING:
     from ...params import FlockParams
@@ -34,6 +34,23 @@ def _anew(mem: Mine, **role: object) -> Mine:
                   since=mem.since, around=mem.around, **role)  # type: ignore[arg-type]
 
 
+def rejoined(mem: Mine, role: int, edges: Sequence[tuple[int, int]], q: np.ndarray,
+             clusters: ClusterMap) -> Optional[tuple[int, int]]:
+    """Rule 'nearest' for a relay let go: (the cluster its key names, the one it joins), or None to join the one
+    its key names. When a standing chain is let go (layout.standing) its keys split at their middle between its two
+    clusters, but on a lagged vehicle a relay's place along the chain is its rank among the relays it hears
+    (chain.ends_place), not its key: half of them crossed their whole chain to the far cluster, alone, out of
+    everyone's range for seconds (docs/notes/vehicle.md). So a relay let go joins the nearer of its chain's two
+    clusters by where it is, and stays with it while its key names the same cluster."""
+    if mem.rejoin is not None and mem.rejoin[0] == role:
+        return mem.rejoin
+    if mem.mode != M1 or mem.bridge is None or role not in mem.bridge or mem.bridge in edges:
+        return None
+    ends = (role, mem.bridge[0] if role == mem.bridge[1] else mem.bridge[1])  # a tie stays with its key's
+    nearer = min(ends, key=lambda c: float(np.hypot(*(np.asarray(q, dtype=float)[:2] - clusters.xy[c]))))
+    return role, nearer
+
+
 def demand_switch(mem: Mine, agent_id: int, r_g: float, q: np.ndarray, clusters: ClusterMap, fp: FlockParams,
                   step: int = 0, near: Near = NOBODY) -> Mine:
     """The demand allocation for one MAP at one step: its role from its key, then its mode.
@@ -47,12 +64,15 @@ def demand_switch(mem: Mine, agent_id: int, r_g: float, q: np.ndarray, clusters:
     mem = vacate(mem, step, q, clusters, fp)
     roles, key = role_of(agent_id, mem.lost, clusters, fp, mem.short)
     role = roles.of(key)
+    rejoin = rejoined(mem, role, roles.edges, q, clusters) if role < clusters.count and nearest(fp) else None
+    if rejoin is not None:
+        role = rejoin[1]
     if role < clusters.count:
         if mem.goal != role or mem.mode == M1:
             old = mem.bridge if mem.mode == M1 else None
             straight = (on('straight') and not envelope.limited(fp) and old is not None and role in old
                         and old not in roles.edges and clusters.ends_live(old))
-            mem = _anew(mem, mode=M0, goal=role, transit=mem.settled, straight=straight)
+            mem = _anew(mem, mode=M0, goal=role, transit=mem.settled, straight=straight, rejoin=rejoin)
             r_g = 0.0
         arrived = float(np.hypot(*(np.asarray(q, dtype=float)[:2] - clusters.xy[role]))) <= clusters.radii[role]
         if arrived and (mem.transit or not mem.settled):

@@ -36,7 +36,7 @@ def _laid_out(now: ClusterMap, d: float, near: bool) -> 'Roles':
     tree = now.mst(now.live)
     previous, now.previous = now.previous, None
     was = roles(previous, d, near) if previous is not None else None
-    stand = standing(was, tree, now) if was is not None and on('standing') else ()
+    stand = standing(was, tree, now, near) if was is not None and on('standing') else ()
     edges = tree + tuple(e for e, _ in stand)
     cell = math.sqrt(3.0) / 2.0 * d * d  # area per MAP of a hexagonal lattice of spacing d
     demand = [max(math.pi * r * r / cell, 1.0) if now.live >> k & 1 else 0.0  # every cluster at least one
@@ -80,7 +80,8 @@ def _laid_out(now: ClusterMap, d: float, near: bool) -> 'Roles':
     return Roles(edges, tuple(demand), share, pieces, stand)
 
 
-def standing(was: 'Roles', tree: tuple[Edge, ...], now: ClusterMap) -> tuple[tuple[Edge, int], ...]:
+def standing(was: 'Roles', tree: tuple[Edge, ...], now: ClusterMap,
+             swapped: bool = False) -> tuple[tuple[Edge, int], ...]:
     """Edges that left the tree but keep their relays, each with the surveys it has left (make before break).
 
     When a drifting cluster changes the tree and the edge that leaves shares no cluster with any edge that
@@ -88,12 +89,17 @@ def standing(was: 'Roles', tree: tuple[Edge, ...], now: ClusterMap) -> tuple[tup
     halves of the formation were apart until the new chain stood, 8-12 s for 150-200 m (docs/dynamics.md,
     "Make before break"). Such an edge now keeps its relays for STANDING surveys, while the new edge takes
     its share from the roles above theirs and the clusters lend it their slack (kept); then its relays join
-    its two clusters (keys.halved).
+    its two clusters (keys.halved; on a lagged vehicle each the nearer, demand.rejoined).
+
+    swapped: a swapped edge (one that shares a cluster with an edge that joins) stands too, as a lagged
+    vehicle lays the roles out (rule 'nearest'). Its relays would swing about the shared cluster, and on a
+    lagged vehicle a swing is break before make: until the chain's far end reaches its new cluster, the side
+    of the tree it bridged is cut off (9-14 m/s for 1-2 s, docs/notes/vehicle.md).
     """
     old = was.edges[:len(was.edges) - len(was.standing)]
     joined = [e for e in tree if e not in old]
     ends = {k for e in joined for k in e}
-    left = [(e, STANDING) for e in old if e not in tree and not ends & set(e)]
+    left = [(e, STANDING) for e in old if e not in tree and (swapped or not ends & set(e))]
     going = [(e, n - 1) for e, n in was.standing if n > 1 and e not in tree]
     return tuple((e, n) for e, n in sorted(left + going) if now.ends_live(e))
 

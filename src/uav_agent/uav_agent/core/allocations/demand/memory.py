@@ -47,7 +47,9 @@ class Own(NamedTuple):
     demand.anchored). A settled relay on a lagged vehicle keeps and tells its chain's ends as it last heard them
     (ends: chain.Ends as four numbers, or none; rule 'ends'). On a lagged vehicle under the paper's channel it keeps
     the relays it heard at its last step well within r, each as (x, y, role code), to see which of them failed
-    (around: vacancy.vanished); it never tells them."""
+    (around: vacancy.vanished); it never tells them. A relay let go from a standing chain on a lagged vehicle
+    keeps the cluster its key named then and the nearer one it joined instead (rejoin: demand.rejoined); never
+    told either."""
 
     settled: bool = False
     transit: bool = False
@@ -62,6 +64,7 @@ class Own(NamedTuple):
     hold: Optional[tuple[float, ...]] = None
     ends: tuple[float, ...] = ()
     around: tuple[tuple[float, float, int], ...] = ()
+    rejoin: Optional[tuple[int, int]] = None
 
     def said(self) -> Gossip:
         """What the MAP's state message carries of it (Told.block)."""
