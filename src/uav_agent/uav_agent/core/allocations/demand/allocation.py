@@ -47,7 +47,8 @@ def rejoined(mem: Mine, role: int, edges: Sequence[tuple[int, int]], q: np.ndarr
     if mem.mode != M1 or mem.bridge is None or role not in mem.bridge or mem.bridge in edges:
         return None
     ends = (role, mem.bridge[0] if role == mem.bridge[1] else mem.bridge[1])  # a tie stays with its key's
-    nearer = min(ends, key=lambda c: float(np.hypot(*(np.asarray(q, dtype=float)[:2] - clusters.xy[c]))))
+    at = np.asarray(q, dtype=float)[:2]
+    nearer = min(ends, key=lambda c: float(np.hypot(*(at - clusters.xy[c]))))
     return role, nearer
 
 
