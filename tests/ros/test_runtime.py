@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shlex
 import signal
 import subprocess
@@ -139,6 +140,32 @@ def test_a_run_whose_maps_all_fail_goes_on_to_its_end(tmp_path: Path, ros_env: d
 
 
 @pytest.mark.shm_alone
+def test_a_process_that_makes_its_participant_anew_mid_run_goes_on_where_it_was(tmp_path: Path,
+                                                                               ros_env: dict[str, str]) -> None:
+    """A process makes its DDS participant anew past step 0 when a connection to a neighbour carries nothing
+    (recovery.stuck_midway), or at SIGUSR2, as here: its MAPs carry what they decided and heard to the new one
+    (AgentNode.carry), and the lockstep run ends as `sim` flies it, byte for byte."""
+    run = tmp_path / 'up'
+    args = ('--scenario', 'drift', '--maps', '12', '--seed', '0', '--duration', '6')
+    proc = up(*args, '--agents-per-process', '3', '--out', str(run), env=ros_env)
+    try:
+        seen = ''.join(wait_for_line(proc, 't =   2.0 s', 120))
+        pids = json.loads((run / 'pids.json').read_text())
+        assert pids['3'] == pids['4'] == pids['5'], pids
+        os.kill(pids['4'], signal.SIGUSR2)
+        rest = proc.communicate(timeout=300)[0]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, seen + rest
+    logs = ''.join(log.read_text(errors='replace') for log in (run / 'logs').glob('agents_*.log'))
+    assert 'SIGUSR2: the DDS participant of MAPs [3, 4, 5] made anew (1 of 3)' in logs, logs[-3000:]
+    batch = cli('sim', *args, '--out', str(tmp_path / 'sim'))
+    assert batch.returncode == 0, batch.stderr
+    for name in ('trajectory.csv', 'metrics.csv'):
+        assert (run / name).read_bytes() == (tmp_path / 'sim' / name).read_bytes(), name
+
+
 def test_killed_agents_are_dropped_and_the_run_completes(tmp_path: Path, ros_env: dict[str, str]) -> None:
     run = tmp_path / 'up'
     shm_before = shm_entries()

@@ -268,6 +268,18 @@ class AgentNode(Recovery, Node):
             AgentState, f'/map_{j}/state', lambda m, j=j: self.on_state(j, m),
             LATEST_STATE_READ_QOS if self.realtime else STATE_QOS)
 
+    def carry(self, old: 'AgentNode') -> None:
+        """Go on where `old`, the same MAP on the participant a renewal replaces mid-run, left off: what it decided,
+        heard and said. Its neighbours are subscribed to anew and what it said of its last step is said again,
+        so a neighbour waiting for it hears it, and a lockstep run ends as it would have (recovery.stuck_midway)."""
+        for name in CARRIED:
+            setattr(self, name, getattr(old, name))
+        self.sensed_at = time.monotonic()  # a renewal's stall counts afresh, and so do its readers made anew
+        self.resubscribed = (-1, 0)
+        for j in sorted(old.neighbour_subs):
+            self.subscribe(j)
+        self.answer_again()
+
     # ------------------------------------------------------------------ step
     def answer_again(self) -> None:
         if self.last_state is not None:
@@ -316,6 +328,12 @@ class AgentNode(Recovery, Node):
     def unheard(self, s: convert.SensingData) -> list[int]:
         """The live neighbours listed for step s whose state of that step has not come in."""
         return [j for j in s.neighbour_ids.tolist() if j not in self.dead and (j not in self.latest or self.latest[j].step != s.step)]
+
+# What a MAP holds of its run (AgentNode.__init__ and channel), carried to a participant made anew mid-run.
+CARRIED = ('memory', 'held', 'clusters', 'clusters_version', 'pending', 'pending_header', 'step', 'own_q', 'latest',
+           'dead', 'rejected', 'repeats', 'last_state', 'last_cmd', 'failed', 'stopped', 'run_finished', 'world_seen',
+           'ear', 'own_at', 'discarded')
+
 
 def said(m: convert.AgentStateData | convert.PassedData) -> Said:
     """What a neighbour's state message says, as the step reads it (core.agent.Neighbourhood.hearing)."""

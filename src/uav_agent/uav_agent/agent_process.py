@@ -1,8 +1,8 @@
 """One agent process: the MAPs it hosts (`--ids`), on one DDS participant, until the run ends or a signal.
 
 `uav_agent_node --ids 0,1,2` (console script, started by `up` and `agents`) makes an AgentNode per MAP, spins
-them on one executor, ends a MAP that `uav-flock kill` names (SIGUSR1), and makes the participant anew when
-the start stalls (recovery.RENEW_AFTER_S).
+them on one executor, ends a MAP that `uav-flock kill` names (SIGUSR1), and makes the participant anew when a
+step stalls on a connection that carries nothing (recovery.RENEW_AFTER_S, RENEW_MIDWAY_TRIES) or at SIGUSR2.
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from uav_flock_ros.executors import PARAMETER_ERRORS, StopSignals, checked_ros_a
 from uav_flock_ros.processes import leave_after
 
 from .agent_node import AgentNode
-from .recovery import RENEW_AFTER_S
+from .recovery import RENEW_AFTER_S, RENEW_MIDWAY_TRIES
 
 RENEW_TIMES = 3  # the most times a process makes its participant anew
 RENEW_WAIT_S = 30.0  # how long the new nodes may take to have their sensing before the old ones go anyway
@@ -66,6 +66,25 @@ class CrashRequests:
         return [n for n in nodes if n.crash_dir and (Path(n.crash_dir) / str(n.map_id)).exists()]
 
 
+class RenewRequests:
+    """SIGUSR2 asks the process to make its DDS participant anew at once, its MAPs going on where they were: what it
+    does on its own when a connection carries nothing (recovery.stuck_midway), to be tried on a run by hand."""
+
+    def __init__(self) -> None:
+        self.pending = False
+        signal.signal(signal.SIGUSR2, self._on_signal)
+
+    def _on_signal(self, signum: int, frame: Optional[FrameType]) -> None:
+        self.pending = True
+
+    def take(self) -> Optional[str]:
+        """Why to renew now, once per signal."""
+        if not self.pending:
+            return None
+        self.pending = False
+        return 'SIGUSR2'
+
+
 class AgentProcess:
     """The MAPs of one process on one DDS participant (an rclpy context of their own): made at start, and
     made anew when a start stalls on a connection that carries nothing (RENEW_AFTER_S)."""
@@ -91,9 +110,15 @@ class AgentProcess:
         return context, executor, nodes
 
     def stuck(self) -> Optional[str]:
-        """Why the process's start stalls (step 0 of a MAP on a silent connection, or no MAP that has seen the
-        world), while no MAP of the process is past step 0; None if it does not, or after RENEW_TIMES."""
-        if self.renewed >= RENEW_TIMES or any(n.step > 0 for n in self.nodes):
+        """Why the process stalls: its start (step 0 of a MAP on a silent connection, or no MAP that has seen the
+        world, while no MAP of the process is past step 0), or a later step on a silent connection; None if it does
+        not, or after RENEW_TIMES."""
+        if self.renewed >= RENEW_TIMES:
+            return None
+        midway = next((n for n in self.nodes if n.stuck_midway()), None)
+        if midway is not None:
+            return f'step {midway.step}: neighbours matched but unheard after their readers were made anew {RENEW_MIDWAY_TRIES} times'
+        if any(n.step > 0 for n in self.nodes):
             return None
         if any(n.stuck_at_start() for n in self.nodes):
             return f'step 0: neighbours matched but unheard {RENEW_AFTER_S:.0f} s'
@@ -102,18 +127,23 @@ class AgentProcess:
         return None
 
     def renew(self, why: str, stopping: Callable[[], bool]) -> None:
-        """The same MAPs on a new participant; the old one goes once every new node hears world_sim's sensing
-        writer (so world_sim, which drops a MAP of another host whose sensing no reader matches, never sees
-        none), or RENEW_WAIT_S on (renew_unseen, if shorter, before any sensing)."""
+        """The same MAPs on a new participant, each going on where it was if any is past step 0 (AgentNode.carry);
+        the old one goes once every new node hears world_sim's sensing writer (so world_sim, which drops a MAP of
+        another host whose sensing no reader matches, never sees none), or RENEW_WAIT_S on (renew_unseen, if
+        shorter, before any sensing)."""
         self.renewed += 1
         context, executor, nodes = self.context, self.executor, self.nodes
         nodes[0].get_logger().warning(f'{why}: the DDS participant of MAPs {[n.map_id for n in nodes]} made anew '
                                       f'({self.renewed} of {RENEW_TIMES})')
         self.context, self.executor, self.nodes = self.make([n.map_id for n in nodes])
+        midway = any(n.step > 0 for n in nodes)
+        if midway:
+            for new, old in zip(self.nodes, nodes):
+                new.carry(old)
         sensed = any(n.step >= 0 for n in nodes)  # else the world may not be there yet: wait no longer than it was
         deadline = time.monotonic() + (RENEW_WAIT_S if sensed else min(RENEW_WAIT_S, nodes[0].renew_unseen))
         while not stopping() and time.monotonic() < deadline and any(
-                n.step < 0 and n.sensing_sub.get_publisher_count() == 0 for n in self.nodes):
+                (midway or n.step < 0) and n.sensing_sub.get_publisher_count() == 0 for n in self.nodes):
             self.executor.spin_once(timeout_sec=0.1)
         executor.shutdown()
         for n in nodes:
@@ -145,6 +175,7 @@ def main(argv: Optional[list[str]] = None) -> int:
         return 2
     ids = parse_ids(rest[1:])
     crashes = CrashRequests()  # before the nodes exist: a request that comes early waits for the loop
+    renewals = RenewRequests()
     stop = StopSignals()
     try:
         process = AgentProcess(ids, argv)
@@ -164,7 +195,7 @@ def main(argv: Optional[list[str]] = None) -> int:
                 process.executor.remove_node(n)
                 n.destroy_node()
                 process.nodes.remove(n)
-            why = process.stuck()
+            why = renewals.take() or process.stuck()
             if why:
                 process.renew(why, lambda: stop.received)
     finally:

@@ -3,7 +3,8 @@
 A step waits for the states of exactly its listed neighbours; on a busy DDS graph some never come in
 without help: samples the executor was not told of are taken by hand, readers are made anew, and a
 process whose start stalls makes its participant anew (agent_process.AgentProcess.renew, on stuck_at_start
-and unseen_at_start). A MAP that no longer sees world_sim ends on its own.
+and unseen_at_start, or mid-run on stuck_midway, its MAPs carried over). A MAP that no longer sees world_sim ends on
+its own.
 """
 from __future__ import annotations
 
@@ -39,6 +40,12 @@ SWEEP_PERIOD_S = 0.25
 # after its nodes were made (AgentNodeParams) does so too: a refused handshake with the discovery server left two
 # MAPs' process unknown to the run, 28 of 30 MAPs ready for 150 s (1 of 15 starts of 30 MAPs at 2 a process).
 RENEW_AFTER_S = 30.0
+# lockstep, past step 0: the same fault met when two MAPs first become neighbours mid-run. In a secured run whose
+# discovery server had been restarted, MAPs 2 and 4 of 8, neighbours from step 17 on, each had the other's writer
+# matched and heard nothing of it, their readers made anew 6 times, for 180 s (1 of 3 runs of that test). A process
+# whose MAP still hears nothing of a matched writer after its readers were made anew this many times makes its
+# participant anew too, and its MAPs go on where they were (AgentNode.carry): 20 s into the stall.
+RENEW_MIDWAY_TRIES = 2
 
 
 class Recovery:
@@ -133,6 +140,13 @@ class Recovery:
         its readers made anew already: the connection between the two participants carries nothing."""
         return (not self.realtime and self.step == 0 and self.pending is not None and self.silent_writers
                 and self.resubscribed[0] == 0 and time.monotonic() - self.sensed_at > RENEW_AFTER_S)
+
+    def stuck_midway(self) -> bool:
+        """A step past 0 waits on a neighbour whose writer is matched but unheard, its readers made anew
+        RENEW_MIDWAY_TRIES times this step already: the connection between the two participants carries nothing."""
+        return (not self.realtime and self.step > 0 and self.pending is not None and self.silent_writers
+                and self.resubscribed[0] == self.step and self.resubscribed[1] >= RENEW_MIDWAY_TRIES
+                and time.monotonic() - self.sensed_at > RESUBSCRIBE_AFTER_S * 2 ** RENEW_MIDWAY_TRIES)
 
     def unseen_at_start(self) -> bool:
         """No sensing yet, and no world_sim on the graph renew_unseen s after this node was made: this
