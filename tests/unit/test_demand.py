@@ -98,6 +98,30 @@ def test_a_relay_aims_midway_between_the_chain_members_it_hears() -> None:
     assert relay_place(5, q, edge, aside, [servers_of_0], clusters, lossy) == 30.0 + reach, 'along the line'
 
 
+def test_a_relay_in_transit_to_a_chain_it_hears_no_member_of_joins_it_at_the_nearer_end_of_its_gap() -> None:
+    """Rule 'ends', on a lagged vehicle: by its key a relay on its way to a new chain was sent into the middle of an
+    empty gap, alone; hearing no member, it joins at the end of the gap nearer to it, among the anchor's servers, and
+    the chain grows from there. A relay that is not in transit, the paper's vehicle, and the rule off: by its key."""
+    from uav_agent.core.ablation import switched_off
+    lagged = replace(P, v_max=15.0, a_max=4.0, tau=0.3, keep=6.1)
+    clusters, edge = line([160.0]), (0, 1)
+    start, stop = clusters.gap(edge, P.d / 2)
+    nobody = np.zeros((0, 3))
+    near_0, near_1 = np.array([start + 50.0, 30.0, 20.0]), np.array([stop - 50.0, -30.0, 20.0])
+    i = next(i for i, role in enumerate(role_ids(clusters, 200, P))  # a relay of the edge that its key puts inside
+             if role == edge and start + 1.0 < relay_place(i, near_0, edge, nobody, [], clusters, lagged) < stop - 1.0)
+    by_key = relay_place(i, near_0, edge, nobody, [], clusters, lagged)
+    assert relay_place(i, near_0, edge, nobody, [], clusters, lagged, transit=True) == start
+    assert relay_place(i, near_1, edge, nobody, [], clusters, lagged, transit=True) == stop
+    assert relay_place(i, near_1, edge, nobody, [], clusters, lagged) == by_key, 'not in transit: by its key'
+    assert relay_place(i, near_0, edge, nobody, [], clusters, P, transit=True) == by_key, "the paper's vehicle"
+    with switched_off(['ends']):
+        assert relay_place(i, near_0, edge, nobody, [], clusters, lagged, transit=True) == by_key
+    # a member heard: the chain is there, and the relay reaches past it as any relay does
+    server = np.array([[start, 0.0, 20.0]])
+    assert relay_place(i, near_0, edge, server, [Told(M2, 0, None)], clusters, lagged, transit=True) > start + 10.0
+
+
 def test_a_map_in_transit_neither_attracts_a_relay_nor_drags_it_along() -> None:
     """A relay that matched the velocity of a MAP flying past at 40 m/s would leave its chain (the chain of a
     drifting cluster came apart so): a neighbour in transit only repels, and beyond d not even that."""

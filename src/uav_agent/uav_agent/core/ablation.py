@@ -60,8 +60,9 @@ VEHICLE_RULES = {
     'inline': 'fellow relays of one chain space themselves along their edge only, not in the plane, on a lagged '
               'vehicle under the demand allocation: no zig-zag stores relays sideways (demand.inline)',
     'ends': "a relay that knows its rank in its chain and both anchors, passed on hop by hop, flies to its even "
-            'share of the span at once, or lays a chain too short for it out taut from one anchor, on a lagged vehicle '
-            "under the paper's channel (chain.ends_place)",
+            'share of the span at once, or lays a chain too short for it out taut from one anchor, and a relay in '
+            'transit that hears no member of its chain joins it at the nearer end of its gap, not at its place by key, '
+            "on a lagged vehicle under the paper's channel (chain.ends_place, chain.relay_place)",
     'priority': "that braking is served first from a_max, eq. 9's terms from what is left (envelope.command)",
     'links': "the safety filter (policies: {safety: filter}) also keeps a chain's links (fellow relays of one edge, both "
              "sharing it, and a relay and its edge's servers, the relay alone, both settled, once both the chain's clusters "

@@ -217,7 +217,7 @@ class Demand:
             place = swing_place(mine.swing, mine.bridge, clusters, fp) if mine.swing is not None else \
                 mine.hold[0] if mine.hold is not None else \
                 relay_place(agent_id, q, mine.bridge, nbr_q, told, clusters, fp, mine.lost, mine.short,
-                            stay=mine.settled and not mine.transit and fp.hush > 0 and on('stay'))
+                            stay=mine.settled and not mine.transit and fp.hush > 0 and on('stay'), transit=mine.transit)
             q1, q2 = relay_slot(place, mine.bridge, clusters, fp)
             # The slot moves as its point of the edge does: at the velocity interpolated between the ends.
             length = clusters.axis(mine.bridge)[2]

@@ -134,7 +134,7 @@ def swing_place(swing: tuple[int, float], edge: Edge, clusters: ClusterMap, fp: 
 
 def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, told: Sequence[Told],
                 clusters: ClusterMap, fp: FlockParams, lost: tuple[keys.Span, ...] = (),
-                short: tuple[tuple[int, int], ...] = (), stay: bool = False) -> float:
+                short: tuple[tuple[int, int], ...] = (), stay: bool = False, transit: bool = False) -> float:
     """Where along its edge a relay aims (m from the first cluster's centre): midway along its chain.
 
     The chain of an edge (a, b) is its relays and the servers of a and b. Servers of a lie on the a side
@@ -144,7 +144,11 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
     silent it reaches r - 1 m beyond the other towards the silent side (a chain short of relays still spans
     its gap if r per link does); hearing none, it takes its own place in the gap by its key, unless it
     should `stay` (rule 'stay': a settled relay under a lossy channel, whose chain is most likely there
-    unheard; flying to its place by key it left a gap behind it, docs/links.md).
+    unheard; flying to its place by key it left a gap behind it, docs/links.md), or it is in `transit` to a
+    new chain on a lagged vehicle (rule 'ends'): then it joins the gap at its nearer end, among the anchor's
+    servers, and the chain grows from there. By its key it was sent into the middle of an empty gap, alone
+    for seconds at 10-15 m/s while the chain was laid (docs/notes/vehicle.md, "A new chain grown from its
+    anchor").
     """
     chain = chain_of(q, edge, nbr_q, told, clusters, fp)
     here, below, above, below_aside, above_aside = chain[:5]
@@ -160,8 +164,10 @@ def relay_place(agent_id: int, q: np.ndarray, edge: Edge, nbr_q: np.ndarray, tol
         return max(_reach_past(above, above_aside, -1, fp), 0.0)
     if stay:
         return here
-    roles, key = role_of(agent_id, lost, clusters, fp, short)
     start, stop = clusters.gap(edge, fp.d / 2)
+    if transit and spreads(fp):
+        return start if abs(here - start) <= abs(here - stop) else stop
+    roles, key = role_of(agent_id, lost, clusters, fp, short)
     at = roles.place(key, clusters.count + roles.edges.index(edge))
     return start + at * (stop - start)
 
