@@ -276,6 +276,8 @@ class AgentNode(Recovery, Node):
             setattr(self, name, getattr(old, name))
         self.sensed_at = time.monotonic()  # a renewal's stall counts afresh, and so do its readers made anew
         self.resubscribed = (-1, 0)
+        if self.failed:
+            return  # failed by the schedule: silent, as before
         for j in sorted(old.neighbour_subs):
             self.subscribe(j)
         self.answer_again()
