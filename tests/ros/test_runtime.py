@@ -139,7 +139,6 @@ def test_a_run_whose_maps_all_fail_goes_on_to_its_end(tmp_path: Path, ros_env: d
     assert m['t'][-1] == 2.0 and m['alive'][-1] == 0
 
 
-@pytest.mark.shm_alone
 def test_a_process_that_makes_its_participant_anew_mid_run_goes_on_where_it_was(tmp_path: Path,
                                                                                ros_env: dict[str, str]) -> None:
     """A process makes its DDS participant anew past step 0 when a connection to a neighbour carries nothing
@@ -166,6 +165,7 @@ def test_a_process_that_makes_its_participant_anew_mid_run_goes_on_where_it_was(
         assert (run / name).read_bytes() == (tmp_path / 'sim' / name).read_bytes(), name
 
 
+@pytest.mark.shm_alone
 def test_killed_agents_are_dropped_and_the_run_completes(tmp_path: Path, ros_env: dict[str, str]) -> None:
     run = tmp_path / 'up'
     shm_before = shm_entries()
