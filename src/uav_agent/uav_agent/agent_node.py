@@ -37,6 +37,10 @@ from .recovery import SWEEP_PERIOD_S, WATCH_PERIOD_S, Recovery
 
 # realtime: a neighbour's state may run ahead of our sensing by a few steps (it was sensed first), no more
 REALTIME_AHEAD_STEPS = 10
+# What a MAP holds of its run (AgentNode.__init__ and channel), carried to a participant made anew mid-run.
+CARRIED = ('memory', 'held', 'clusters', 'clusters_version', 'pending', 'pending_header', 'step', 'own_q', 'latest',
+           'dead', 'rejected', 'repeats', 'last_state', 'last_cmd', 'failed', 'stopped', 'run_finished', 'world_seen',
+           'ear', 'own_at', 'discarded')
 
 
 class AgentNode(Recovery, Node):
@@ -330,11 +334,6 @@ class AgentNode(Recovery, Node):
     def unheard(self, s: convert.SensingData) -> list[int]:
         """The live neighbours listed for step s whose state of that step has not come in."""
         return [j for j in s.neighbour_ids.tolist() if j not in self.dead and (j not in self.latest or self.latest[j].step != s.step)]
-
-# What a MAP holds of its run (AgentNode.__init__ and channel), carried to a participant made anew mid-run.
-CARRIED = ('memory', 'held', 'clusters', 'clusters_version', 'pending', 'pending_header', 'step', 'own_q', 'latest',
-           'dead', 'rejected', 'repeats', 'last_state', 'last_cmd', 'failed', 'stopped', 'run_finished', 'world_seen',
-           'ear', 'own_at', 'discarded')
 
 
 def said(m: convert.AgentStateData | convert.PassedData) -> Said:

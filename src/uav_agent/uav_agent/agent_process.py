@@ -87,7 +87,7 @@ class RenewRequests:
 
 class AgentProcess:
     """The MAPs of one process on one DDS participant (an rclpy context of their own): made at start, and
-    made anew when a start stalls on a connection that carries nothing (RENEW_AFTER_S)."""
+    made anew when a step stalls on a connection that carries nothing (recovery.stuck_at_start, stuck_midway)."""
 
     def __init__(self, ids: list[int], argv: list[str]) -> None:
         self.argv = argv
