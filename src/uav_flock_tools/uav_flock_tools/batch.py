@@ -6,13 +6,14 @@ The world half of that step is `core.model.World`, which the world node shares.
 """
 from __future__ import annotations
 
-from typing import Callable, Optional
+from typing import Callable, NamedTuple, Optional
 
 import numpy as np
 
 from uav_agent.core.agent import Neighbourhood, Said, after_filter, plan
 from uav_agent.core.ear import Ear, Heard, Sent, hear
-from uav_agent.core.control import control_input
+from uav_agent.core.control import Control, control_input
+from uav_agent.core.state import Reference
 from uav_agent.core.policies import hearsay
 from uav_agent.core.state import Memory
 
@@ -20,11 +21,27 @@ from world_sim.core.model import RunResult, Sensed, World
 from world_sim.core.scenario import Scenario
 
 
-class BatchSimulator:
-    """A scenario stepped in-process; step() advances one Δt, run() to the end."""
+class Decided(NamedTuple):
+    """What every MAP decided at a step and why, kept for `uav-flock trace` (BatchSimulator(watch=True)): what it
+    sensed, where its plan aimed it, each link it heard (owner row, the neighbour's state as heard, who keeps the
+    link: state.UNKEPT, SHARED or ALONE) and its command with the nominal it came from."""
 
-    def __init__(self, scenario: Scenario) -> None:
+    sensed: Sensed
+    refs: list[Reference]
+    owner: np.ndarray
+    nbr_q: np.ndarray
+    needed: np.ndarray
+    control: Control
+
+
+class BatchSimulator:
+    """A scenario stepped in-process; step() advances one Δt, run() to the end. watch: keep what each step
+    decided (`decided`, a Decided) for a trace; the run flies the same either way."""
+
+    def __init__(self, scenario: Scenario, watch: bool = False) -> None:
         self.scenario = scenario
+        self.watch = watch
+        self.decided: Optional[Decided] = None
         self.world = World(scenario)
         self.memory = [Memory() for _ in range(scenario.maps)]
         # What each MAP holds of its neighbours' states (ear.py).
@@ -61,13 +78,16 @@ class BatchSimulator:
         ref_vel = np.array([ref.velocity for ref in refs]).reshape(-1, 3, 3)
         seen = None if sensed.traffic is None else (sensed.traffic[:, 0], sensed.q[sensed.traffic[:, 1]],
                                                    sensed.p[sensed.traffic[:, 1]])
-        u, flags = control_input(sensed.q, sensed.p, sensed.n_users.astype(float), mode, target, qa, qb, owner, nbr.q,
-                                 nbr.p, nbr.n_users, fp, np.array(apart, dtype=np.intp), ref_vel, seen,
-                                 np.array(needed, dtype=np.int8), nbr.age)
+        control = control_input(sensed.q, sensed.p, sensed.n_users.astype(float), mode, target, qa, qb, owner, nbr.q,
+                                nbr.p, nbr.n_users, fp, np.array(apart, dtype=np.intp), ref_vel, seen,
+                                np.array(needed, dtype=np.int8), nbr.age)
+        u, flags = control.u, control.flags
         if fp.safety == 'filter':  # the filter's liveness count, as each agent carries it (agent_step)
             flags = flags.copy()
             for n, i in enumerate(rows.tolist()):
                 self.held[i], flags[n] = after_filter(self.held[i], int(flags[n]), sensed.q[n], refs[n], fp)
+        if self.watch:
+            self.decided = Decided(sensed, refs, owner, nbr.q, np.array(needed, dtype=np.int8), control._replace(flags=flags))
         modes = np.array([self.memory[i].mode for i in rows], dtype=np.intp)
         goals = np.array([self.memory[i].goal for i in rows], dtype=np.intp)
         w.advance(sensed, u, modes, goals, integrate, flags)

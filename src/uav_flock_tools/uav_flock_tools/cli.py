@@ -2,7 +2,7 @@
 
 Running a scenario: `sim` (batch, in one process), `run` (the main job), `up` (distributed: world_sim and
 the MAP agents as processes), `agents` (agents of another host joining an `up --listen`). Looking into a run:
-`kill`, `echo`, `topics`, `report`, `view`, `replay`. Measuring a layout or the method: `floor`, `layouts`,
+`kill`, `echo`, `topics`, `report`, `view`, `replay`, `trace`. Measuring a layout or the method: `floor`, `layouts`,
 `paper`, `study` (many runs on Dask).
 """
 from __future__ import annotations

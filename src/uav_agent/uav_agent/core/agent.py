@@ -119,7 +119,7 @@ def agent_step(mem: Memory, agent_id: int, q: np.ndarray, p_vel: np.ndarray, n_u
     mem, ref, links, keep = plan(mem, agent_id, q, n_users, cluster_coverage, nbrs, clusters, params, step, held)
     owner = np.zeros(len(nbrs.q), dtype=np.intp)
     seen = None if traffic is None else (np.zeros(len(traffic[0]), dtype=np.intp), *traffic)
-    u, flags = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([ref.mode]),
+    u, flags, _ = control_input(q[None, :], p_vel[None, :], np.array([float(n_users)]), np.array([ref.mode]),
                       ref.target[None, :], ref.q1[None, :], ref.q2[None, :], owner, nbrs.q, nbrs.p,
                       np.asarray(nbrs.n_users, dtype=float), params, np.array(links, dtype=np.intp),
                       ref.velocity[None], seen, np.array(keep, dtype=np.int8), nbrs.age)

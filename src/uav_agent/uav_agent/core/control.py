@@ -123,10 +123,13 @@ def connectivity_potential(q: F64, q1: F64, q2: F64, fp: FlockParams) -> F64:
 
 
 class Control(NamedTuple):
-    """u_i for every own MAP, and what the safety filter did to each (safety.RELAXED, HELD bits; 0 without it)."""
+    """u_i for every own MAP, what the safety filter did to each (safety.RELAXED, HELD bits; 0 without it), and the
+    nominal it started from (eq. 9 as the vehicle flies it, before the filter or the rules' braking): why a MAP
+    moved is the nominal, then what the filter or the rules made of it (`uav-flock trace`)."""
 
     u: F64
     flags: NDArray[np.uint8]
+    nominal: F64
 
 
 def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer], target: F64,
@@ -155,8 +158,9 @@ def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer]
         h[bridging] = bridge_term(own_q[bridging], own_p[bridging], bridge_a[bridging], bridge_b[bridging], fp,
                                   v[bridging, 1], v[bridging, 2])
     none = np.zeros(len(own_q), dtype=np.uint8)
+    nominal = u + h
     if not envelope.limited(fp):
-        return Control(u + h, none)
+        return Control(nominal, none, nominal)
     seen = traffic if traffic is not None and fp.traffic > 0 and on('traffic') else (owner, nbr_q, nbr_p)
     if fp.safety == 'filter':  # nominal, then the one filter, then the command
         by, at, vel = seen
@@ -170,6 +174,6 @@ def control_input(own_q: F64, own_p: F64, own_nu: F64, mode: NDArray[np.integer]
             near = safety.link_budget(l_dq, l_dv, fp, 0.5, l_wide) < fp.a_max  # the rows a command within a_max can reach
             chosen = np.flatnonzero(safety.protected(l_owner, l_dq, len(own_q), near))
             links = l_owner[chosen], l_dq[chosen], l_dv[chosen], needed[ask][chosen] == ALONE, l_wide[chosen]
-        return Control(*safety.filtered(u + h, own_p, by[rows], dq[rows], dv[rows], fp, links))
+        return Control(*safety.filtered(nominal, own_p, by[rows], dq[rows], dv[rows], fp, links), nominal)
     brake = envelope.keep_apart(own_q, own_p, *seen, fp) + envelope.governor(own_p, fp)
-    return Control(envelope.command(u + h, brake, fp), none)
+    return Control(envelope.command(nominal, brake, fp), none, nominal)

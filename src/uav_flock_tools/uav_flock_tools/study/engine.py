@@ -16,12 +16,17 @@ import traceback
 from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
-from typing import Any, Callable, Iterator, Optional
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Optional
 
 import numpy as np
 
 from .cases import EVENT_S, FIGURES, IN_FLIGHT, wipe_at
 from .spec import Run
+
+if TYPE_CHECKING:
+    from world_sim.core.scenario import Scenario
+
+    from ..batch import BatchSimulator
 
 RESULTS = 'results.parquet'
 PARTS = 'parts'
@@ -31,13 +36,27 @@ GRID = ('key', 'layout', 'seed', 'kind', 'variant', 'maps', 'duration')
 COLUMNS = (*GRID, *FIGURES, 'error', 'code', 'wall_s', 'host')
 
 
+def flight(run: Run, s: Scenario, watch: bool = False) -> Iterator[BatchSimulator]:
+    """The run (its scenario s) as a study flies it, the simulator after each step; the last step is recorded
+    without moving on. The caller switches off the rules the run's variant does (ablation.switched_off(run.off));
+    watch: each step keeps what it decided (BatchSimulator.decided, for `uav-flock trace`)."""
+    from ..batch import BatchSimulator
+    kind = run.kind.partition(':')[0]
+    sim, rng = BatchSimulator(s, watch), np.random.default_rng(run.draw_seed + IN_FLIGHT)
+    for _ in range(s.steps):
+        wipe_at(kind, sim, rng)
+        sim.step()
+        yield sim
+    sim.step(integrate=False)
+    yield sim
+
+
 def execute(run: Run, keep: bool = False) -> dict[str, Any]:
     """One run, on a worker: its row. A run that raises is a row with its error, never a lost study. keep: the
     row also carries the run's metrics series (SERIES, records.metrics_columns) under '_series'."""
     from uav_agent.core import ablation
 
     from .. import provenance
-    from ..batch import BatchSimulator
     from .cases import figures, flight_figures, liveness_figures
     t0 = time.perf_counter()
     row: dict[str, Any] = {'key': run.key, 'layout': run.layout, 'seed': run.seed, 'kind': run.kind,
@@ -45,18 +64,14 @@ def execute(run: Run, keep: bool = False) -> dict[str, Any]:
     try:
         s = run.scenario()
         row.update(maps=s.maps, duration=s.duration)
-        kind = run.kind.partition(':')[0]
         with ablation.switched_off(run.off):
-            sim, rng = BatchSimulator(s), np.random.default_rng(run.draw_seed + IN_FLIGHT)
-            for _ in range(s.steps):
-                wipe_at(kind, sim, rng)
-                sim.step()
-            sim.step(integrate=False)
+            for sim in flight(run, s):
+                pass
         result = sim.result()
         if keep:
             from world_sim.core.records import metrics_columns
             row['_series'] = dict(zip(metrics_columns(s), result.metrics.T.tolist()))
-        row.update(figures(result.metrics, s.dt, EVENT_S.get(kind)))
+        row.update(figures(result.metrics, s.dt, EVENT_S.get(run.kind.partition(':')[0])))
         row.update(flight_figures(s, result.metrics, result.trajectory, result.users.centroids, row['converged']))
         row.update(liveness_figures(s, sim.world, result.metrics))
     except Exception as exc:  # noqa: BLE001 -- the row carries it

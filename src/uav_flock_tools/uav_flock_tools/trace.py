@@ -1,0 +1,173 @@
+"""`uav-flock trace`: one study run flown again, saying what split the network and why a MAP moved.
+
+A study row says that a run split; the trace says where and who. It flies the row's run as the study does (the same
+steps, to the bit) and prints, from --from to --to: each change of the pieces the MAP graph within r falls into,
+with the MAPs each smaller piece holds and the links whose breaking made the split; and, every --every seconds, for
+each MAP asked about, its role, where its plan aims it, its nominal (eq. 9 as the vehicle flies it), the command
+the safety filter or the rules made of it, what the filter did, and the links it was asked to keep.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Iterable, Optional, TextIO
+
+import numpy as np
+from uav_agent.core.safety import AWAY, HELD, RELAXED, RELEASED
+from uav_agent.core.state import ALONE, M1, SHARED, Memory
+from world_sim.core.physics import component_labels
+
+if TYPE_CHECKING:
+    from .batch import BatchSimulator, Decided
+    from .study.spec import Run
+
+CUT_OFF_SHOWN = 12  # MAPs named per piece cut off; the rest counted
+BROKEN_SHOWN = 6    # links named per split
+# What the filter (and its liveness, agent.after_filter) did to a command, by flag bit (Command.msg's filter).
+FILTER_SAID = ((HELD, 'held back by a link'), (RELAXED, 'a link gave way'), (AWAY, 'away from its goal'),
+               (RELEASED, 'released from its links'))
+
+
+@dataclass(frozen=True)
+class Window:
+    """What to trace: the MAPs to follow, from t0 to t1 (s), a line each `every` s."""
+
+    maps: tuple[int, ...] = ()
+    t0: float = 0.0
+    t1: float = float('inf')
+    every: float = 1.0
+
+
+def pick(runs: Iterable[Run], which: str, variant: Optional[str]) -> Run:
+    """The run `which` names: its key, or LAYOUT/SEED/KIND (a kind as the study names it, drift:2); with several
+    variants, --variant says which. ValueError, one line, when it names none or several."""
+    runs = list(runs)
+    variants = sorted({r.variant for r in runs})
+    if variant is not None and variant not in variants:
+        raise ValueError(f'no variant {variant!r} in the spec (it has {", ".join(variants)})')
+    found = [r for r in runs if r.key == which]
+    if not found:
+        parts = which.split('/')
+        if len(parts) != 3 or not parts[0].isdigit() or not parts[1].isdigit():
+            raise ValueError(f'{which!r} is neither a run key of the spec nor LAYOUT/SEED/KIND (say 3/0/drift:2)')
+        layout, seed, kind = int(parts[0]), int(parts[1]), parts[2]
+        found = [r for r in runs if (r.layout, r.seed, r.kind) == (layout, seed, kind)]
+        if not found:
+            kinds = sorted({r.kind for r in runs})
+            raise ValueError(f'no run {which} in the spec (layouts 0-{max(r.layout for r in runs)}, seeds '
+                             f'{", ".join(map(str, sorted({r.seed for r in runs})))}, kinds {", ".join(kinds)})')
+    if variant is not None:
+        found = [r for r in found if r.variant == variant]
+    if len({r.variant for r in found}) > 1:
+        raise ValueError(f'{which} is flown by {len(found)} variants: say which with --variant '
+                         f'({", ".join(r.variant for r in found)})')
+    return found[0]
+
+
+def role(mem: Memory) -> str:
+    """A MAP's role as the trace writes it: S3 a server of cluster 3, R(1, 4) a relay of edge (1, 4); then how far
+    it is with it under the demand allocation: on its first flight, settled, or in transit to a new role."""
+    name = f'R{tuple(mem.bridge)}' if mem.mode == M1 and mem.bridge is not None else f'S{mem.goal}'
+    own = mem.own
+    if not hasattr(own, 'settled'):
+        return name
+    return f'{name} ' + ('in transit' if own.transit else 'settled' if own.settled else 'first flight')
+
+
+def _who(sim: BatchSimulator, decided: Decided, link: int) -> str:
+    """The MAP a link's neighbour state came from: the live MAP at that very place (a state of this step), else
+    '?' (a state heard late, under a lossy radio, is where its sender was)."""
+    at = np.flatnonzero(np.all(decided.sensed.q == decided.nbr_q[link], axis=1))
+    return str(int(decided.sensed.ids[at[0]])) if len(at) else '?'
+
+
+def _vec(a: np.ndarray) -> str:
+    return f'{float(np.hypot(a[0], a[1])):.1f} m/s² ({a[0]:+.1f}, {a[1]:+.1f})'
+
+
+def map_line(sim: BatchSimulator, i: int, t: float) -> str:
+    """One MAP at one step: role, speed, aim, nominal, command, what the filter did, the links it keeps."""
+    d = sim.decided
+    rows = np.flatnonzero(d.sensed.ids == i)
+    if not len(rows):
+        return f't={t:7.1f}  MAP {i}: lost'
+    n = int(rows[0])
+    q, p, ref = d.sensed.q[n], d.sensed.p[n], d.refs[n]
+    aim = (ref.q1 + ref.q2) / 2 if ref.mode == M1 else ref.target  # a relay aims at its slot on the edge
+    said = [text for bit, text in FILTER_SAID if int(d.control.flags[n]) & bit]
+    links = np.flatnonzero((d.owner == n) & (d.needed != 0))
+    keeps = [f'{_who(sim, d, j)} {"alone" if d.needed[j] == ALONE else "shared" if d.needed[j] == SHARED else ""} '
+            f'{float(np.hypot(*(d.nbr_q[j, :2] - q[:2]))):.1f} m' for j in links]
+    nominal, command = d.control.nominal[n], d.control.u[n]
+    changed = 'the same' if np.allclose(nominal, command, atol=1e-9) else _vec(command)
+    return (f't={t:7.1f}  MAP {i} {role(sim.memory[i])}, {float(np.hypot(p[0], p[1])):.1f} m/s, '
+            f'{float(np.hypot(*(aim[:2] - q[:2]))):.1f} m from its aim; nominal {_vec(nominal)}, command {changed}'
+            + (f'; {", ".join(said)}' if said else '') + (f'; keeps {", ".join(keeps)}' if keeps else ''))
+
+
+def _described(sim: BatchSimulator, ids: np.ndarray, rows: np.ndarray, p: np.ndarray) -> str:
+    named = ', '.join(f'{int(ids[j])} {role(sim.memory[int(ids[j])])} {float(np.hypot(p[j, 0], p[j, 1])):.1f} m/s'
+                      for j in rows[:CUT_OFF_SHOWN])
+    return named + (f' and {len(rows) - CUT_OFF_SHOWN} more' if len(rows) > CUT_OFF_SHOWN else '')
+
+
+class Pieces:
+    """The MAP graph within r, step by step: what changed since the step before."""
+
+    def __init__(self) -> None:
+        self.count: Optional[int] = None
+        self.links: set[tuple[int, int]] = set()
+        self.needed: set[tuple[int, int]] = set()
+
+    def changed(self, sim: BatchSimulator, t: float, report: bool) -> list[str]:
+        d = sim.decided
+        s = d.sensed
+        ids, truth = s.ids, s.truth if s.truth is not None else s.q
+        label = component_labels(s.pairs, len(ids))
+        count = int(label.max()) + 1 if len(ids) else 0
+        links = {(int(ids[a]), int(ids[b])) for a, b in s.pairs if a < b}
+        lines: list[str] = []
+        if report and self.count is not None and count != self.count:
+            sizes = np.bincount(label)
+            lines.append(f't={t:7.1f}  pieces {self.count} -> {count}: '
+                         f'{", ".join(map(str, sorted(sizes.tolist(), reverse=True)))} MAPs')
+            big = int(sizes.argmax())
+            for c in range(count):
+                if c != big:
+                    lines.append(f'           cut off: {_described(sim, ids, np.flatnonzero(label == c), s.p)}')
+            if count > self.count:
+                where = dict(zip(ids.tolist(), label.tolist()))
+                broke = sorted((a, b) for a, b in self.links - links
+                               if a in where and b in where and where[a] != where[b])
+                at = {int(i): n for n, i in enumerate(ids)}
+                for a, b in broke[:BROKEN_SHOWN]:
+                    length = float(np.linalg.norm(truth[at[a], :2] - truth[at[b], :2]))
+                    needs = (a, b) in self.needed or (b, a) in self.needed
+                    asked = 'a link the network needs' if needs else 'kept by neither end'
+                    lines.append(f'           broke: {a} {role(sim.memory[a])} - {b} {role(sim.memory[b])}, '
+                                 f'{length:.1f} m; the step before, {asked}')
+        self.count, self.links = count, links
+        owners = s.ids[d.owner]
+        self.needed = {(int(owners[j]), int(w)) for j in np.flatnonzero(d.needed != 0)
+                       if (w := _who(sim, d, int(j))) != '?'}
+        return lines
+
+
+def trace(steps: Iterable[BatchSimulator], window: Window, out: TextIO) -> int:
+    """Follow a run's steps (engine.flight(..., watch=True)) and write what the window asks for; the number of
+    splits seen in it."""
+    pieces, splits, every = Pieces(), 0, None
+    for sim in steps:
+        d = sim.decided
+        t = d.sensed.k * sim.scenario.dt
+        inside = window.t0 <= t + 1e-9 <= window.t1 + 2e-9
+        before = pieces.count
+        for line in pieces.changed(sim, t, inside):
+            print(line, file=out)
+        splits += int(inside and before is not None and pieces.count > before)
+        if inside and window.maps and (every is None or t >= every - 1e-9):
+            for i in window.maps:
+                print(map_line(sim, i, t), file=out)
+            every = t + window.every
+        if t > window.t1:
+            break
+    return splits

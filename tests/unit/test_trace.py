@@ -1,0 +1,93 @@
+"""`uav-flock trace` (uav_flock_tools/trace.py): one study run flown again, to the bit, saying when the network fell
+into pieces, who was cut off, and for a MAP asked about its nominal, its command and what the filter did."""
+from __future__ import annotations
+
+import io
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from helpers.runs import cli
+from uav_agent.core import ablation
+from uav_flock_tools.study import engine
+from uav_flock_tools.study.spec import load, runs
+from uav_flock_tools.trace import Window, pick, trace
+from world_sim.core.physics import component_labels
+
+pytestmark = pytest.mark.slow  # each test flies runs of 25 s
+
+SPEC = {'layouts': {'count': 1, 'clusters': [3, 3], 'seed': 0}, 'seeds': 1, 'kinds': ['static'], 'duration': 25,
+        'variants': {'rules': {'vehicle.model': 'multirotor'},
+                     'filter': {'vehicle.model': 'multirotor', 'policies.safety': 'filter'}}}
+IDEAL = {**SPEC, 'layouts': {**SPEC['layouts'], 'vehicle': 'ideal'}, 'variants': {'ideal': {}}}
+PIECES = re.compile(r'^t=\s*([\d.]+)\s+pieces (\d+) -> (\d+):')
+MAP_LINE = re.compile(r'^t=\s*([\d.]+)\s+MAP (\d+) .*nominal ([\d.]+) m/s² .*, command (the same|[\d.]+ m/s²)')
+
+
+@pytest.fixture(scope='module')
+def spec(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp('trace')
+    (folder / 'ideal.yaml').write_text(yaml.safe_dump(IDEAL))
+    (folder / 'brief.yaml').write_text(yaml.safe_dump(SPEC))
+    return folder / 'brief.yaml'
+
+
+def traced(spec: Path, variant: str, window: Window) -> tuple[str, int]:
+    run = pick(runs(load(spec if variant != 'ideal' else spec.with_name('ideal.yaml'))), '0/0/static', variant)
+    out = io.StringIO()
+    with ablation.switched_off(run.off):
+        splits = trace(engine.flight(run, run.scenario(), watch=True), window, out)
+    return out.getvalue(), splits
+
+
+@pytest.mark.parametrize('variant', ['rules', 'filter'])
+def test_the_pieces_it_reports_are_those_of_the_run_as_the_study_flies_it(spec: Path, variant: str) -> None:
+    """The trace watches the run without changing it: the pieces the MAP graph within r falls into, counted from
+    the study's own flight (no watch) step by step, change exactly where the trace says they do."""
+    run = pick(runs(load(spec)), '0/0/static', variant)
+    s = run.scenario()
+    counts: dict[float, int] = {}
+    with ablation.switched_off(run.off):
+        for sim in engine.flight(run, s):  # each step's world once it has moved on: the MAPs where step k finds them
+            w = sim.world
+            ids = w.ids[w.alive]
+            q = w.q[ids][:, :2]
+            near = np.argwhere(np.linalg.norm(q[:, None] - q[None], axis=-1) <= s.flock.r)
+            counts[round(w.k * s.dt, 1)] = int(component_labels(near, len(ids)).max()) + 1
+    counts = sorted(counts.items())
+    expected = [(t, b) for (_, a), (t, b) in zip(counts, counts[1:]) if a != b]
+    text, splits = traced(spec, variant, Window())
+    said = [(float(m[1]), int(m[3])) for m in map(PIECES.match, text.splitlines()) if m]
+    assert said == expected[:len(said)] and len(said) >= len(expected) - 1, (said[:5], expected[:5])
+    assert len(said) >= 2, 'a deployment from one release square falls into pieces and joins: the case tests nothing'
+    assert splits == sum(b > a for (_, a), (_, b) in zip([(0, counts[0][1])] + said, said))
+
+
+def test_on_the_papers_vehicle_the_command_is_the_nominal_and_on_the_multirotor_not_always(spec: Path) -> None:
+    """The paper's vehicle flies eq. 9 as it is; the multirotor's filter or rules change the nominal where it would
+    leave the envelope or close on a neighbour, and the trace says by how much."""
+    window = Window((0, 5), 0.0, 20.0, 2.0)
+    for variant in ('ideal', 'filter'):
+        text, _ = traced(spec, variant, window)
+        lines = [m for m in map(MAP_LINE.match, text.splitlines()) if m]
+        assert [(float(m[1]), int(m[2])) for m in lines] == [(t, i) for t in np.arange(0, 20.1, 2.0) for i in (0, 5)]
+        same = [m[4] == 'the same' for m in lines]
+        if variant == 'ideal':
+            assert all(same)
+        else:
+            assert not all(same), 'no command of the multirotor differed from its nominal'
+            assert all(float(m[4].split()[0]) <= 4.0 + 1e-6 for m, s in zip(lines, same) if not s), 'within a_max'
+
+
+def test_a_run_named_wrong_is_one_line_and_exit_2(spec: Path) -> None:
+    for args, says in ((['9/0/static'], 'no run 9/0/static in the spec'),
+                       (['0/0/drift:2'], 'no run 0/0/drift:2 in the spec'),
+                       (['0/0/static'], 'flown by 2 variants: say which with --variant'),
+                       (['0/0/static', '--variant', 'rules', '--map', '500'], '--map: the run flies MAPs 0-'),
+                       (['nonsense'], 'neither a run key of the spec nor LAYOUT/SEED/KIND')):
+        done = cli('trace', str(spec), *args)
+        assert done.returncode == 2 and done.stderr.count('\n') == 1 and 'Traceback' not in done.stderr, done.stderr
+        assert says in done.stderr, done.stderr
