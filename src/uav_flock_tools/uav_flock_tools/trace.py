@@ -146,9 +146,10 @@ class Pieces:
                     lines.append(f'           broke: {a} {role(sim.memory[a])} - {b} {role(sim.memory[b])}, '
                                  f'{length:.1f} m; the step before, {asked}')
         self.count, self.links = count, links
-        owners = s.ids[d.owner]
-        self.needed = {(int(owners[j]), int(w)) for j in np.flatnonzero(d.needed != 0)
-                       if (w := _who(sim, d, int(j))) != '?'}
+        if report:  # for the next step's broken links; not looked up outside the window, where nothing is said
+            owners = s.ids[d.owner]
+            self.needed = {(int(owners[j]), int(w)) for j in np.flatnonzero(d.needed != 0)
+                           if (w := _who(sim, d, int(j))) != '?'}
         return lines
 
 
@@ -161,7 +162,8 @@ def trace(steps: Iterable[BatchSimulator], window: Window, out: TextIO) -> int:
         t = d.sensed.k * sim.scenario.dt
         inside = window.t0 <= t + 1e-9 <= window.t1 + 2e-9
         before = pieces.count
-        for line in pieces.changed(sim, t, inside):
+        lines = pieces.changed(sim, t, inside or window.t0 - sim.scenario.dt <= t + 1e-9 < window.t0)
+        for line in (lines if inside else ()):
             print(line, file=out)
         splits += int(inside and before is not None and pieces.count > before)
         if inside and window.maps and (every is None or t >= every - 1e-9):
