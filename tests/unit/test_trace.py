@@ -87,7 +87,28 @@ def test_a_run_named_wrong_is_one_line_and_exit_2(spec: Path) -> None:
                        (['0/0/drift:2'], 'no run 0/0/drift:2 in the spec'),
                        (['0/0/static'], 'flown by 2 variants: say which with --variant'),
                        (['0/0/static', '--variant', 'rules', '--map', '500'], '--map: the run flies MAPs 0-'),
-                       (['nonsense'], 'neither a run key of the spec nor LAYOUT/SEED/KIND')):
+                       (['nonsense'], 'neither a run key of the spec nor LAYOUT/SEED/KIND'),
+                       ([], 'a study names many runs: say which'),
+                       (['0/0/static', '--variant', 'rules', '--from', '5', '--to', '2'], '--to comes before --from')):
         done = cli('trace', str(spec), *args)
         assert done.returncode == 2 and done.stderr.count('\n') == 1 and 'Traceback' not in done.stderr, done.stderr
         assert says in done.stderr, done.stderr
+    done = cli('trace', str(spec.parent))
+    assert done.returncode == 2 and 'neither spec.yaml (a study) nor scenario.yaml' in done.stderr, done.stderr
+
+
+def test_a_run_folder_of_sim_is_flown_again_to_the_pieces_its_records_hold(tmp_path: Path) -> None:
+    """`trace RUN_FOLDER` flies the folder's scenario.yaml again: the pieces it reports change exactly where the
+    components column of the folder's metrics.csv does."""
+    folder = tmp_path / 'drift'
+    done = cli('sim', '--scenario', 'drift', '--duration', '20', '--seed', '1', '--out', str(folder))
+    assert done.returncode == 0, done.stderr
+    metrics = np.genfromtxt(folder / 'metrics.csv', delimiter=',', names=True)
+    steps = [(round(float(t), 1), int(c)) for t, c in zip(metrics['t'], metrics['components'])]
+    expected = [(t, b) for (_, a), (t, b) in zip(steps, steps[1:]) if a != b]
+    done = cli('trace', str(folder), '--map', '3', '--to', '20')
+    assert done.returncode == 0, done.stderr
+    said = [(float(m[1]), int(m[3])) for m in map(PIECES.match, done.stdout.splitlines()) if m]
+    assert len(expected) >= 2, 'the run never fell into pieces: the case tests nothing'
+    assert said == expected
+    assert len([m for m in map(MAP_LINE.match, done.stdout.splitlines()) if m]) == 21  # 0, 1, ..., 20 s

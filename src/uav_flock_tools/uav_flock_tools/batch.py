@@ -6,7 +6,7 @@ The world half of that step is `core.model.World`, which the world node shares.
 """
 from __future__ import annotations
 
-from typing import Callable, NamedTuple, Optional
+from typing import Callable, Iterator, NamedTuple, Optional
 
 import numpy as np
 
@@ -113,12 +113,20 @@ class BatchSimulator:
 
     def run(self, progress: Optional[Callable[[int], None]] = None) -> RunResult:
         """Steps 0..N (N = duration / dt), inclusive, so the record ends at t = duration."""
+        for _ in self.flight(progress):
+            pass
+        return self.result()
+
+    def flight(self, progress: Optional[Callable[[int], None]] = None) -> Iterator[BatchSimulator]:
+        """The run a step at a time (what run() flies), itself after each step; the last is recorded without moving
+        on. progress is called after each step that moved on."""
         for _ in range(self.scenario.steps):
             self.step()
             if progress:
                 progress(1)
+            yield self
         self.step(integrate=False)
-        return self.result()
+        yield self
 
     def result(self) -> RunResult:
         return self.world.result()

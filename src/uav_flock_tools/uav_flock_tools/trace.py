@@ -1,10 +1,11 @@
-"""`uav-flock trace`: one study run flown again, saying what split the network and why a MAP moved.
+"""`uav-flock trace`: a run flown again, saying what split the network and why a MAP moved.
 
-A study row says that a run split; the trace says where and who. It flies the row's run as the study does (the same
-steps, to the bit) and prints, from --from to --to: each change of the pieces the MAP graph within r falls into,
-with the MAPs each smaller piece holds and the links whose breaking made the split; and, every --every seconds, for
-each MAP asked about, its role, where its plan aims it, its nominal (eq. 9 as the vehicle flies it), the command
-the safety filter or the rules made of it, what the filter did, and the links it was asked to keep.
+A study row, or a run's metrics.csv, says that a run split; the trace says where and who. It flies the run again as
+the study or `sim` flew it (the same steps, to the bit) and prints, from --from to --to: each change of the pieces
+the MAP graph within r falls into, with the MAPs each smaller piece holds and the links whose breaking made the
+split; and, every --every seconds, for each MAP asked about, its role, where its plan aims it, its nominal (eq. 9 as
+the vehicle flies it), the command the safety filter or the rules made of it, what the filter did, and the links it
+was asked to keep.
 """
 from __future__ import annotations
 
@@ -154,8 +155,8 @@ class Pieces:
 
 
 def trace(steps: Iterable[BatchSimulator], window: Window, out: TextIO) -> int:
-    """Follow a run's steps (engine.flight(..., watch=True)) and write what the window asks for; the number of
-    splits seen in it."""
+    """Follow a run's steps (engine.flight(..., watch=True), or BatchSimulator(s, watch=True).flight()) and write
+    what the window asks for; the number of splits seen in it."""
     pieces, splits, every = Pieces(), 0, None
     for sim in steps:
         d = sim.decided

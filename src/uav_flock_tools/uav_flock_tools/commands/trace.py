@@ -1,4 +1,4 @@
-"""`uav-flock trace`: one run of a study flown again, saying what split its network and why a MAP moved."""
+"""`uav-flock trace`: a run flown again, saying what split its network and why a MAP moved."""
 from __future__ import annotations
 
 import argparse
@@ -7,13 +7,17 @@ from pathlib import Path
 
 from .options import UsageError, id_list, non_negative_float, own_process, positive_float
 
-SUMMARY = 'fly one run of a study again: what split its network, and why a MAP moved (nominal, filter, command)'
+SUMMARY = 'fly a run again (a study\'s row, or a run folder): what split its network, and why a MAP moved'
+RUN_SCENARIO = 'scenario.yaml'  # what a run folder of `sim` or `up` keeps of the scenario it flew, to fly it again
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument('spec', help='a study spec (studies/*.yaml), or a study folder (its spec.yaml)')
-    p.add_argument('run', help='the run: its key (the study\'s `key` column) or LAYOUT/SEED/KIND, say 19/0/drift:2')
-    p.add_argument('--variant', help='the variant, when the spec flies the run under several')
+    p.add_argument('source', metavar='SPEC|RUN_FOLDER',
+                   help='a study spec (studies/*.yaml) or study folder (its spec.yaml), or the run folder of a `sim` '
+                        'or lockstep `up` (its scenario.yaml)')
+    p.add_argument('run', nargs='?',
+                   help='of a study: the run, its key (the `key` column) or LAYOUT/SEED/KIND, say 19/0/drift:2')
+    p.add_argument('--variant', help='of a study: the variant, when the spec flies the run under several')
     p.add_argument('--map', type=id_list, default=[], metavar='IDS',
                    help='MAPs to follow, a line each every --every s: 36, or 3,36, or 30-39 (default: none)')
     p.add_argument('--from', dest='t0', type=non_negative_float, default=0.0, help='start at this time, s (default: 0)')
@@ -25,33 +29,49 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def handle(args: argparse.Namespace) -> int:
     from uav_agent.core import ablation
 
+    from ..batch import BatchSimulator
     from ..study import engine
     from ..study.spec import SpecError, load, runs
     from ..trace import Window, pick, trace
-    path = Path(args.spec)
-    if path.is_dir():
-        path = path / 'spec.yaml'
-        if not path.exists():
-            raise UsageError(f'trace: {args.spec}: a folder with no spec.yaml (not a study folder)')
-    try:
-        grid = runs(load(path))
-    except SpecError as exc:
-        raise UsageError(f'trace: {exc}') from None
-    try:
-        run = pick(grid, args.run, args.variant)
-    except ValueError as exc:
-        raise UsageError(f'trace: {exc}') from None
-    s = run.scenario()
+    path = Path(args.source)
+    off: tuple[str, ...] = ()
+    if path.is_dir() and (path / RUN_SCENARIO).exists() and not (path / 'spec.yaml').exists():
+        if args.run is not None or args.variant is not None:
+            raise UsageError(f'trace: {path} is a run folder: it names one run, so no RUN or --variant')
+        from .. import simrun
+        s = simrun.load_scenario(str(path / RUN_SCENARIO))
+        said = f'trace: {path}: '
+        steps = None
+    else:
+        if path.is_dir():
+            path = path / 'spec.yaml'
+            if not path.exists():
+                raise UsageError(f'trace: {args.source}: a folder with neither spec.yaml (a study) nor '
+                                 f'{RUN_SCENARIO} (a run of sim or up)')
+        if args.run is None:
+            raise UsageError('trace: a study names many runs: say which (its key, or LAYOUT/SEED/KIND)')
+        try:
+            grid = runs(load(path))
+        except SpecError as exc:
+            raise UsageError(f'trace: {exc}') from None
+        try:
+            run = pick(grid, args.run, args.variant)
+        except ValueError as exc:
+            raise UsageError(f'trace: {exc}') from None
+        s, off = run.scenario(), run.off
+        said = f'trace: layout {run.layout}, seed {run.seed}, {run.kind}, variant {run.variant} (key {run.key}): '
+        steps = run
     if any(i >= s.maps for i in args.map):
         raise UsageError(f'trace: --map: the run flies MAPs 0-{s.maps - 1}')
     if args.t1 is not None and args.t1 < args.t0:
         raise UsageError('trace: --to comes before --from')
     own_process('trace', [s.vehicle.model])
-    off = f'; rules off: {", ".join(run.off)}' if run.off else ''
-    print(f'trace: layout {run.layout}, seed {run.seed}, {run.kind}, variant {run.variant} (key {run.key}): '
-          f'{s.maps} MAPs, {s.duration:g} s, vehicle {s.vehicle.model}, safety {s.flock.safety}{off}', flush=True)
+    rules = f'; rules off: {", ".join(off)}' if off else ''
+    print(f'{said}{s.maps} MAPs, {s.duration:g} s, vehicle {s.vehicle.model}, safety {s.flock.safety}{rules}',
+          flush=True)
     window = Window(tuple(args.map), args.t0, s.duration if args.t1 is None else args.t1, args.every)
-    with ablation.switched_off(run.off):
-        splits = trace(engine.flight(run, s, watch=True), window, sys.stdout)
+    with ablation.switched_off(off):
+        flight = engine.flight(steps, s, watch=True) if steps is not None else BatchSimulator(s, watch=True).flight()
+        splits = trace(flight, window, sys.stdout)
     print(f'trace: {splits} split{"s" if splits != 1 else ""} from {window.t0:g} s to {window.t1:g} s')
     return 0
