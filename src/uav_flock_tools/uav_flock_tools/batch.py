@@ -13,9 +13,8 @@ import numpy as np
 from uav_agent.core.agent import Neighbourhood, Said, after_filter, plan
 from uav_agent.core.ear import Ear, Heard, Sent, hear
 from uav_agent.core.control import Control, control_input
-from uav_agent.core.state import Reference
 from uav_agent.core.policies import hearsay
-from uav_agent.core.state import Memory
+from uav_agent.core.state import Memory, Reference
 
 from world_sim.core.model import RunResult, Sensed, World
 from world_sim.core.scenario import Scenario
@@ -87,7 +86,8 @@ class BatchSimulator:
             for n, i in enumerate(rows.tolist()):
                 self.held[i], flags[n] = after_filter(self.held[i], int(flags[n]), sensed.q[n], refs[n], fp)
         if self.watch:
-            self.decided = Decided(sensed, refs, owner, nbr.q, np.array(needed, dtype=np.int8), control._replace(flags=flags))
+            self.decided = Decided(sensed, refs, owner, nbr.q, np.array(needed, dtype=np.int8),
+                                   control._replace(flags=flags))
         modes = np.array([self.memory[i].mode for i in rows], dtype=np.intp)
         goals = np.array([self.memory[i].goal for i in rows], dtype=np.intp)
         w.advance(sensed, u, modes, goals, integrate, flags)

@@ -74,7 +74,7 @@ def role(mem: Memory) -> str:
     return f'{name} ' + ('in transit' if own.transit else 'settled' if own.settled else 'first flight')
 
 
-def _who(sim: BatchSimulator, decided: Decided, link: int) -> str:
+def _who(decided: Decided, link: int) -> str:
     """The MAP a link's neighbour state came from: the live MAP at that very place (a state of this step), else
     '?' (a state heard late, under a lossy radio, is where its sender was)."""
     at = np.flatnonzero(np.all(decided.sensed.q == decided.nbr_q[link], axis=1))
@@ -96,7 +96,7 @@ def map_line(sim: BatchSimulator, i: int, t: float) -> str:
     aim = (ref.q1 + ref.q2) / 2 if ref.mode == M1 else ref.target  # a relay aims at its slot on the edge
     said = [text for bit, text in FILTER_SAID if int(d.control.flags[n]) & bit]
     links = np.flatnonzero((d.owner == n) & (d.needed != 0))
-    keeps = [f'{_who(sim, d, j)} {"alone" if d.needed[j] == ALONE else "shared" if d.needed[j] == SHARED else ""} '
+    keeps = [f'{_who(d, j)} {"alone" if d.needed[j] == ALONE else "shared" if d.needed[j] == SHARED else ""} '
             f'{float(np.hypot(*(d.nbr_q[j, :2] - q[:2]))):.1f} m' for j in links]
     nominal, command = d.control.nominal[n], d.control.u[n]
     changed = 'the same' if np.allclose(nominal, command, atol=1e-9) else _vec(command)
@@ -150,7 +150,7 @@ class Pieces:
         if report:  # for the next step's broken links; not looked up outside the window, where nothing is said
             owners = s.ids[d.owner]
             self.needed = {(int(owners[j]), int(w)) for j in np.flatnonzero(d.needed != 0)
-                           if (w := _who(sim, d, int(j))) != '?'}
+                           if (w := _who(d, int(j))) != '?'}
         return lines
 
 

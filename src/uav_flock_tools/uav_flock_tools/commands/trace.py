@@ -41,7 +41,7 @@ def handle(args: argparse.Namespace) -> int:
         from .. import simrun
         s = simrun.load_scenario(str(path / RUN_SCENARIO))
         said = f'trace: {path}: '
-        steps = None
+        study_run = None
     else:
         if path.is_dir():
             path = path / 'spec.yaml'
@@ -60,7 +60,7 @@ def handle(args: argparse.Namespace) -> int:
             raise UsageError(f'trace: {exc}') from None
         s, off = run.scenario(), run.off
         said = f'trace: layout {run.layout}, seed {run.seed}, {run.kind}, variant {run.variant} (key {run.key}): '
-        steps = run
+        study_run = run
     if any(i >= s.maps for i in args.map):
         raise UsageError(f'trace: --map: the run flies MAPs 0-{s.maps - 1}')
     if args.t1 is not None and args.t1 < args.t0:
@@ -71,7 +71,8 @@ def handle(args: argparse.Namespace) -> int:
           flush=True)
     window = Window(tuple(args.map), args.t0, s.duration if args.t1 is None else args.t1, args.every)
     with ablation.switched_off(off):
-        flight = engine.flight(steps, s, watch=True) if steps is not None else BatchSimulator(s, watch=True).flight()
+        flight = (engine.flight(study_run, s, watch=True) if study_run is not None
+                  else BatchSimulator(s, watch=True).flight())
         splits = trace(flight, window, sys.stdout)
     print(f'trace: {splits} split{"s" if splits != 1 else ""} from {window.t0:g} s to {window.t1:g} s')
     return 0
