@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import io
 import re
+import shlex
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -113,3 +116,14 @@ def test_a_run_folder_of_sim_is_flown_again_to_the_pieces_its_records_hold(tmp_p
     assert len(expected) >= 2, 'the run never fell into pieces: the case tests nothing'
     assert said == expected
     assert len([m for m in map(MAP_LINE.match, done.stdout.splitlines()) if m]) == 21  # 0, 1, ..., 20 s
+
+
+def test_a_reader_that_leaves_ends_the_trace_quietly(spec: Path) -> None:
+    """`trace ... | head -2`: its stdout is what it makes (cli.PRINTERS), so it ends with its reader, exit 0 and
+    no traceback, as `echo` does."""
+    command = shlex.join([sys.executable, '-m', 'uav_flock_tools.cli', 'trace', str(spec), '0/0/static', '--variant',
+                          'rules', '--map', '0'])
+    done = subprocess.run(['bash', '-c', f'{command} | head -2; exit ${{PIPESTATUS[0]}}'], capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0 and 'Traceback' not in done.stderr, done.stderr
+    assert len(done.stdout.splitlines()) == 2 and done.stdout.startswith('trace: layout 0, seed 0, static')

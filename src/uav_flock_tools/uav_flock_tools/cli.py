@@ -51,7 +51,7 @@ def _main(argv: Optional[Sequence[str]]) -> int:
 RETRY_INTERRUPT_S = 0.05
 # Commands whose stdout is what they make: when its reader leaves (`echo /metrics | head -3`) they are done. Every
 # other command's records are its files: it goes on to the end with its stdout closed.
-PRINTERS = ('echo', 'topics')
+PRINTERS = ('echo', 'topics', 'trace')
 
 
 
