@@ -171,6 +171,7 @@ def trace(steps: Iterable[BatchSimulator], window: Window, out: TextIO) -> int:
             for i in window.maps:
                 print(map_line(sim, i, t), file=out)
             every = t + window.every
+        out.flush()  # each step as it is flown: a reader that leaves (`| head`) is seen at once, never at exit
         if t > window.t1:
             break
     return splits

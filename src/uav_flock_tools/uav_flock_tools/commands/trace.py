@@ -74,5 +74,5 @@ def handle(args: argparse.Namespace) -> int:
         flight = (engine.flight(study_run, s, watch=True) if study_run is not None
                   else BatchSimulator(s, watch=True).flight())
         splits = trace(flight, window, sys.stdout)
-    print(f'trace: {splits} split{"s" if splits != 1 else ""} from {window.t0:g} s to {window.t1:g} s')
+    print(f'trace: {splits} split{"s" if splits != 1 else ""} from {window.t0:g} s to {window.t1:g} s', flush=True)
     return 0
