@@ -33,7 +33,26 @@ def test_a_step_waits_for_metrics_and_a_late_writer_catches_up_in_order() -> Non
     for k in range(3):  # its writer hands over its history once matched
         feed(p, k, [1])
     assert p.advance() and p.step == 2
-    feed(p, 4, [1])  # in order: step 4 says 3 is in too
+    feed(p, 4, [1])
+    assert not p.advance() and p.step == 2, 'step 4 does not vouch for step 3'
+    feed(p, 3, [1])
+    assert p.advance() and p.step == 4
+
+
+def test_a_message_that_comes_late_holds_the_step_until_it_is_in() -> None:
+    p = StepProgress(2, lockstep=True)
+    feed(p, 0, [0, 1])
+    feed(p, 1, [0, 1], ('state',))
+    feed(p, 1, [0], ('cmd',))  # MAP 1's command of step 1 is lost on its way, for now
+    for k in (2, 3):
+        feed(p, k, [0, 1])
+    p.metrics = 3
+    assert p.advance() and p.step == 0, 'held at the step before the missing command'
+    feed(p, 1, [1], ('cmd',))  # repaired
+    assert p.advance() and p.step == 3
+    feed(p, 2, [0, 1])  # a step said again (world_sim repeats a stalled one): counted once
+    feed(p, 4, [0, 1])
+    p.metrics = 4
     assert p.advance() and p.step == 4
 
 

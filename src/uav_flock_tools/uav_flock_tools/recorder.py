@@ -69,14 +69,22 @@ def reading_qos(offered: list[QoSProfile]) -> QoSProfile:
 
 class StepProgress:
     """The last step of which the bag holds everything: /metrics, and in lockstep each live MAP's state and
-    command. A MAP dropped by the world is waited for no longer."""
+    command. A MAP dropped by the world is waited for no longer.
+
+    A MAP counts as having reached step k only once the bag holds its messages of every step up to k: a later
+    one does not vouch for an earlier one. A sample that comes late (a datagram lost and repaired, a sample left
+    unannounced in its reader) holds the count, so world_sim holds within RECORDER_MAX_LAG_STEPS, well inside
+    the writer's history, until it is in; counted from the latest message, the run went on and the writer's
+    history dropped it (a bag short of one command and one state at the step `uav-flock kill` signalled two
+    agent processes)."""
 
     def __init__(self, maps: int, lockstep: bool) -> None:
         self.lockstep = lockstep
         self.maps = maps
         self.metrics = -1
-        self.state = [-1] * maps
+        self.state = [-1] * maps  # per MAP: the last step of which it and every step before are in the bag
         self.cmd = [-1] * maps
+        self.early: dict[tuple[str, int], set[int]] = {}  # (kind, MAP) -> steps in the bag past a missing one
         self.reached_by: Counter[int] = Counter()  # step -> MAPs whose state and command of it are written
         self.dropped: set[int] = set()
         self.step = -1
@@ -86,7 +94,14 @@ class StepProgress:
             return
         before = min(self.state[map_id], self.cmd[map_id])
         last = self.state if kind == 'state' else self.cmd
-        last[map_id] = max(last[map_id], step)
+        if step == last[map_id] + 1:
+            last[map_id] = step
+            early = self.early.get((kind, map_id))
+            while early and last[map_id] + 1 in early:
+                last[map_id] += 1
+                early.discard(last[map_id])
+        elif step > last[map_id] + 1:
+            self.early.setdefault((kind, map_id), set()).add(step)
         for k in range(before + 1, min(self.state[map_id], self.cmd[map_id]) + 1):
             if k > self.step:
                 self.reached_by[k] += 1

@@ -176,10 +176,13 @@ def client_for(scheduler: Optional[str], workers: Optional[int]):  # -> (Client,
     # The worker processes are started with Ctrl-C ignored: it reaches the whole process group, and this process
     # alone should answer it (the workers end with the cluster, without a traceback each). ':0': a free port for
     # the dashboard, which None does not switch off (dask/distributed#8136), so no warning about 8787 in use.
+    # The workers' logs are silenced up to ERROR: what a user needs of them comes back through the futures (a run
+    # that raised, a worker lost), and an interrupted study closes the scheduler under a worker's heartbeat,
+    # which the worker logs as an error with its traceback ("Failed to communicate with scheduler").
     ignored = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                               dashboard_address=':0', silence_logs=logging.ERROR)  # not a cancelled task's warning
+                               dashboard_address=':0', silence_logs=logging.CRITICAL)
     finally:
         signal.signal(signal.SIGINT, ignored)
     return Client(cluster), cluster
