@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from helpers.bags import assert_nothing_lost
 from helpers.runs import cli, dead, dropped_ids, helper, kill_during, shm_entries, up, wait_for_line
 from uav_flock_tools.domains import claim_domain
 from world_sim.core.records import read_csv
@@ -143,10 +144,11 @@ def test_a_process_that_makes_its_participant_anew_mid_run_goes_on_where_it_was(
                                                                                ros_env: dict[str, str]) -> None:
     """A process makes its DDS participant anew past step 0 when a connection to a neighbour carries nothing
     (recovery.stuck_midway), or at SIGUSR2, as here: its MAPs carry what they decided and heard to the new one
-    (AgentNode.carry), and the lockstep run ends as `sim` flies it, byte for byte."""
+    (AgentNode.carry), and the lockstep run ends as `sim` flies it, byte for byte. Recorded, its bag holds every
+    state and command of the old participant's writers too: they go only once the recorder has them."""
     run = tmp_path / 'up'
     args = ('--scenario', 'drift', '--maps', '12', '--seed', '0', '--duration', '6')
-    proc = up(*args, '--agents-per-process', '3', '--out', str(run), env=ros_env)
+    proc = up(*args, '--agents-per-process', '3', '--record', '--out', str(run), env=ros_env)
     try:
         seen = ''.join(wait_for_line(proc, 't =   2.0 s', 120))
         pids = json.loads((run / 'pids.json').read_text())
@@ -163,6 +165,7 @@ def test_a_process_that_makes_its_participant_anew_mid_run_goes_on_where_it_was(
     assert batch.returncode == 0, batch.stderr
     for name in ('trajectory.csv', 'metrics.csv'):
         assert (run / name).read_bytes() == (tmp_path / 'sim' / name).read_bytes(), name
+    assert_nothing_lost(run)
 
 
 @pytest.mark.shm_alone

@@ -85,6 +85,15 @@ class RenewRequests:
         return 'SIGUSR2'
 
 
+def flush(nodes: list[AgentNode]) -> None:
+    """What the MAPs said last reaches every reader that has not acknowledged it yet (the recorder may be repairing a
+    lost datagram) before their writers go; a reader that died with its MAP is waited for no longer than FLUSH_S."""
+    deadline = time.monotonic() + FLUSH_S
+    for n in nodes:
+        for pub in (n.state_pub, n.cmd_pub):
+            pub.wait_for_all_acked(Duration(seconds=max(deadline - time.monotonic(), 0.0)))
+
+
 class AgentProcess:
     """The MAPs of one process on one DDS participant (an rclpy context of their own): made at start, and
     made anew when a step stalls on a connection that carries nothing (recovery.stuck_at_start, stuck_midway)."""
@@ -145,19 +154,14 @@ class AgentProcess:
         while not stopping() and time.monotonic() < deadline and any(
                 (midway or n.step < 0) and n.sensing_sub.get_publisher_count() == 0 for n in self.nodes):
             self.executor.spin_once(timeout_sec=0.1)
+        flush(nodes)  # the recorder counts a MAP's step only once it holds every step before (recorder.StepProgress)
         executor.shutdown()
         for n in nodes:
             n.destroy_node()
         context.try_shutdown()
 
     def close(self) -> None:
-        # What the MAPs said last reaches every reader that has not acknowledged it yet (the recorder may be
-        # repairing a lost datagram) before the writers go; a reader that died with its MAP is waited for no
-        # longer than the budget.
-        deadline = time.monotonic() + FLUSH_S
-        for n in self.nodes:
-            for pub in (n.state_pub, n.cmd_pub):
-                pub.wait_for_all_acked(Duration(seconds=max(deadline - time.monotonic(), 0.0)))
+        flush(self.nodes)
         # The executor first: the events executor holds the nodes' entities, and only once they are all
         # released is the DDS participant deleted (with its shared memory), even if this process then ends
         # by os._exit, past the interpreter's teardown.
