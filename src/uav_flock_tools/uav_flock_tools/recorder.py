@@ -74,9 +74,10 @@ class StepProgress:
     A MAP counts as having reached step k only once the bag holds its messages of every step up to k: a later
     one does not vouch for an earlier one. A sample that comes late (a datagram lost and repaired, a sample left
     unannounced in its reader) holds the count, so world_sim holds within RECORDER_MAX_LAG_STEPS, well inside
-    the writer's history, until it is in; counted from the latest message, the run went on and the writer's
-    history dropped it (a bag short of one command and one state at the step `uav-flock kill` signalled two
-    agent processes)."""
+    the writer's history, until it is in. Counted from the latest message, a late sample let the run go on past
+    the writer's history, and a hole in the bag went unseen (once, a bag short of one command and one state at the
+    step `uav-flock kill` signalled two agent processes). One that never comes holds the run for world_sim's
+    RECORDER_TIMEOUT_S; then it goes on without waiting for the recorder, and says so in an error line."""
 
     def __init__(self, maps: int, lockstep: bool) -> None:
         self.lockstep = lockstep
