@@ -40,13 +40,16 @@ if [ "${ROS_DISTRO:-}" = "jazzy" ] && python3 -c 'import rclpy' >/dev/null 2>&1;
 fi
 
 # ---------------------------------------------------------------- interpreter
+# The interpreter itself (sys.executable), not the launcher on PATH: a pyenv shim costs about 0.2 s a call, and
+# every command starts here.
 pick_python() {
   if [ "$NATIVE" = 1 ]; then command -v python3; return; fi
   if [ -n "${UAV_FLOCK_PYTHON:-}" ]; then echo "$UAV_FLOCK_PYTHON"; return; fi
   local c
   for c in python3.11 python3.12 python3.10 python3; do
-    if command -v "$c" >/dev/null 2>&1 && "$c" -c 'import sys; sys.exit(not (3, 10) <= sys.version_info[:2] <= (3, 12))' 2>/dev/null; then
-      command -v "$c"; return
+    if command -v "$c" >/dev/null 2>&1 \
+       && "$c" -c 'import sys; ok = (3, 10) <= sys.version_info[:2] <= (3, 12); ok and print(sys.executable); sys.exit(not ok)' 2>/dev/null; then
+      return
     fi
   done
   return 1

@@ -30,7 +30,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _main(argv: Optional[Sequence[str]]) -> int:
-    from world_sim.core.scenario import ScenarioError
     try:
         args, extra = build_parser().parse_known_args(argv)
         if extra:  # the top-level parser would say it without naming the subcommand
@@ -42,7 +41,12 @@ def _main(argv: Optional[Sequence[str]]) -> int:
     except UsageError as exc:
         print(f'uav-flock: error: {exc}', file=sys.stderr)
         return EXIT_USAGE
-    except ScenarioError as exc:  # the scenario, or an option that overrides a key of it
+    except Exception as exc:
+        # The scenario, or an option that overrides a key of it. The scenario loader (numpy, scipy) is imported
+        # here, not before parsing: a mistyped option is said in a third of the time.
+        from world_sim.core.scenario import ScenarioError
+        if not isinstance(exc, ScenarioError):
+            raise
         print(f'uav-flock: error: {args.command}: {exc}', file=sys.stderr)
         return EXIT_USAGE
 
