@@ -17,7 +17,7 @@ from helpers.runs import cli
 from uav_agent.core import ablation
 from uav_flock_tools.study import engine
 from uav_flock_tools.study.spec import load, runs
-from uav_flock_tools.trace import Window, pick, trace
+from uav_flock_tools.trace import ALREADY, Outage, Traced, Window, began, pick, summary, trace
 from world_sim.core.physics import component_labels
 
 pytestmark = pytest.mark.slow  # each test flies runs of 25 s
@@ -38,12 +38,12 @@ def spec(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return folder / 'brief.yaml'
 
 
-def traced(spec: Path, variant: str, window: Window) -> tuple[str, int]:
+def traced(spec: Path, variant: str, window: Window) -> tuple[str, Traced]:
     run = pick(runs(load(spec if variant != 'ideal' else spec.with_name('ideal.yaml'))), '0/0/static', variant)
     out = io.StringIO()
     with ablation.switched_off(run.off):
-        splits = trace(engine.flight(run, run.scenario(), watch=True), window, out)
-    return out.getvalue(), splits
+        seen = trace(engine.flight(run, run.scenario(), watch=True), window, out)
+    return out.getvalue(), seen
 
 
 def test_the_pieces_it_reports_are_those_of_the_run_as_the_study_flies_it(spec: Path) -> None:
@@ -63,11 +63,44 @@ def test_the_pieces_it_reports_are_those_of_the_run_as_the_study_flies_it(spec: 
             counts[round(w.k * s.dt, 1)] = int(component_labels(near, len(ids)).max()) + 1
     counts = sorted(counts.items())
     expected = [(t, b) for (_, a), (t, b) in zip(counts, counts[1:]) if a != b]
-    text, splits = traced(spec, variant, Window())
+    text, seen = traced(spec, variant, Window())
     said = [(float(m[1]), int(m[3])) for m in map(PIECES.match, text.splitlines()) if m]
     assert said == expected[:len(said)] and len(said) >= len(expected) - 1, (said[:5], expected[:5])
     assert len(said) >= 2, 'a deployment from one release square falls into pieces and joins: the case tests nothing'
-    assert splits == sum(b > a for (_, a), (_, b) in zip([(0, counts[0][1])] + said, said))
+    assert seen.splits == sum(b > a for (_, a), (_, b) in zip([(0, counts[0][1])] + said, said))
+    # each outage: from one network falling apart (or the start, in pieces) to one network again
+    apart, since = [], None
+    for t, count in [(counts[0][0], counts[0][1])] + expected:
+        if since is None and count > 1:
+            since = t
+        elif since is not None and count == 1:
+            apart.append((since, t))
+            since = None
+    closed = [(o.start, o.end) for o in seen.outages[:len(apart)]]
+    assert closed == apart[:len(closed)] and len(seen.outages) >= len(apart), (seen.outages[:3], apart[:3])
+    first = seen.outages[0]
+    assert first.began.endswith('of a MAP on its first flight'), 'the release square falls apart as the MAPs fly out'
+    # a window that opens inside an outage says so, and closes it where the whole run's trace does
+    middle = round((first.start + first.end) / 2, 1)
+    _, late = traced(spec, variant, Window((), middle, first.end + 1.0))
+    assert late.outages[0] == Outage(middle, first.end, ALREADY), late.outages
+
+
+def test_what_began_an_outage_and_the_summary_of_a_window() -> None:
+    """The summary says how long the network was apart and what began each time: a link the filter kept that gave
+    way first, else the most mobile MAP among the ends of the links that broke."""
+    assert began(True, ['S3 in transit']) == 'a link the network needs gave way'
+    assert began(False, ['R(1, 2) settled', 'S3 in transit']) == 'a link kept by neither end, of a MAP in transit'
+    assert began(False, ['S0 settled', 'S2 first flight']).endswith('a MAP on its first flight')
+    assert began(False, ['S0 settled', 'R(0, 2) settled']).endswith('settled MAPs')
+    assert began(False, ['S0', 'S1']) == 'a link kept by neither end', 'Algorithm 2 says nothing of how far a MAP is'
+    window = Window((), 40.0, 100.0)
+    lines = summary(Traced(3, [Outage(46.3, 48.5, 'a link kept by neither end, of a MAP in transit'),
+                               Outage(53.3, 67.6, 'a link the network needs gave way')]), window)
+    assert lines[0] == 'trace: 3 splits from 40 s to 100 s; apart 16.5 s of the 60 s (27.5 %), in 2 outages:'
+    assert lines[1:] == ['    46.3-48.5 s (2.2 s), begun by a link kept by neither end, of a MAP in transit',
+                         '    53.3-67.6 s (14.3 s), begun by a link the network needs gave way']
+    assert summary(Traced(0, []), window) == ['trace: 0 splits from 40 s to 100 s; one network throughout']
 
 
 def test_on_the_papers_vehicle_the_command_is_the_nominal_and_on_the_multirotor_not_always(spec: Path) -> None:
@@ -116,6 +149,9 @@ def test_a_run_folder_of_sim_is_flown_again_to_the_pieces_its_records_hold(tmp_p
     assert len(expected) >= 2, 'the run never fell into pieces: the case tests nothing'
     assert said == expected
     assert len([m for m in map(MAP_LINE.match, done.stdout.splitlines()) if m]) == 21  # 0, 1, ..., 20 s
+    apart = sum(t1 - t0 for (t0, c), (t1, _) in zip(steps, steps[1:]) if c > 1)
+    total = re.search(r'; apart ([\d.]+) s of the 20 s', done.stdout)
+    assert total and abs(float(total[1]) - apart) < 0.15, (done.stdout.splitlines()[-3:], apart)
 
 
 def test_a_reader_that_leaves_ends_the_trace_quietly(spec: Path) -> None:

@@ -10,7 +10,7 @@ was asked to keep.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Iterable, Optional, TextIO
+from typing import TYPE_CHECKING, Iterable, NamedTuple, Optional, TextIO
 
 import numpy as np
 from uav_agent.core.safety import AWAY, HELD, RELAXED, RELEASED
@@ -111,13 +111,48 @@ def _described(sim: BatchSimulator, ids: np.ndarray, rows: np.ndarray, p: np.nda
     return named + (f' and {len(rows) - CUT_OFF_SHOWN} more' if len(rows) > CUT_OFF_SHOWN else '')
 
 
+class Outage(NamedTuple):
+    """A time the MAP graph within r was in more than one piece, from its first split to one network again (s), and
+    what began it (began)."""
+
+    start: float
+    end: float
+    began: str
+
+
+class Traced(NamedTuple):
+    """What a trace saw in its window: how often the network split, and each time it was apart."""
+
+    splits: int
+    outages: list[Outage]
+
+
+ALREADY = 'in pieces when the window opened'
+
+
+def began(needs: bool, ends: Iterable[str]) -> str:
+    """What began an outage, from the links whose breaking split one network: a link the network needs (the filter's)
+    that gave way; else a link to a MAP in transit to a new role, or on its first flight, or between settled MAPs
+    (role's words, the most mobile first)."""
+    if needs:
+        return 'a link the network needs gave way'
+    said = ' '.join(ends)
+    for words, what in (('in transit', 'a MAP in transit'), ('first flight', 'a MAP on its first flight'),
+                        ('settled', 'settled MAPs')):
+        if words in said:
+            return f'a link kept by neither end, of {what}'
+    return 'a link kept by neither end'
+
+
 class Pieces:
-    """The MAP graph within r, step by step: what changed since the step before."""
+    """The MAP graph within r, step by step: what changed since the step before, and what began the last split of
+    one network (began)."""
 
     def __init__(self) -> None:
         self.count: Optional[int] = None
         self.links: set[tuple[int, int]] = set()
         self.needed: set[tuple[int, int]] = set()
+        self.began = ''
 
     def changed(self, sim: BatchSimulator, t: float, report: bool) -> list[str]:
         d = sim.decided
@@ -146,6 +181,8 @@ class Pieces:
                     asked = 'a link the network needs' if needs else 'kept by neither end'
                     lines.append(f'           broke: {a} {role(sim.memory[a])} - {b} {role(sim.memory[b])}, '
                                  f'{length:.1f} m; the step before, {asked}')
+                self.began = began(any((a, b) in self.needed or (b, a) in self.needed for a, b in broke),
+                                   (role(sim.memory[i]) for link in broke for i in link))
         self.count, self.links = count, links
         if report:  # for the next step's broken links; not looked up outside the window, where nothing is said
             owners = s.ids[d.owner]
@@ -154,10 +191,13 @@ class Pieces:
         return lines
 
 
-def trace(steps: Iterable[BatchSimulator], window: Window, out: TextIO) -> int:
+def trace(steps: Iterable[BatchSimulator], window: Window, out: TextIO) -> Traced:
     """Follow a run's steps (engine.flight(..., watch=True), or BatchSimulator(s, watch=True).flight()) and write
-    what the window asks for; the number of splits seen in it."""
+    what the window asks for; the splits seen in it, and each time the network was apart within it."""
     pieces, splits, every = Pieces(), 0, None
+    outages: list[Outage] = []
+    apart: Optional[tuple[float, str]] = None  # an outage open since, begun by
+    t = window.t0
     for sim in steps:
         d = sim.decided
         t = d.sensed.k * sim.scenario.dt
@@ -167,6 +207,11 @@ def trace(steps: Iterable[BatchSimulator], window: Window, out: TextIO) -> int:
         for line in (lines if inside else ()):
             print(line, file=out)
         splits += int(inside and before is not None and pieces.count > before)
+        if inside and apart is None and (pieces.count or 0) > 1:
+            apart = (t, pieces.began if before == 1 else ALREADY)
+        elif inside and apart is not None and pieces.count == 1:
+            outages.append(Outage(apart[0], t, apart[1]))
+            apart = None
         if inside and window.maps and (every is None or t >= every - 1e-9):
             for i in window.maps:
                 print(map_line(sim, i, t), file=out)
@@ -174,4 +219,20 @@ def trace(steps: Iterable[BatchSimulator], window: Window, out: TextIO) -> int:
         out.flush()  # each step as it is flown: a reader that leaves (`| head`) is seen at once, never at exit
         if t > window.t1:
             break
-    return splits
+    if apart is not None:
+        outages.append(Outage(apart[0], min(t, window.t1), apart[1]))
+    return Traced(splits, outages)
+
+
+def summary(traced: Traced, window: Window) -> list[str]:
+    """The trace's last lines: how often the network split in the window, how long it was apart, and each outage
+    with what began it."""
+    splits, outages = traced
+    head = f'trace: {splits} split{"s" if splits != 1 else ""} from {window.t0:g} s to {window.t1:g} s'
+    if not outages:
+        return [head + '; one network throughout' if splits == 0 else head]
+    total, span = sum(o.end - o.start for o in outages), window.t1 - window.t0
+    share = f' ({100.0 * total / span:.1f} %)' if span > 0 else ''
+    lines = [f'{head}; apart {total:.1f} s of the {span:g} s{share}, in {len(outages)} outage'
+             f'{"s" if len(outages) != 1 else ""}:']
+    return lines + [f'  {o.start:6.1f}-{o.end:.1f} s ({o.end - o.start:.1f} s), begun by {o.began}' for o in outages]

@@ -32,7 +32,7 @@ def handle(args: argparse.Namespace) -> int:
     from ..batch import BatchSimulator
     from ..study import engine
     from ..study.spec import SpecError, load, runs
-    from ..trace import Window, pick, trace
+    from ..trace import Window, pick, summary, trace
     path = Path(args.source)
     off: tuple[str, ...] = ()
     if path.is_dir() and (path / RUN_SCENARIO).exists() and not (path / 'spec.yaml').exists():
@@ -73,6 +73,6 @@ def handle(args: argparse.Namespace) -> int:
     with ablation.switched_off(off):
         flight = (engine.flight(study_run, s, watch=True) if study_run is not None
                   else BatchSimulator(s, watch=True).flight())
-        splits = trace(flight, window, sys.stdout)
-    print(f'trace: {splits} split{"s" if splits != 1 else ""} from {window.t0:g} s to {window.t1:g} s', flush=True)
+        traced = trace(flight, window, sys.stdout)
+    print('\n'.join(summary(traced, window)), flush=True)
     return 0
