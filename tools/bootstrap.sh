@@ -40,7 +40,7 @@ if [ "${ROS_DISTRO:-}" = "jazzy" ] && python3 -c 'import rclpy' >/dev/null 2>&1;
 fi
 
 # ---------------------------------------------------------------- interpreter
-# The interpreter itself (sys.executable), not the launcher on PATH: a pyenv shim costs about 0.2 s a call, and
+# The interpreter itself (sys.executable), not the launcher on PATH: a pyenv shim costs 0.1-0.2 s a call, and
 # every command starts here.
 pick_python() {
   if [ "$NATIVE" = 1 ]; then command -v python3; return; fi

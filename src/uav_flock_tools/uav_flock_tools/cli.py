@@ -43,7 +43,7 @@ def _main(argv: Optional[Sequence[str]]) -> int:
         return EXIT_USAGE
     except Exception as exc:
         # The scenario, or an option that overrides a key of it. The scenario loader (numpy, scipy) is imported
-        # here, not before parsing: a mistyped option is said in a third of the time.
+        # here, not before parsing: a mistyped option is said in half the time.
         from world_sim.core.scenario import ScenarioError
         if not isinstance(exc, ScenarioError):
             raise
