@@ -134,3 +134,22 @@ def test_one_map_serving_its_cluster_is_a_network_that_succeeds() -> None:
     assert m[-1, 2] == 1.0 and m[-1, 3] == 0.0, 'covered, with the lambda2 of a single MAP'
     assert outcome.time_to_success(m) < 20.0
     assert outcome.joined(m).all()
+
+
+def test_a_stalled_step_watches_the_live_neighbours_of_the_maps_it_waits_for() -> None:
+    """MAP 0 waits for its neighbour 2's state; 2's command is in, so the world does not wait for 2 itself. If
+    2's node was killed after it sent that command, only watching 2 ends the stall (watch.watched)."""
+    from world_sim.core.model import Sensed
+    from world_sim.watch import watched
+    ids = np.array([0, 1, 2, 3, 5])
+    # rows 0-2 (ids 0 and 2), 0-3 (ids 0 and 3), 1-4 (ids 1 and 5), both ways, sorted
+    edges = [(0, 2), (0, 3), (1, 4)]
+    pairs = np.array(sorted(e for a, b in edges for e in ((a, b), (b, a))))
+    n = len(ids)
+    s = Sensed(7, ids, np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros(1), pairs, 1.0)
+    alive = np.ones(6, dtype=bool)
+    assert watched(s, [0], alive) == [0, 2, 3]
+    alive[3] = False  # already dropped: nothing to watch
+    assert watched(s, [0], alive) == [0, 2]
+    assert watched(s, [0, 5], alive) == [0, 1, 2, 5]
+    assert watched(s, [], alive) == []

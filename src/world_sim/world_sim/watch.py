@@ -131,7 +131,7 @@ class Watch:
         return self.pid_table is not None and (self.pid_table.parent / CRASH_DIR / str(i)).exists()
 
     def check_liveness(self) -> None:
-        """Drop the MAPs we wait for whose process is gone; a slow but living MAP is waited for."""
+        """Drop the MAPs we wait for, and their neighbours, whose process is gone; a slow but living MAP is waited for."""
         s = self.sensed
         if s is None:
             return
@@ -143,7 +143,8 @@ class Watch:
         # (it names the MAP in the run's crash folder first). One on another host (no pid here): DDS no longer
         # matches its reader, once its participant left or its lease expired (link down).
         table = self.pids()
-        gone = [i for i in waiting if (i in table and (not process_alive(table[i]) or self.crashed(i)))
+        gone = [i for i in watched(s, waiting, self.world.alive)
+                if (i in table and (not process_alive(table[i]) or self.crashed(i)))
                 or (i not in table and self.sensing_pubs[i].get_subscription_count() == 0)]
         if gone:
             self.drop(np.array(gone), 'killed')
@@ -170,3 +171,17 @@ class Watch:
                                    f'neighbours (time {self.step_resends} this step)')
             self.step_started = time.monotonic()
             self.publish_sensing(self.header(), again)
+
+
+def watched(s: Sensed, waiting: list[int], alive: np.ndarray) -> list[int]:
+    """The MAPs whose liveness a stalled step depends on: those it waits for and their live neighbours.
+
+    A MAP we wait for may itself wait for a neighbour whose command is in: one whose node `kill` ended after it
+    sent that command, its state of the step lost with its writer before the two matched. Dropping it (the
+    failure event) lets the waiting MAP step without it; waiting for its state would stall the run for good.
+    """
+    rows = {i: row for row, i in enumerate(s.ids.tolist())}
+    out = set(waiting)
+    for i in waiting:
+        out.update(j for j in s.ids[s.neighbours(rows[i])].tolist() if alive[j])
+    return sorted(out)
