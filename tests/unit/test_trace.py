@@ -163,3 +163,48 @@ def test_a_reader_that_leaves_ends_the_trace_quietly(spec: Path) -> None:
                           text=True, timeout=300)
     assert done.returncode == 0 and 'Traceback' not in done.stderr, done.stderr
     assert len(done.stdout.splitlines()) == 2 and done.stdout.startswith('trace: layout 0, seed 0, static')
+
+
+ARRIVAL = {'layouts': {'count': 1, 'clusters': [3, 3], 'seed': 0, 'vehicle': 'ideal'}, 'seeds': 1, 'kinds': ['arrival'],
+           'duration': 50, 'variants': {'ideal': {}}}
+PER_RUN = re.compile(r'^  (\d+)/(\d+)/(\S+) (\S+): apart ([\d.]+) s of the ([\d.]+) s after first convergence, (\d+) outage')
+
+
+def test_outages_over_a_study_add_up_to_its_connected_column(tmp_path: Path) -> None:
+    """`trace STUDY --outages` flies again each run that split after first convergence: the time it says each was
+    apart is the time its `connected` column says it was not, and the census adds them up. Arrivals on the paper's
+    vehicle: the arriving cluster's MAPs leave the formation, so the runs split after converging."""
+    (tmp_path / 'arrival.yaml').write_text(yaml.safe_dump(ARRIVAL))
+    out = tmp_path / 'study'
+    done = cli('study', str(tmp_path / 'arrival.yaml'), '--out', str(out))
+    assert done.returncode == 0, done.stderr
+    rows = {(r['layout'], r['seed']): r for r in engine.finished(out)}
+    split = [r for r in rows.values() if r['converged'] is not None and r['connected'] < 1.0]
+    assert split, 'no arrival split after converging: the case tests nothing'
+    done = cli('trace', str(out), '--outages')
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[0].startswith(f'trace: {len(rows)} of {len(rows)} runs converged, {len(split)} of them split after '
+                                'it'), lines[0]
+    seen = [m for m in map(PER_RUN.match, lines) if m]
+    assert len(seen) == len(split)
+    dt = 0.1
+    for m in seen:
+        r = rows[(int(m[1]), int(m[2]))]
+        window = float(m[6])
+        assert abs(window - (r['duration'] - r['converged'])) < 0.05
+        # `connected` is the share of the steps from first convergence to the end, both counted
+        assert abs(float(m[5]) - (1.0 - r['connected']) * (window + dt)) <= 2 * dt + 1e-9, (m[0], r['connected'])
+    total = sum(float(m[5]) for m in seen)
+    head = next(line for line in lines if line.startswith('outages after first convergence'))
+    said = re.search(r'(\d+) runs?, ([\d.]+) s after it in all; apart ([\d.]+) s', head)
+    assert said and int(said[1]) == len(rows) and abs(float(said[3]) - total) <= 0.1 * len(seen), head
+    assert abs(float(said[2]) - sum(r['duration'] - r['converged'] for r in rows.values())) < 0.05 * len(rows)
+    table = [line for line in lines[lines.index(head) + 2:] if line.strip()]
+    assert sum(int(line.split()[-1]) for line in table) == sum(int(m[7]) for m in seen)
+    # the paper's vehicle never comes to rest below 3 m/s in every MAP: no run formed, so every outage is before it
+    assert all(' not yet ' in line for line in table), table
+    wrong = cli('trace', str(out), '--outages', '--kind', 'static')
+    assert wrong.returncode == 2 and "no run of kind 'static'" in wrong.stderr and 'Traceback' not in wrong.stderr
+    wrong = cli('trace', str(tmp_path / 'arrival.yaml'), '--outages')
+    assert wrong.returncode == 2 and 'reads a study folder' in wrong.stderr, wrong.stderr

@@ -236,3 +236,45 @@ def summary(traced: Traced, window: Window) -> list[str]:
     lines = [f'{head}; apart {total:.1f} s of the {span:g} s{share}, in {len(outages)} outage'
              f'{"s" if len(outages) != 1 else ""}:']
     return lines + [f'  {o.start:6.1f}-{o.end:.1f} s ({o.end - o.start:.1f} s), begun by {o.began}' for o in outages]
+
+
+class Census(NamedTuple):
+    """What kept a study's networks apart after first convergence: per (what began an outage, whether the run had
+    not yet formed then), the seconds apart and the outages; and the seconds after first convergence in all (the
+    time the `connected` column is a share of), over the runs that converged."""
+
+    apart: dict[tuple[str, bool], tuple[float, int]]
+    window: float
+    runs: int
+
+
+def census(runs: Iterable[tuple[float, float, Optional[float], Traced]]) -> Census:
+    """The census of runs, each (its first convergence, its end, when it formed or None, its outages traced from its
+    first convergence on). An outage counts as before `formed` (the study's column: covered, connected and every MAP
+    slower than 3 m/s) when it began before the formation first came to rest: MAPs still on their way to it."""
+    apart: dict[tuple[str, bool], tuple[float, int]] = {}
+    window, count = 0.0, 0
+    for converged, end, formed, traced in runs:
+        window += end - converged
+        count += 1
+        for o in traced.outages:
+            key = (o.began, formed is None or o.start < formed)
+            s, n = apart.get(key, (0.0, 0))
+            apart[key] = (s + o.end - o.start, n + 1)
+    return Census(apart, window, count)
+
+
+def census_lines(c: Census) -> list[str]:
+    """The census as a table: each kind of outage's seconds, its share of all the time after first convergence, and
+    how many, before and after the formations formed; then the whole."""
+    total = sum(s for s, _ in c.apart.values())
+    share = (lambda s: f'{100.0 * s / c.window:5.2f} %') if c.window > 0 else (lambda s: '    - ')
+    runs = f'{c.runs} run{"s" if c.runs != 1 else ""}'
+    lines = [f'outages after first convergence, {runs}, {c.window:.1f} s after it in all; '
+             f'apart {total:.1f} s ({share(total).strip()}):',
+             f'  {"begun by":<62} {"formed":<7} {"s":>7} {"of the time":>11} {"outages":>8}']
+    for (what, early), (s, n) in sorted(c.apart.items(), key=lambda kv: -kv[1][0]):
+        lines.append(f'  {what:<62} {"not yet" if early else "after":<7} {s:7.1f} {share(s):>11} {n:8d}')
+    if not c.apart:
+        lines.append('  none: one network from each first convergence to its end')
+    return lines

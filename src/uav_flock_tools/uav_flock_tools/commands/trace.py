@@ -24,6 +24,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--to', dest='t1', type=non_negative_float,
                    help='stop at this time, s (default: the end of the run)')
     p.add_argument('--every', type=positive_float, default=1.0, help='a line per MAP every this many s (default: 1)')
+    p.add_argument('--outages', action='store_true',
+                   help='of a study folder (--out of `study`): fly again each run that split after first convergence, '
+                        'and tell what began each outage and whether the formation had formed, in one table')
+    p.add_argument('--kind', help='with --outages: only the runs of this kind, as the study names it (static, drift:2)')
 
 
 def handle(args: argparse.Namespace) -> int:
@@ -34,6 +38,10 @@ def handle(args: argparse.Namespace) -> int:
     from ..study.spec import SpecError, load, runs
     from ..trace import Window, pick, summary, trace
     path = Path(args.source)
+    if args.outages:
+        return outages(args, path)
+    if args.kind is not None:
+        raise UsageError('trace: --kind goes with --outages')
     off: tuple[str, ...] = ()
     if path.is_dir() and (path / RUN_SCENARIO).exists() and not (path / 'spec.yaml').exists():
         if args.run is not None or args.variant is not None:
@@ -76,3 +84,73 @@ def handle(args: argparse.Namespace) -> int:
         traced = trace(flight, window, sys.stdout)
     print('\n'.join(summary(traced, window)), flush=True)
     return 0
+
+
+def outages(args: argparse.Namespace, folder: Path) -> int:
+    """`trace STUDY_FOLDER --outages`: each run of the study that split after first convergence flown again from
+    it to its end (rows from its results, as `study` wrote them), a line each as it is done, then the census."""
+    import math
+    import os
+
+    from uav_agent.core import ablation
+
+    from ..study import engine
+    from ..study.spec import SpecError, load, runs
+    from ..trace import Traced, Window, census, census_lines, pick, trace
+    if args.run is not None or args.map or args.t0 or args.t1 is not None:
+        raise UsageError('trace: --outages flies every run of the study from its first convergence: no RUN, --map, '
+                         '--from or --to')
+    if not (folder.is_dir() and (folder / 'spec.yaml').exists()):
+        raise UsageError(f'trace: --outages reads a study folder (the --out of `study`, with its spec.yaml and '
+                         f'results): {args.source} is not one')
+    rows = engine.finished(folder)
+    if not rows:
+        raise UsageError(f'trace: {args.source} holds no finished run yet')
+    try:
+        grid = runs(load(folder / 'spec.yaml'))
+    except SpecError as exc:
+        raise UsageError(f'trace: {exc}') from None
+    kinds, variants = sorted({r['kind'] for r in rows}), sorted({r['variant'] for r in rows})
+    if args.kind is not None and args.kind not in kinds:
+        raise UsageError(f'trace: --kind: no run of kind {args.kind!r} in {args.source} (it has {", ".join(kinds)})')
+    if args.variant is not None and args.variant not in variants:
+        raise UsageError(f'trace: --variant: no variant {args.variant!r} in {args.source} (it has {", ".join(variants)})')
+
+    def num(v: object) -> float:
+        return float('nan') if v is None else float(v)  # type: ignore[arg-type]
+    chosen = [r for r in rows if (args.kind is None or r['kind'] == args.kind)
+              and (args.variant is None or r['variant'] == args.variant) and r['error'] is None
+              and not math.isnan(num(r['converged']))]
+    chosen.sort(key=lambda r: (r['variant'], r['kind'], r['layout'], r['seed']))
+    split = [r for r in chosen if num(r['connected']) < 1.0]
+    own_process('trace', [pick(grid, f'{r["layout"]}/{r["seed"]}/{r["kind"]}', r['variant']).scenario().vehicle.model
+                          for r in split[:1]])
+    never = Traced(0, [])
+    asked = [r for r in rows if (args.kind is None or r['kind'] == args.kind)
+             and (args.variant is None or r['variant'] == args.variant)]
+    print(f'trace: {len(chosen)} of {len(asked)} runs converged, {len(split)} of them split after it: each flown again '
+          f'from its first convergence', flush=True)
+    seen = [(num(r['converged']), num(r['duration']), None if math.isnan(num(r['formed'])) else num(r['formed']),
+             never) for r in chosen if num(r['connected']) >= 1.0]
+    done = 0
+    try:
+        for r in split:
+            run = pick(grid, f'{r["layout"]}/{r["seed"]}/{r["kind"]}', r['variant'])
+            s = run.scenario()
+            converged, formed = num(r['converged']), num(r['formed'])
+            with ablation.switched_off(run.off), open(os.devnull, 'w') as quiet:  # the census is what it says
+                traced = trace(engine.flight(run, s, watch=True), Window((), converged, s.duration), quiet)
+            seen.append((converged, s.duration, None if math.isnan(formed) else formed, traced))
+            done += 1
+            apart = sum(o.end - o.start for o in traced.outages)
+            print(f'  {r["layout"]}/{r["seed"]}/{r["kind"]} {r["variant"]}: apart {apart:.1f} s of the '
+                  f'{s.duration - converged:.1f} s after first convergence, {len(traced.outages)} outage'
+                  f'{"s" if len(traced.outages) != 1 else ""} ({done}/{len(split)})', flush=True)
+    except KeyboardInterrupt:
+        print(f'trace: interrupted after {done} of {len(split)} runs: the census of those and the runs that never '
+              f'split', flush=True)
+        print('\n'.join(census_lines(census(seen))), flush=True)
+        return 130
+    print('\n'.join(census_lines(census(seen))), flush=True)
+    return 0
+
