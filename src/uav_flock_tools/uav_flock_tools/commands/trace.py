@@ -7,14 +7,15 @@ from pathlib import Path
 
 from .options import UsageError, id_list, non_negative_float, own_process, positive_float
 
-SUMMARY = 'fly a run again (a study\'s row, or a run folder): what split its network, and why a MAP moved'
+SUMMARY = ('fly a run again (a study\'s row, or a run folder): what split its network, and why a MAP moved; or a '
+           'study\'s every split run (--outages)')
 RUN_SCENARIO = 'scenario.yaml'  # what a run folder of `sim` or `up` keeps of the scenario it flew, to fly it again
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('source', metavar='SPEC|RUN_FOLDER',
-                   help='a study spec (studies/*.yaml) or study folder (its spec.yaml), or the run folder of a `sim` '
-                        'or lockstep `up` (its scenario.yaml)')
+                   help='a study spec (studies/*.yaml) or study folder (its spec.yaml; with --outages, the --out of '
+                        '`study`), or the run folder of a `sim` or lockstep `up` (its scenario.yaml)')
     p.add_argument('run', nargs='?',
                    help='of a study: the run, its key (the `key` column) or LAYOUT/SEED/KIND, say 19/0/drift:2')
     p.add_argument('--variant', help='of a study: the variant, when the spec flies the run under several')
