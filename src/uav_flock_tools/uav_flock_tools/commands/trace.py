@@ -87,17 +87,17 @@ def handle(args: argparse.Namespace) -> int:
     return 0
 
 
-def outages(args: argparse.Namespace, folder: Path) -> int:
-    """`trace STUDY_FOLDER --outages`: each run of the study that split after first convergence flown again from
-    it to its end (rows from its results, as `study` wrote them), a line each as it is done, then the census."""
-    import math
-    import os
 
-    from uav_agent.core import ablation
+def _num(v: object) -> float:
+    """A study row's figure, NaN where the run has none (a run that never converged or formed)."""
+    return float('nan') if v is None else float(v)  # type: ignore[arg-type]
 
+
+def _asked(args: argparse.Namespace, folder: Path) -> tuple[list[dict], list]:
+    """`--outages`: the study folder's finished rows that --kind and --variant ask for, and its spec's runs; a user
+    mistake is one line."""
     from ..study import engine
     from ..study.spec import SpecError, load, runs
-    from ..trace import Traced, Window, census, census_lines, pick, trace
     if args.run is not None or args.map or args.t0 or args.t1 is not None:
         raise UsageError('trace: --outages flies every run of the study from its first convergence: no RUN, --map, '
                          '--from or --to')
@@ -116,29 +116,37 @@ def outages(args: argparse.Namespace, folder: Path) -> int:
         raise UsageError(f'trace: --kind: no run of kind {args.kind!r} in {args.source} (it has {", ".join(kinds)})')
     if args.variant is not None and args.variant not in variants:
         raise UsageError(f'trace: --variant: no variant {args.variant!r} in {args.source} (it has {", ".join(variants)})')
-
-    def num(v: object) -> float:
-        return float('nan') if v is None else float(v)  # type: ignore[arg-type]
-    chosen = [r for r in rows if (args.kind is None or r['kind'] == args.kind)
-              and (args.variant is None or r['variant'] == args.variant) and r['error'] is None
-              and not math.isnan(num(r['converged']))]
-    chosen.sort(key=lambda r: (r['variant'], r['kind'], r['layout'], r['seed']))
-    split = [r for r in chosen if num(r['connected']) < 1.0]
-    own_process('trace', [pick(grid, f'{r["layout"]}/{r["seed"]}/{r["kind"]}', r['variant']).scenario().vehicle.model
-                          for r in split[:1]])
-    never = Traced(0, [])
     asked = [r for r in rows if (args.kind is None or r['kind'] == args.kind)
              and (args.variant is None or r['variant'] == args.variant)]
+    return sorted(asked, key=lambda r: (r['variant'], r['kind'], r['layout'], r['seed'])), grid
+
+
+def outages(args: argparse.Namespace, folder: Path) -> int:
+    """`trace STUDY_FOLDER --outages`: each run of the study that split after first convergence flown again from
+    it to its end (rows from its results, as `study` wrote them), a line each as it is done, then the census."""
+    import math
+    import os
+
+    from uav_agent.core import ablation
+
+    from ..study import engine
+    from ..trace import Traced, Window, census, census_lines, pick, trace
+    asked, grid = _asked(args, folder)
+    chosen = [r for r in asked if r['error'] is None and not math.isnan(_num(r['converged']))]
+    split = [r for r in chosen if _num(r['connected']) < 1.0]
+    own_process('trace', [pick(grid, f'{r["layout"]}/{r["seed"]}/{r["kind"]}', r['variant']).scenario().vehicle.model
+                          for r in split[:1]])
     print(f'trace: {len(chosen)} of {len(asked)} runs converged, {len(split)} of them split after it: each flown again '
           f'from its first convergence', flush=True)
-    seen = [(num(r['converged']), num(r['duration']), None if math.isnan(num(r['formed'])) else num(r['formed']),
-             never) for r in chosen if num(r['connected']) >= 1.0]
+    never = Traced(0, [])
+    seen = [(_num(r['converged']), _num(r['duration']), None if math.isnan(_num(r['formed'])) else _num(r['formed']),
+             never) for r in chosen if _num(r['connected']) >= 1.0]
     done = 0
     try:
         for r in split:
             run = pick(grid, f'{r["layout"]}/{r["seed"]}/{r["kind"]}', r['variant'])
             s = run.scenario()
-            converged, formed = num(r['converged']), num(r['formed'])
+            converged, formed = _num(r['converged']), _num(r['formed'])
             with ablation.switched_off(run.off), open(os.devnull, 'w') as quiet:  # the census is what it says
                 traced = trace(engine.flight(run, s, watch=True), Window((), converged, s.duration), quiet)
             seen.append((converged, s.duration, None if math.isnan(formed) else formed, traced))
@@ -154,4 +162,3 @@ def outages(args: argparse.Namespace, folder: Path) -> int:
         return 130
     print('\n'.join(census_lines(census(seen))), flush=True)
     return 0
-
