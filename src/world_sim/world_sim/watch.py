@@ -131,7 +131,7 @@ class Watch:
         return self.pid_table is not None and (self.pid_table.parent / CRASH_DIR / str(i)).exists()
 
     def check_liveness(self) -> None:
-        """Drop the MAPs we wait for, and their neighbours, whose process is gone; a slow but living MAP is waited for."""
+        """Drop the MAPs we wait for, or their neighbours, whose process is gone; a slow living MAP is waited for."""
         s = self.sensed
         if s is None:
             return
