@@ -143,7 +143,10 @@ class Watch:
         # (it names the MAP in the run's crash folder first). One on another host (no pid here): DDS no longer
         # matches its reader, once its participant left or its lease expired (link down).
         table = self.pids()
-        gone = [i for i in watched(s, waiting, self.world.alive)
+        # Once the step has stalled, their neighbours too (watched); before that only they: a MAP on another host
+        # has only the graph to say it left, which is asked about no more MAPs than a stall needs.
+        stalled = self.step_resends > 0 or time.monotonic() - self.step_started > RESEND_AFTER_S
+        gone = [i for i in (watched(s, waiting, self.world.alive) if stalled else waiting)
                 if (i in table and (not process_alive(table[i]) or self.crashed(i)))
                 or (i not in table and self.sensing_pubs[i].get_subscription_count() == 0)]
         if gone:
