@@ -126,6 +126,11 @@ class Traced(NamedTuple):
     splits: int
     outages: list[Outage]
 
+    @property
+    def apart(self) -> float:
+        """Seconds the network was in more than one piece within the window."""
+        return sum(o.end - o.start for o in self.outages)
+
 
 ALREADY = 'in pieces when the window opened'
 
@@ -231,7 +236,7 @@ def summary(traced: Traced, window: Window) -> list[str]:
     head = f'trace: {splits} split{"s" if splits != 1 else ""} from {window.t0:g} s to {window.t1:g} s'
     if not outages:
         return [head + '; one network throughout' if splits == 0 else head]
-    total, span = sum(o.end - o.start for o in outages), window.t1 - window.t0
+    total, span = traced.apart, window.t1 - window.t0
     share = f' ({100.0 * total / span:.1f} %)' if span > 0 else ''
     lines = [f'{head}; apart {total:.1f} s of the {span:g} s{share}, in {len(outages)} outage'
              f'{"s" if len(outages) != 1 else ""}:']

@@ -2,8 +2,10 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
+from typing import Optional
 
 from .options import UsageError, id_list, non_negative_float, own_process, positive_float
 
@@ -87,10 +89,15 @@ def handle(args: argparse.Namespace) -> int:
     return 0
 
 
-
 def _num(v: object) -> float:
     """A study row's figure, NaN where the run has none (a run that never converged or formed)."""
     return float('nan') if v is None else float(v)  # type: ignore[arg-type]
+
+
+def _formed(row: dict) -> Optional[float]:
+    """When a study row's formation first came to rest (its `formed`), or None if it never did."""
+    t = _num(row['formed'])
+    return None if math.isnan(t) else t
 
 
 def _asked(args: argparse.Namespace, folder: Path) -> tuple[list[dict], list]:
@@ -115,7 +122,8 @@ def _asked(args: argparse.Namespace, folder: Path) -> tuple[list[dict], list]:
     if args.kind is not None and args.kind not in kinds:
         raise UsageError(f'trace: --kind: no run of kind {args.kind!r} in {args.source} (it has {", ".join(kinds)})')
     if args.variant is not None and args.variant not in variants:
-        raise UsageError(f'trace: --variant: no variant {args.variant!r} in {args.source} (it has {", ".join(variants)})')
+        raise UsageError(f'trace: --variant: no variant {args.variant!r} in {args.source} '
+                         f'(it has {", ".join(variants)})')
     asked = [r for r in rows if (args.kind is None or r['kind'] == args.kind)
              and (args.variant is None or r['variant'] == args.variant)]
     return sorted(asked, key=lambda r: (r['variant'], r['kind'], r['layout'], r['seed'])), grid
@@ -124,7 +132,6 @@ def _asked(args: argparse.Namespace, folder: Path) -> tuple[list[dict], list]:
 def outages(args: argparse.Namespace, folder: Path) -> int:
     """`trace STUDY_FOLDER --outages`: each run of the study that split after first convergence flown again from
     it to its end (rows from its results, as `study` wrote them), a line each as it is done, then the census."""
-    import math
     import os
 
     from uav_agent.core import ablation
@@ -133,26 +140,24 @@ def outages(args: argparse.Namespace, folder: Path) -> int:
     from ..trace import Traced, Window, census, census_lines, pick, trace
     asked, grid = _asked(args, folder)
     chosen = [r for r in asked if r['error'] is None and not math.isnan(_num(r['converged']))]
-    split = [r for r in chosen if _num(r['connected']) < 1.0]
-    own_process('trace', [pick(grid, f'{r["layout"]}/{r["seed"]}/{r["kind"]}', r['variant']).scenario().vehicle.model
-                          for r in split[:1]])
+    split = [(r, pick(grid, f'{r["layout"]}/{r["seed"]}/{r["kind"]}', r['variant']))
+             for r in chosen if _num(r['connected']) < 1.0]
+    own_process('trace', [run.scenario().vehicle.model for _, run in split[:1]])
     print(f'trace: {len(chosen)} of {len(asked)} runs converged, {len(split)} of them split after it: each flown again '
           f'from its first convergence', flush=True)
     never = Traced(0, [])
-    seen = [(_num(r['converged']), _num(r['duration']), None if math.isnan(_num(r['formed'])) else _num(r['formed']),
-             never) for r in chosen if _num(r['connected']) >= 1.0]
+    seen = [(_num(r['converged']), _num(r['duration']), _formed(r), never)
+            for r in chosen if _num(r['connected']) >= 1.0]
     done = 0
     try:
-        for r in split:
-            run = pick(grid, f'{r["layout"]}/{r["seed"]}/{r["kind"]}', r['variant'])
+        for r, run in split:
             s = run.scenario()
-            converged, formed = _num(r['converged']), _num(r['formed'])
+            converged = _num(r['converged'])
             with ablation.switched_off(run.off), open(os.devnull, 'w') as quiet:  # the census is what it says
                 traced = trace(engine.flight(run, s, watch=True), Window((), converged, s.duration), quiet)
-            seen.append((converged, s.duration, None if math.isnan(formed) else formed, traced))
+            seen.append((converged, s.duration, _formed(r), traced))
             done += 1
-            apart = sum(o.end - o.start for o in traced.outages)
-            print(f'  {r["layout"]}/{r["seed"]}/{r["kind"]} {r["variant"]}: apart {apart:.1f} s of the '
+            print(f'  {r["layout"]}/{r["seed"]}/{r["kind"]} {r["variant"]}: apart {traced.apart:.1f} s of the '
                   f'{s.duration - converged:.1f} s after first convergence, {len(traced.outages)} outage'
                   f'{"s" if len(traced.outages) != 1 else ""} ({done}/{len(split)})', flush=True)
     except KeyboardInterrupt:
