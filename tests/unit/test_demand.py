@@ -165,6 +165,21 @@ def test_a_map_in_transit_passes_others_at_half_d_where_unrelated_settled_maps_k
     assert u(server_of_1, 0.3 * P.d, passing)[0] < alone(server_of_1)[0] - 1.0, 'closer than d/2 it repels'
 
 
+def test_under_the_safety_filter_a_map_in_transit_is_kept_d_away_as_a_settled_one_is() -> None:
+    """Passing at d/2 let a MAP in transit close on unrelated ones until the filter's separation rows turned it
+    aside late and hard, and an arrival recovered later under the filter (docs/vehicle.md, "The filter without
+    rule passing"): under the filter eq. 10's repulsion keeps every unrelated pair d apart; under the rules, as
+    before, d/2."""
+    from uav_agent.core.policies import ALLOCATIONS
+    from uav_agent.core.state import APART, PASSING
+    rules = replace(P, v_max=15.0, a_max=4.0, tau=0.3, keep=6.1)
+    filtered = replace(rules, safety='filter')
+    demand = ALLOCATIONS['demand']
+    passing, server = Told(M0, 0, None, Gossip(transit=True)), Told(M2, 1, None)
+    assert demand.link(passing, server, rules) == PASSING and demand.link(server, passing, rules) == PASSING
+    assert demand.link(passing, server, filtered) == APART and demand.link(server, passing, filtered) == APART
+
+
 def test_a_relay_that_knows_its_rank_and_both_anchors_flies_to_its_share_of_the_span() -> None:
     """Rule 'ends': each relay passes on its count of links to either anchor and where that anchor is, one hop more
     than the member it hears on that side says; knowing both, a relay aims at its even share of the span at once.

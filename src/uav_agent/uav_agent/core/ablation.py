@@ -19,7 +19,8 @@ RULES = {
              'lagged one the swapped edge stands instead (rule standing), unless rule nearest is off (demand.pivot)',
     'tree': 'along the tree: a MAP in transit flies cluster to cluster (demand.en_route)',
     'chain': 'leaving by the chain: a MAP in transit leaves its disc along the relay chain (demand.leg_aim)',
-    'passing': 'passing at d/2: unrelated MAPs in transit repel within d/2 only (demand.Demand.link)',
+    'passing': 'passing at d/2: unrelated MAPs in transit repel within d/2 only, but not under the safety filter '
+               '(demand.Demand.link)',
     'straight': 'released relays of a standing chain fly straight along it, on the paper\'s vehicle: on a lagged one they '
                 'fly along the tree, as other MAPs in transit do (demand.demand_switch)',
     'vacate': 'vacated roles: a role heard of by nobody for VACANT_STEPS is declared lost (vacancy.vacate)',

@@ -230,11 +230,13 @@ class Demand:
     def link(self, a: Told, b: Told, fp: FlockParams) -> int:
         """Only related MAPs attract (control.flocking_terms), and on a lagged vehicle not a relay and a server
         (rule 'loose'), and fellow relays along their edge only (rule 'inline'); unrelated ones of which one is
-        on its way to a new role pass each other at d/2
-        (docs/notes/dynamics.md, "Passing at d/2")."""
+        on its way to a new role pass each other at d/2 (docs/notes/dynamics.md, "Passing at d/2"), but not under the
+        safety filter, whose separation rows turn such a pair aside late and hard: eq. 10's repulsion at d keeps them
+        off those rows (docs/vehicle.md, "The filter without rule passing")."""
         if related(a, b):
             return APART if loose(a, b, fp) else INLINE if inline(a, b, fp) else RELATED
-        return PASSING if (gossip_of(a).transit or gossip_of(b).transit) and on('passing') else APART
+        passing = on('passing') and fp.safety != 'filter'
+        return PASSING if passing and (gossip_of(a).transit or gossip_of(b).transit) else APART
 
     def needed(self, own: Memory, other: Told) -> int:
         """A chain's links, both ends settled at their roles, once both the chain's clusters are served (in the own
