@@ -278,12 +278,12 @@ def test_every_envelope_rule_acts_on_a_multirotor_run() -> None:
             doc['users'] = {**doc['users'], 'survey': 'online', 'clusters': [
                 *doc['users']['clusters'], {'center': [150.0, 250.0], 'size': 300, 'spread': 14.0, 'start': 3.0}]}
             s = replace(parse(doc), duration=8.0)
-        if rule == 'release':  # a link holding a MAP back for 10 s, not on the paper's layout: the studies' arrival
-            from pathlib import Path  # on random layout 6, seed 0 (studies/vehicle-links.yaml), from 55.8 s
+        if rule == 'release':  # a link holding a MAP back for 10 s, not on the paper's layout: the studies' drift
+            from pathlib import Path  # on random layout 20, seed 0 (studies/vehicle-links.yaml), at 83.8 s
             from uav_flock_tools.study.spec import load as load_spec, runs
             spec = load_spec(Path(__file__).resolve().parents[2] / 'studies' / 'vehicle-links.yaml')
-            run = next(r for r in runs(spec) if (r.layout, r.seed, r.kind) == (6, 0, 'arrival'))
-            s, fork = replace(run.scenario(), duration=57.0), 54.0  # the run as one until then
+            run = next(r for r in runs(spec) if (r.layout, r.seed, r.kind) == (20, 0, 'drift:2'))
+            s, fork = replace(run.scenario(), duration=85.0), 80.0  # the run as one until then
         if rule in FILTER_RULES:  # a rule of the safety filter acts where the MAPs fly it
             s = replace(s, flock=replace(s.flock, safety='filter'))
         assert first_difference(s, rule, fork) is not None, f'{rule}: switched off, the run flies the same'
