@@ -178,6 +178,7 @@ def test_under_the_safety_filter_a_map_in_transit_is_kept_d_away_as_a_settled_on
     passing, server = Told(M0, 0, None, Gossip(transit=True)), Told(M2, 1, None)
     assert demand.link(passing, server, rules) == PASSING and demand.link(server, passing, rules) == PASSING
     assert demand.link(passing, server, filtered) == APART and demand.link(server, passing, filtered) == APART
+    assert demand.link(passing, server, replace(P, safety='filter')) == PASSING, 'no filter flies the paper\'s vehicle'
 
 
 def test_a_relay_that_knows_its_rank_and_both_anchors_flies_to_its_share_of_the_span() -> None:

@@ -235,7 +235,7 @@ class Demand:
         off those rows (docs/vehicle.md, "The filter without rule passing")."""
         if related(a, b):
             return APART if loose(a, b, fp) else INLINE if inline(a, b, fp) else RELATED
-        passing = on('passing') and fp.safety != 'filter'
+        passing = on('passing') and not (envelope.limited(fp) and fp.safety == 'filter')  # the filter flies it
         return PASSING if passing and (gossip_of(a).transit or gossip_of(b).transit) else APART
 
     def needed(self, own: Memory, other: Told) -> int:
